@@ -1,0 +1,37 @@
+# towerpipe — the two commands of the README:
+#   make demo    set everything up (idempotent) and run the demo zone
+#   make test    set everything up (idempotent) and run the test suite
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+CORES ?= 2
+
+.PHONY: setup pdal demo test lint bench clean-demo
+
+setup: pdal $(VENV)/.installed
+
+pdal:
+	@bash scripts/install_pdal.sh
+
+$(VENV)/.installed: requirements.txt pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -r requirements.txt
+	$(BIN)/python -m pip install -q --no-deps -e .
+	touch $@
+
+demo: setup
+	$(BIN)/snakemake --cores $(CORES) results/demo/
+
+test: setup
+	$(BIN)/python -m pytest -q
+
+lint: setup
+	$(BIN)/snakemake --lint
+
+bench: setup
+	$(BIN)/python -m towerpipe.bench preprocess
+
+clean-demo:
+	rm -rf results/demo work/demo data/demo

@@ -1,0 +1,161 @@
+"""Benchmarks: throughput of the workflow against a plain ``pdal translate``.
+
+Speed bars are ratios to a baseline measured in the same run, never absolute
+seconds (the machines are shared and noisy)::
+
+    python -m towerpipe.bench preprocess            # 1 km², 10 and 20 pts/m²
+    python -m towerpipe.bench preprocess --block my.laz --repeat 3
+
+For each block it times ``pdal translate in.laz out.laz`` (LAZ → LAZ, one
+process) and the Snakemake preprocessing of the same block (``--cores 2``,
+fresh working directory), and prints medians, points/s, the ratio, and the
+peak RSS of every job (from Snakemake's ``benchmark:`` files).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import yaml
+
+from towerpipe.lasio import read_header
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def time_cmd(cmd: list[str], *, cwd: Path | None = None, env: dict | None = None) -> float:
+    """Wall time of a command; raises ``RuntimeError`` with its stderr tail on failure."""
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True)
+    dt = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {proc.stderr[-2000:]}")
+    return dt
+
+
+def make_block(out_dir: Path, *, size: float, density: float, seed: int) -> Path:
+    """One synthetic block (``towerpipe synth``) of ``size`` m at ``density`` pts/m²."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    time_cmd([sys.executable, "-m", "towerpipe.cli", "synth", "--seed", str(seed), "--blocks", "1",
+              "--size", str(size), "--density", str(density), "--out", str(out_dir)])
+    blocks = sorted(out_dir.glob("*.laz"))
+    if len(blocks) != 1:
+        raise RuntimeError(f"expected one block in {out_dir}, found {len(blocks)}")
+    return blocks[0]
+
+
+def pdal_translate(block: Path, tmp: Path) -> float:
+    out = tmp / "translate_out.laz"
+    dt = time_cmd(["pdal", "translate", str(block), str(out)])
+    out.unlink(missing_ok=True)
+    return dt
+
+
+def read_benchmarks(work: Path) -> list[dict]:
+    """Rows of every Snakemake benchmark TSV under ``work`` (rule, job, s, max_rss)."""
+    rows = []
+    for tsv in sorted(work.rglob("benchmarks/**/*.tsv")):
+        with open(tsv) as fh:
+            for r in csv.DictReader(fh, delimiter="\t"):
+                rel = tsv.relative_to(work).parts
+                rows.append({"rule": rel[2] if len(rel) > 3 else rel[-1].removesuffix(".tsv"),
+                             "job": "/".join(rel[3:]).removesuffix(".tsv"),
+                             "s": float(r["s"]), "max_rss_mb": float(r["max_rss"])})
+    return rows
+
+
+def run_workflow(block: Path, tmp: Path, *, zone: str, target: str, cores: int = 2,
+                 extra_config: dict | None = None) -> tuple[float, list[dict]]:
+    """Run Snakemake on a one-block zone in a fresh working directory."""
+    work = tmp / f"work_{zone}"
+    shutil.rmtree(work, ignore_errors=True)
+    indir = tmp / f"in_{zone}"
+    shutil.rmtree(indir, ignore_errors=True)
+    indir.mkdir(parents=True)
+    os.link(block, indir / block.name) if block.stat().st_dev == indir.stat().st_dev else shutil.copy(block, indir)
+    cfg = {"zones": {zone: {"input": str(indir)}}, "workdir": str(work)}
+    cfg.update(extra_config or {})
+    cfg_file = tmp / f"{zone}.yaml"
+    cfg_file.write_text(yaml.safe_dump(cfg))
+    name = block.stem
+    tgt = target.format(work=work, zone=zone, block=name)
+    dt = time_cmd([sys.executable, "-m", "snakemake", "--cores", str(cores), "--quiet", "all",
+                   f"--configfile={cfg_file}", "--", tgt], cwd=REPO)
+    return dt, read_benchmarks(work)
+
+
+def bench_preprocess(args: argparse.Namespace) -> int:
+    tmp = Path(args.workdir or tempfile.mkdtemp(prefix="towerpipe-bench-"))
+    tmp.mkdir(parents=True, exist_ok=True)
+    blocks: list[tuple[str, Path]] = []
+    if args.block:
+        blocks = [(Path(b).stem, Path(b)) for b in args.block]
+    else:
+        for scale in args.scales:
+            blocks.append((f"{scale:g}x", make_block(tmp / f"block_{scale:g}x", size=args.size,
+                                                      density=args.density * scale, seed=args.seed)))
+    results = []
+    for label, block in blocks:
+        n = read_header(block).point_count
+        tr, wf, rss = [], [], []
+        for r in range(args.repeat):
+            tr.append(pdal_translate(block, tmp))
+            dt, rows = run_workflow(block, tmp, zone=f"bench{r}", target="{work}/{zone}/prep/{block}.json")
+            wf.append(dt)
+            rss.append(max(row["max_rss_mb"] for row in rows))
+        res = {"label": label, "points": n, "translate_s": statistics.median(tr),
+               "preprocess_s": statistics.median(wf), "peak_rss_mb_per_job": max(rss),
+               "translate_runs": tr, "preprocess_runs": wf}
+        res["ratio"] = res["preprocess_s"] / res["translate_s"]
+        res["mpts_per_s"] = n / res["preprocess_s"] / 1e6
+        results.append(res)
+        print(f"{label:>6}: {n / 1e6:6.2f} Mpts  pdal translate {res['translate_s']:6.1f} s  "
+              f"preprocess (--cores 2) {res['preprocess_s']:6.1f} s  ratio {res['ratio']:.2f}  "
+              f"{res['mpts_per_s']:.2f} Mpts/s  peak RSS/job {res['peak_rss_mb_per_job']:.0f} MiB", flush=True)
+    if len(results) >= 2:
+        a, b = results[0], results[-1]
+        print(f"scaling: {b['points'] / a['points']:.2f}x points -> {b['preprocess_s'] / a['preprocess_s']:.2f}x time "
+              f"(translate {b['translate_s'] / a['translate_s']:.2f}x)")
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1))
+    if not args.keep and not args.workdir:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("bench", help="benchmarks against a plain `pdal translate` (see towerpipe.bench)")
+    bsub = p.add_subparsers(dest="bench", metavar="BENCH", required=True)
+    pp = bsub.add_parser("preprocess", help="tile + ground + HAG + noise through Snakemake vs pdal translate")
+    pp.add_argument("--block", nargs="*", help="existing blocks to use instead of generated ones")
+    pp.add_argument("--size", type=float, default=1000.0, help="generated block side (m)")
+    pp.add_argument("--density", type=float, default=10.0, help="generated density at 1x (pts/m²)")
+    pp.add_argument("--scales", type=float, nargs="+", default=[1.0, 2.0], help="point multipliers")
+    pp.add_argument("--seed", type=int, default=1)
+    pp.add_argument("--repeat", type=int, default=1, help="runs per block; medians are reported")
+    pp.add_argument("--workdir", help="keep everything here (default: a temporary directory)")
+    pp.add_argument("--keep", action="store_true", help="keep the temporary directory")
+    pp.add_argument("--json", help="also write the figures to this JSON file")
+    pp.set_defaults(func=bench_preprocess)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m towerpipe.bench")
+    sub = parser.add_subparsers(dest="command", required=True)
+    register(sub)
+    args = parser.parse_args(["bench", *(argv if argv is not None else sys.argv[1:])])
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

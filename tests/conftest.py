@@ -1,0 +1,37 @@
+"""Shared test fixtures and the paths of the real data sets (read from ../shared, never copied)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = (REPO.parent / "shared" / "data" / "real").resolve()
+BACKGROUNDS = SHARED / "backgrounds"
+TOWERS = SHARED / "towers"
+
+#: Real IGN LiDAR HD tiles (Lambert-93), ground classified, no pylons.
+RGBNIR_BLOCK = BACKGROUNDS / "ign_rgbnir_block.laz"  # 697,721 pts, pf 8, RGB+NIR, extra bytes
+RGB_SUBSET = BACKGROUNDS / "ign_rgb_subset.laz"  # 70,840 pts, pf 8, NIR all zero
+RGBNIR_SMALL = BACKGROUNDS / "ign_rgbnir_small.laz"  # 37,805 pts, pf 8
+HIGH_NOISE = BACKGROUNDS / "ign_high_noise.laz"  # 50,233 pts, pf 6, ~27 points up to ~1,360 m up
+BRIDGE = BACKGROUNDS / "ign_bridge.laz"  # 249,582 pts, pf 6
+UAV_TOWERS = TOWERS / "uav_towers"
+TS40K = TOWERS / "ts40k"
+UTILITY_STRUCTURES = TOWERS / "utility_structures"
+
+
+def need(path: Path) -> Path:
+    """Skip the test when a file of ../shared/data/real is absent."""
+    if not path.exists():
+        pytest.skip(f"{path} is absent (the real data lives in ../shared/data/real beside the repo)")
+    return path
+
+
+@pytest.fixture
+def pdal_cli():
+    if shutil.which("pdal") is None:
+        pytest.skip("the pdal CLI is not installed (bash scripts/install_pdal.sh)")
+    return "pdal"

@@ -1,0 +1,149 @@
+"""Preprocessing on real IGN tiles: ground, DTM, HAG, noise, tiles and neighbour buffers."""
+
+from __future__ import annotations
+
+import json
+
+import laspy
+import numpy as np
+import pytest
+import rasterio
+
+from conftest import HIGH_NOISE, RGB_SUBSET, RGBNIR_BLOCK, need
+from towerpipe import tiling
+from towerpipe.preprocess import PreprocessConfig, preprocess_tile, split_block, summarize_block
+from towerpipe.tilefile import load_tile
+
+pytestmark = pytest.mark.usefixtures("pdal_cli")
+
+
+def run_block(tmp_path, path, *, block="b", tile_size=500.0, extra=None):
+    """split + every tile of one block; returns (split meta, {tile: Tile})."""
+    cfg = PreprocessConfig(tile_size=tile_size, **(extra or {}))
+    cache = tmp_path / "cache" / block
+    meta = split_block(path, cache, block=block, zone="z", config=cfg)
+    tiles = {}
+    for t in tiling.tile_ids(tuple(meta["header_bounds"]), tile_size):
+        out = tmp_path / "tiles" / f"{t}.npz"
+        preprocess_tile("z", block, t, {block: cache}, out, dtm_path=tmp_path / "dtm" / f"{t}.tif", config=cfg)
+        tiles[t] = load_tile(out)
+    return meta, tiles
+
+
+@pytest.fixture(scope="module")
+def rgbnir(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("rgbnir")
+    return tmp, *run_block(tmp, need(RGBNIR_BLOCK), tile_size=150.0)
+
+
+def core_points(tiles):
+    return {k: np.concatenate([t[k][t["core"]] for t in tiles.values()]) for k in ("point_index", "hag",
+                                                                                   "classification",
+                                                                                   "model_input", "z")}
+
+
+def test_every_point_in_exactly_one_tile_core(rgbnir):
+    _, meta, tiles = rgbnir
+    assert len(tiles) > 1, "the test needs several tiles"
+    idx = np.sort(core_points(tiles)["point_index"])
+    np.testing.assert_array_equal(idx, np.arange(meta["points"]))
+
+
+def test_ground_hag_near_zero_and_roofs_plausible(rgbnir):
+    _, _, tiles = rgbnir
+    c = core_points(tiles)
+    ground = c["classification"] == 2
+    assert np.median(np.abs(c["hag"][ground])) < 0.05
+    # vegetation classes ordered by height band
+    med = [np.median(c["hag"][c["classification"] == k]) for k in (3, 4, 5)]
+    assert med[0] < med[1] < med[2]
+
+
+def test_building_roofs_get_plausible_hag(tmp_path):
+    _, tiles = run_block(tmp_path, need(RGB_SUBSET), tile_size=50.0)
+    c = core_points(tiles)
+    roofs = c["hag"][c["classification"] == 6]
+    assert roofs.size > 5000
+    # IGN town houses: roofs a few metres up, none underground or skyscraper-high
+    assert 3.0 < np.median(roofs) < 15.0
+    assert np.percentile(roofs, 5) > 1.0 and np.percentile(roofs, 99) < 30.0
+    ground = c["hag"][c["classification"] == 2]
+    assert np.median(np.abs(ground)) < 0.05
+
+
+def test_model_input_excludes_ground_and_keeps_vegetation(rgbnir):
+    _, _, tiles = rgbnir
+    c = core_points(tiles)
+    assert not c["model_input"][c["classification"] == 2].any()
+    assert c["model_input"][c["classification"] == 5].mean() > 0.99
+
+
+def test_dtm_holes_filled(rgbnir):
+    tmp, _, tiles = rgbnir
+    had_holes = False
+    for t, tile in tiles.items():
+        if len(tile) == 0:
+            continue
+        assert np.isfinite(tile["hag"]).all()
+        with rasterio.open(tmp / "dtm" / f"{t}.tif") as ds:
+            dtm = ds.read(1, masked=True)
+            assert not np.ma.is_masked(dtm) or dtm.mask.sum() == 0, f"tile {t}: DTM has nodata cells left"
+            assert ds.crs is not None
+        had_holes |= tile.meta["dtm"]["empty_cells"] > 0
+    assert had_holes, "the IGN tile has buildings, so its raw DTM must have had holes to fill"
+
+
+def test_high_noise_points_out_of_model_input(tmp_path):
+    meta, tiles = run_block(tmp_path, need(HIGH_NOISE))
+    c = core_points(tiles)
+    high = c["hag"] > 100.0
+    # the file holds ~27 noise points up to ~1,360 m above the terrain
+    assert 20 <= high.sum() <= 40
+    assert c["hag"].max() > 1000.0
+    assert not c["model_input"][high].any()
+    assert c["hag"][c["model_input"]].max() <= 100.0
+    summary = summarize_block(tmp_path / "cache" / "b", [str(tmp_path / "tiles" / f"{t}.npz") for t in tiles],
+                              tmp_path / "summary.json")
+    assert summary["counts"]["noise_hag_core"] >= 20
+    assert json.loads((tmp_path / "summary.json").read_text())["points"] == meta["points"]
+
+
+def split_file(src, out_dir, x_cut):
+    """Cut a real file in two blocks at x = x_cut (every attribute and VLR kept)."""
+    las = laspy.read(src)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name, mask in (("west", las.x < x_cut), ("east", las.x >= x_cut)):
+        part = laspy.LasData(las.header)
+        part.points = las.points[mask]
+        part.write(out_dir / f"{name}.laz")
+        paths.append(out_dir / f"{name}.laz")
+    return paths
+
+
+def test_neighbour_block_buffer(tmp_path):
+    src = need(RGBNIR_BLOCK)
+    hdr = laspy.open(src).header
+    size = 25.0  # tile edges every 25 m: the cut below is a tile edge
+    x_cut = float(np.floor((hdr.mins[0] + hdr.maxs[0]) / 2 / size) * size)
+    west, east = split_file(src, tmp_path / "in", x_cut)
+    cfg = PreprocessConfig(tile_size=size, buffer=40.0)
+    caches = {}
+    for p in (west, east):
+        caches[p.stem] = tmp_path / "cache" / p.stem
+        split_block(p, caches[p.stem], block=p.stem, zone="z", config=cfg)
+    y_mid = (hdr.mins[1] + hdr.maxs[1]) / 2
+    tid = f"{int(x_cut // size) - 1}_{int(y_mid // size)}"  # the west tile touching the cut
+    preprocess_tile("z", "west", tid, caches, tmp_path / "t.npz", config=cfg)
+    t = load_tile(tmp_path / "t.npz")
+    from_east = t["block_id"] == t.meta["blocks"].index("east")
+    assert from_east.any(), "buffer points must come from the neighbouring block"
+    assert not t["core"][from_east].any(), "a neighbour's points are never in this tile's core"
+    xe = t["x"][from_east]
+    assert xe.min() >= x_cut and xe.max() <= x_cut + 40.0 + 1e-6 and xe.max() > x_cut + 35.0
+    # the buffer's ground gets HAG ~0 too: the DTM spans the cut with the neighbour's ground
+    ground = t["classification"] == 2
+    assert np.median(np.abs(t["hag"][ground & from_east])) < 0.05
+    w = laspy.read(west)
+    expected = tiling.core_mask(np.asarray(w.x), np.asarray(w.y), tid, size).sum()
+    assert t["core"].sum() == expected > 0

@@ -1,0 +1,198 @@
+"""Tests of towerpipe.qa: block QA pages and the zone index."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+import rasterio
+from affine import Affine
+
+from towerpipe.qa import block_report, load_classified, read_benchmark, zone_index
+from towerpipe.towers import extract_towers
+
+X0, Y0 = 400_000.0, 4_600_000.0
+SIZE = 200.0
+BOUNDS = (X0, Y0, X0 + SIZE, Y0 + SIZE)
+MODEL = {"name": "pointnet_l", "version": "1.2.0", "feature_set": "full", "sha256": "cd" * 32}
+
+
+def ground_z(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return 100.0 + 0.05 * (x - X0) + 3.0 * np.sin((y - Y0) / 30.0)
+
+
+def tower(cx: float, cy: float, height: float = 30.0, step: float = 0.4) -> np.ndarray:
+    t = np.arange(0.0, height, step)
+    half = 3.0 - 2.0 * t / height
+    legs = [np.column_stack([cx + sx * half, cy + sy * half, t]) for sx, sy in ((-1, -1), (-1, 1), (1, -1), (1, 1))]
+    a = np.arange(-6, 6.01, step)
+    legs.append(np.column_stack([cx + a, np.full_like(a, cy), np.full_like(a, 0.8 * height)]))
+    xyz = np.concatenate(legs)
+    xyz[:, 2] += ground_z(xyz[:, 0], xyz[:, 1])
+    return xyz
+
+
+def make_block(seed: int = 0, towers_at=((X0 + 60, Y0 + 60), (X0 + 150, Y0 + 120)), density: float = 4.0):
+    """Classified points of a small block: ground, trees, towers; a missed and a false tower part."""
+    rng = np.random.default_rng(seed)
+    n = int(density * SIZE * SIZE)
+    gx, gy = rng.uniform(X0, X0 + SIZE, n), rng.uniform(Y0, Y0 + SIZE, n)
+    ground = np.column_stack([gx, gy, ground_z(gx, gy)])
+    vx, vy = rng.uniform(X0, X0 + SIZE, n // 4), rng.uniform(Y0, Y0 + SIZE, n // 4)
+    veg = np.column_stack([vx, vy, ground_z(vx, vy) + rng.uniform(0.5, 12, n // 4)])
+    tws = [tower(cx, cy) for cx, cy in towers_at]
+    xyz = np.concatenate([ground, veg, *tws])
+    cls = np.concatenate([np.full(n, 2), np.full(n // 4, 4), *[np.full(len(t), 15) for t in tws]]).astype(np.uint8)
+    hag = (xyz[:, 2] - ground_z(xyz[:, 0], xyz[:, 1])).astype(np.float32)
+    prob = np.where(cls == 15, 0.9, 0.02).astype(np.float32)
+    return {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "classification": cls, "prob": prob, "hag": hag}
+
+
+def towers_of(pts, block="b1"):
+    sel = pts["prob"] >= 0.5
+    n = int(sel.sum())
+    arrays = {"block_id": np.zeros(n, np.int32), "point_index": np.flatnonzero(sel).astype(np.int64),
+              **{k: pts[k][sel] for k in ("x", "y", "z", "hag", "prob")}}
+    return extract_towers([(arrays, {"blocks": [block], "crs_wkt": "EPSG:25831", "model": MODEL})], block, BOUNDS,
+                          zone="z1")
+
+
+def metas(ground_source="class2", passed=3):
+    tiles = [{"core_bounds": [X0, Y0, X0 + SIZE, Y0 + SIZE], "ground_source": ground_source,
+              "counts": {"core": 200_000, "ground": 160_000, "noise": 12, "model_input": 40_000},
+              "timings": {"ground": 1.5, "hag": 0.7}}]
+    preds = [{"windows_total": 25, "windows_passed_gate": passed, "windows_segmented": passed,
+              "points_model_input_core": 40_000, "model": MODEL, "timings": {"classify": 0.4, "segment": 1.1},
+              "peak_rss_mb": 812.0}]
+    return tiles, preds
+
+
+def test_block_report_page_and_json(tmp_path):
+    pts = make_block()
+    truth = pts["classification"].copy()
+    # the model missed the legs of the second tower below 10 m: classified labels differ from truth
+    cls = pts["classification"].copy()
+    second = (truth == 15) & (pts["x"] > X0 + 100) & (pts["hag"] < 10)
+    cls[second] = 1
+    pts["classification"] = cls
+    gdf = towers_of(pts)
+    bench = tmp_path / "infer.tsv"
+    bench.write_text("s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
+                     "12.5\t0:00:12\t1534.2\t2000\t1400\t1450\t10\t5\t90\t11.0\n")
+    tiles, preds = metas()
+    doc = block_report(tmp_path / "b1.html", tmp_path / "b1.json", block_name="b1", zone="z1",
+                       block_bounds=BOUNDS, stats={"points_written": len(cls)}, tile_metas=tiles,
+                       pred_metas=preds, towers=gdf, classified=pts, truth=truth,
+                       timings={"infer_tile": str(bench), "merge_block": 3.25}, warnings=["tile t3: 2 holes filled"])
+    page = (tmp_path / "b1.html").read_text()
+    on_disk = json.loads((tmp_path / "b1.json").read_text())
+    assert on_disk == json.loads(json.dumps(doc))
+    # self-contained: images embedded, no external references
+    assert page.count("data:image/png;base64,") >= 3
+    assert not re.search(r"""(src|href)=["'](https?:|//|file:)""", page)
+    assert "<link" not in page and "<script" not in page
+    # numbers
+    assert doc["n_towers"] == 2 and doc["points"] == len(cls)
+    assert doc["windows_total"] == 25 and doc["windows_passed_gate"] == 3
+    assert doc["ground_ratio"] == pytest.approx(np.mean(cls == 2))
+    assert 3.0 < doc["density"]["density_median"] < 7.0
+    acc = doc["accuracy"]
+    assert acc["towers_true"] == 2 and acc["recall"] == 1.0 and acc["precision"] == 1.0
+    expected_iou = np.sum((cls == 15) & (truth == 15)) / np.sum((cls == 15) | (truth == 15))
+    assert acc["point_iou"] == pytest.approx(expected_iou) and acc["point_iou"] < 1.0
+    infer = next(t for t in doc["timings"] if t["stage"] == "infer_tile")
+    assert infer["seconds"] == 12.5 and infer["max_rss_mb"] == pytest.approx(1534.2)
+    assert {"code": "warnings", "reason": "1 warning(s) during processing"} in doc["flags"]
+    assert doc["status"] == "look"
+    assert doc["summary"].startswith("2 towers found")
+    for text in ("T_z1_400060_4600060", "tile t3: 2 holes filled", "Accuracy against", "peak memory (MB)"):
+        assert text in page
+
+
+def test_block_flags(tmp_path):
+    pts = make_block(towers_at=((X0 + 2.0, Y0 + 100),), density=1.0)
+    pts["prob"][pts["classification"] == 15] = 0.55
+    gdf = towers_of(pts)
+    assert len(gdf) == 1
+    tiles, preds = metas(ground_source="smrf", passed=20)
+    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", block_name="b", block_bounds=BOUNDS,
+                       tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts)
+    codes = {f["code"] for f in doc["flags"]}
+    assert {"ground_classified", "low_density", "many_windows_gated", "tower"} <= codes
+    reasons = " ".join(f["reason"] for f in doc["flags"])
+    assert "from block edge" in reasons and "low mean probability" in reasons
+    assert doc["towers"][0]["flags"] and "1 needs a look" in doc["summary"]
+
+
+def test_clean_block_is_ok_and_uses_raster(tmp_path):
+    pts = make_block()
+    # a DTM GeoTIFF: used for the hillshade and HAG when points carry no HAG
+    res = 2.0
+    xs = X0 + res * (np.arange(100) + 0.5)
+    ys = Y0 + SIZE - res * (np.arange(100) + 0.5)
+    dtm = ground_z(xs[None, :], ys[:, None]).astype(np.float32)
+    tif = tmp_path / "dtm.tif"
+    with rasterio.open(tif, "w", driver="GTiff", width=100, height=100, count=1, dtype="float32",
+                       crs="EPSG:25831", transform=Affine(res, 0.0, X0, 0.0, -res, Y0 + SIZE)) as ds:
+        ds.write(dtm, 1)
+    no_hag = {k: v for k, v in pts.items() if k != "hag"}
+    tiles, preds = metas()
+    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", block_name="b", zone="z1", block_bounds=BOUNDS,
+                       tile_metas=tiles, pred_metas=preds, towers=towers_of(pts), classified=no_hag, raster=tif)
+    assert doc["status"] == "ok" and doc["flags"] == []
+    assert doc["summary"] == "2 towers found; nothing to check."
+    page = (tmp_path / "b.html").read_text()
+    assert "dtm.tif" in page and "z − dtm.tif" in page
+
+
+def test_block_report_from_files_and_no_towers(tmp_path):
+    import laspy
+
+    pts = make_block(towers_at=())
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.offsets = [X0, Y0, 0]
+    header.scales = [0.01, 0.01, 0.01]
+    header.add_extra_dim(laspy.ExtraBytesParams(name="TowerProbability", type=np.float32))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = pts["x"], pts["y"], pts["z"]
+    las.classification = pts["classification"]
+    las["TowerProbability"] = pts["prob"]
+    las.write(tmp_path / "b.laz")
+    loaded = load_classified(tmp_path / "b.laz")
+    assert set(loaded) == {"x", "y", "z", "classification", "prob"}
+    from towerpipe.gpkg import write_towers_gpkg
+
+    gpkg = write_towers_gpkg(tmp_path / "b.gpkg", None, crs_wkt="EPSG:25831")
+    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", block_name="b", towers=gpkg,
+                       classified=tmp_path / "b.laz")
+    assert doc["n_towers"] == 0 and doc["summary"].startswith("0 towers found")
+    assert "No towers in this block" in (tmp_path / "b.html").read_text()
+
+
+def test_read_benchmark_repeats_and_na(tmp_path):
+    p = tmp_path / "b.tsv"
+    p.write_text("s\th:m:s\tmax_rss\tcpu_time\n10\t0:00:10\t100\tNA\n20\t0:00:20\t300\tNA\n")
+    assert read_benchmark(p) == {"seconds": 15.0, "max_rss_mb": 300.0}
+
+
+def test_zone_index(tmp_path):
+    tiles, preds = metas()
+    ok = block_report(tmp_path / "qa" / "a.html", tmp_path / "qa" / "a.json", block_name="a", zone="z1",
+                      block_bounds=BOUNDS, tile_metas=tiles, pred_metas=preds, towers=towers_of(make_block()),
+                      classified=make_block())
+    tiles2, preds2 = metas(ground_source="smrf")
+    look = block_report(tmp_path / "qa" / "b.html", tmp_path / "qa" / "b.json", block_name="b", zone="z1",
+                        block_bounds=BOUNDS, tile_metas=tiles2, pred_metas=preds2, classified=make_block(towers_at=()))
+    assert (ok["status"], look["status"]) == ("ok", "look")
+    doc = zone_index(tmp_path / "index.html", [tmp_path / "qa" / "a.json", tmp_path / "qa" / "b.json"],
+                     failures={"c": "merge_block failed: see logs/z1/merge_block/c.log"}, zone="z1",
+                     out_json=tmp_path / "index.json")
+    assert [b["block"] for b in doc["blocks"]] == ["c", "b", "a"]
+    t = doc["totals"]
+    assert (t["blocks"], t["failed"], t["look"], t["ok"], t["towers"]) == (4 - 1, 1, 1, 1, 2)
+    assert t["summary"] == "2 towers found in 3 blocks; 1 failed; 1 needs a look."
+    page = (tmp_path / "index.html").read_text()
+    assert "href='qa/a.html'" in page and "merge_block failed" in page and "ground classified" in page
+    assert json.loads((tmp_path / "index.json").read_text())["totals"]["towers"] == 2

@@ -1,0 +1,243 @@
+"""Tests of towerpipe.towers: clustering predicted points into tower records."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+
+from towerpipe.predfile import save_pred
+from towerpipe.towers import (
+    TOWER_COLUMNS,
+    cluster_towers,
+    extract_towers,
+    match_towers,
+    tower_id,
+    towers_from_labels,
+)
+
+X0, Y0 = 400_000.0, 4_600_000.0
+CRS = "EPSG:25831"
+MODEL = {"name": "pointnet_l", "version": "1.2.0"}
+STAMP = "2024-05-01T12:00:00+00:00"
+
+
+def synthetic_tower(cx: float, cy: float, *, height: float = 30.0, base_z: float = 100.0,
+                    half_base: float = 3.0, half_top: float = 1.0, arm: float = 7.0,
+                    step: float = 0.4, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Points of a lattice tower: four converging legs and a crossarm; (xyz, hag)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, height, step)
+    half = half_base + (half_top - half_base) * t / height
+    parts = [np.stack([cx + sx * half, cy + sy * half, base_z + t], axis=1)
+             for sx, sy in ((-1, -1), (-1, 1), (1, -1), (1, 1))]
+    a = np.arange(-arm, arm + step, step)
+    parts.append(np.stack([cx + a, np.full_like(a, cy), np.full_like(a, base_z + 0.8 * height)], axis=1))
+    xyz = np.concatenate(parts) + rng.normal(0.0, 0.03, (sum(len(p) for p in parts), 3))
+    return xyz, (xyz[:, 2] - base_z).astype(np.float32)
+
+
+def pred_pair(xyz: np.ndarray, hag: np.ndarray, prob: np.ndarray | float, blocks: list[str],
+              block_id: np.ndarray | int = 0, tile: str = "t0") -> tuple[dict, dict]:
+    """(arrays, meta) as in a prediction file."""
+    n = len(xyz)
+    arrays = {
+        "block_id": np.broadcast_to(np.asarray(block_id, dtype=np.int32), (n,)).copy(),
+        "point_index": np.arange(n, dtype=np.int64),
+        "x": xyz[:, 0].copy(), "y": xyz[:, 1].copy(), "z": xyz[:, 2].copy(),
+        "hag": np.asarray(hag, dtype=np.float32),
+        "prob": np.broadcast_to(np.asarray(prob, dtype=np.float32), (n,)).copy(),
+    }
+    meta = {"zone": "z1", "block": blocks[0], "tile": tile, "blocks": blocks, "crs_wkt": CRS,
+            "core_bounds": [0, 0, 0, 0], "model": MODEL}
+    return arrays, meta
+
+
+def scene() -> tuple[np.ndarray, np.ndarray]:
+    """Two towers 150 m apart plus scattered low-probability clutter is added by callers."""
+    a, ha = synthetic_tower(X0 + 50, Y0 + 50, seed=1)
+    b, hb = synthetic_tower(X0 + 200, Y0 + 60, height=42.0, base_z=110.0, seed=2)
+    return np.concatenate([a, b]), np.concatenate([ha, hb])
+
+
+BOUNDS = (X0, Y0, X0 + 500, Y0 + 500)
+
+
+def test_two_towers_records():
+    xyz, hag = scene()
+    rng = np.random.default_rng(5)
+    clutter = np.column_stack([rng.uniform(X0, X0 + 500, 300), rng.uniform(Y0, Y0 + 500, 300),
+                               rng.uniform(100, 120, 300)])
+    allxyz = np.concatenate([xyz, clutter])
+    allhag = np.concatenate([hag, (clutter[:, 2] - 100).astype(np.float32)])
+    prob = np.concatenate([np.full(len(xyz), 0.9), np.full(len(clutter), 0.2)])
+    gdf = extract_towers([pred_pair(allxyz, allhag, prob, ["b1"])], "b1", BOUNDS, zone="z1",
+                         model_meta=MODEL, source_files={"b1": "/data/b1.laz"}, processed_at=STAMP)
+    assert len(gdf) == 2
+    assert list(gdf.columns) == list(TOWER_COLUMNS) + ["geometry"]
+    assert str(gdf.crs.to_epsg()) == "25831"
+    gdf = gdf.sort_values("centroid_x").reset_index(drop=True)
+    np.testing.assert_allclose(gdf["centroid_x"], [X0 + 50, X0 + 200], atol=0.3)
+    np.testing.assert_allclose(gdf["centroid_y"], [Y0 + 50, Y0 + 60], atol=0.3)
+    np.testing.assert_allclose(gdf["height_m"], [30.0, 42.0], atol=0.5)
+    np.testing.assert_allclose(gdf["base_z"], [100.0, 110.0], atol=0.1)
+    np.testing.assert_allclose(gdf["prob_mean"], 0.9, atol=1e-6)
+    n_a = len(synthetic_tower(X0 + 50, Y0 + 50, seed=1)[0])
+    assert gdf.loc[0, "n_points"] == n_a
+    assert gdf.loc[0, "tower_id"] == tower_id("z1", gdf.loc[0, "centroid_x"], gdf.loc[0, "centroid_y"])
+    assert gdf.loc[0, "tower_id"] == "T_z1_400050_4600050"
+    assert set(gdf["source_files"]) == {"/data/b1.laz"}
+    assert set(gdf["model_version"]) == {"1.2.0"}
+    assert set(gdf["processed_at"]) == {STAMP}
+    assert gdf.geometry.is_valid.all() and (gdf.geometry.geom_type == "Polygon").all()
+    # footprint: legs 6 m apart, crossarm 14 m long
+    assert gdf.loc[0, "footprint_length_m"] == pytest.approx(14.0, abs=0.5)
+    assert gdf.loc[0, "footprint_width_m"] == pytest.approx(6.0, abs=0.5)
+    assert gdf.loc[0, "edge_distance_m"] == pytest.approx(50.0, abs=0.3)
+
+
+def test_ids_independent_of_order_and_file_split():
+    xyz, hag = scene()
+    ref = extract_towers([pred_pair(xyz, hag, 0.9, ["b1"])], "b1", BOUNDS, zone="z1", processed_at=STAMP)
+    perm = np.random.default_rng(3).permutation(len(xyz))
+    half = len(perm) // 2
+    p1 = pred_pair(xyz[perm[:half]], hag[perm[:half]], 0.9, ["b1"], tile="t1")
+    p2 = pred_pair(xyz[perm[half:]], hag[perm[half:]], 0.9, ["b1"], tile="t2")
+    p2[0]["point_index"] += half
+    other = extract_towers([p2, p1], "b1", BOUNDS, zone="z1", processed_at=STAMP)
+    assert list(ref["tower_id"]) == list(other["tower_id"])
+    assert all(a.equals(b) for a, b in zip(ref.geometry, other.geometry))
+    # the same file given twice is not counted twice
+    twice = extract_towers([p1, p2, p1], "b1", BOUNDS, zone="z1", processed_at=STAMP)
+    assert list(twice["n_points"]) == list(ref["n_points"])
+
+
+def test_tower_across_block_edge_reported_once():
+    edge = X0 + 250.0
+    xyz, hag = synthetic_tower(edge + 0.6, Y0 + 100)  # centroid just east of the edge
+    west = xyz[:, 0] < edge
+    arrays, meta = pred_pair(xyz, hag, 0.95, ["bw", "be"], block_id=np.where(west, 0, 1))
+    bw = (X0, Y0, edge, Y0 + 500)
+    be = (edge, Y0, X0 + 500, Y0 + 500)
+    # each block's job sees its own and its neighbour's predictions
+    west_towers = extract_towers([(arrays, meta)], "bw", bw, zone="z1", processed_at=STAMP)
+    east_towers = extract_towers([(arrays, meta)], "be", be, zone="z1", processed_at=STAMP)
+    assert len(west_towers) == 0
+    assert len(east_towers) == 1
+    row = east_towers.iloc[0]
+    assert row["block"] == "be" and row["blocks"] == "be,bw"
+    assert row["n_points"] == len(xyz)
+    assert 0 < row["edge_distance_m"] < 1.0
+
+
+def test_half_open_bounds_exactly_one_owner():
+    xyz, hag = synthetic_tower(X0 + 250.0, Y0 + 100)
+    arrays, meta = pred_pair(xyz, hag, 0.9, ["b"])
+    cx = extract_towers([(arrays, meta)], "b", BOUNDS, zone="z", processed_at=STAMP).iloc[0]["centroid_x"]
+    left = extract_towers([(arrays, meta)], "b", (X0, Y0, cx, Y0 + 500), zone="z")
+    right = extract_towers([(arrays, meta)], "b", (cx, Y0, X0 + 500, Y0 + 500), zone="z")
+    assert (len(left), len(right)) == (0, 1)
+
+
+def test_filters_and_threshold():
+    big, hb = synthetic_tower(X0 + 50, Y0 + 50)
+    low, hl = synthetic_tower(X0 + 150, Y0 + 50, height=6.0, arm=2.0)          # too low
+    few, hf = synthetic_tower(X0 + 250, Y0 + 50, height=12.0, step=3.0, arm=0)  # too few points (spaced 3 m
+    few = few[:8]                                                              # apart: also not linked)
+    hf = hf[:8]
+    weak, hw = synthetic_tower(X0 + 350, Y0 + 50)                              # low probability
+    xyz = np.concatenate([big, low, few, weak])
+    hag = np.concatenate([hb, hl, hf, hw])
+    prob = np.concatenate([np.full(len(big) + len(low) + len(few), 0.8), np.full(len(weak), 0.3)])
+    gdf = extract_towers([pred_pair(xyz, hag, prob, ["b"])], "b", BOUNDS, zone="z", min_points=20,
+                         min_height=10.0, threshold=0.5)
+    assert len(gdf) == 1 and gdf.iloc[0]["centroid_x"] == pytest.approx(X0 + 50, abs=0.3)
+    gdf = extract_towers([pred_pair(xyz, hag, prob, ["b"])], "b", BOUNDS, zone="z", threshold=0.25,
+                         min_height=5.0)
+    assert len(gdf) == 3
+
+
+def test_wire_chain_is_split_into_towers():
+    a, ha = synthetic_tower(X0 + 50, Y0 + 50, seed=1)
+    b, hb = synthetic_tower(X0 + 110, Y0 + 50, seed=2)
+    # falsely predicted conductor linking the crossarm tips (sagging line)
+    s = np.linspace(0, 1, 150)
+    wire = np.column_stack([X0 + 57 + s * 46, np.full_like(s, Y0 + 50), 124 - 6 * np.sin(np.pi * s)])
+    xyz = np.concatenate([a, b, wire])
+    hag = np.concatenate([ha, hb, (wire[:, 2] - 100).astype(np.float32)])
+    labels = cluster_towers(xyz, hag, linkage=2.5)
+    assert labels.max() == 1
+    assert len(np.unique(labels[: len(a)])) == 1 and len(np.unique(labels[len(a): len(a) + len(b)])) == 1
+    assert labels[0] != labels[len(a)]
+    assert (labels[len(a) + len(b) + 40: -40] == -1).all()  # mid-span wire dropped
+
+
+def test_split_footprints_are_merged():
+    xyz, hag = synthetic_tower(X0 + 50, Y0 + 50, arm=0.0)
+    # a crossarm detached from the body: 3.5 m from the leg tops (not linked at 2.5 m), but its xy
+    # footprint is only 1.5 m from the leg bases
+    arm = np.column_stack([np.linspace(X0 + 47, X0 + 53, 30), np.full(30, Y0 + 54.5), np.full(30, 125.0)])
+    xyz2 = np.concatenate([xyz, arm])
+    hag2 = np.concatenate([hag, np.full(30, 25.0, np.float32)])
+    assert cluster_towers(xyz2, hag2, linkage=2.5, merge_gap=0.0, min_points=1, min_height=0).max() == 1
+    assert cluster_towers(xyz2, hag2, linkage=2.5, merge_gap=2.0, min_points=1, min_height=0).max() == 0
+
+
+def test_empty_predictions_give_empty_schema():
+    arrays, meta = pred_pair(np.zeros((0, 3)), np.zeros(0), 0.9, ["b"])
+    gdf = extract_towers([(arrays, meta)], "b", BOUNDS, zone="z")
+    assert len(gdf) == 0 and list(gdf.columns) == list(TOWER_COLUMNS) + ["geometry"]
+    assert gdf.crs is not None
+    assert len(extract_towers([], "b", BOUNDS, zone="z", crs=CRS)) == 0
+
+
+def test_reads_prediction_files(tmp_path):
+    xyz, hag = scene()
+    arrays, meta = pred_pair(xyz, hag, 0.9, ["b1"])
+    meta.update({"windows_total": 10, "windows_passed_gate": 2, "windows_segmented": 2, "gate_threshold": 0.5,
+                 "combine": "max", "points_core": len(xyz), "points_model_input_core": len(xyz),
+                 "timings": {}, "peak_rss_mb": 1.0})
+    save_pred(tmp_path / "t.npz", arrays, meta)
+    gdf = extract_towers([tmp_path / "t.npz"], "b1", BOUNDS, zone="z1")
+    assert len(gdf) == 2 and set(gdf["model_name"]) == {"pointnet_l"}
+
+
+def test_degenerate_footprint_is_buffered():
+    # a vertical pole: all points on one xy spot
+    z = np.linspace(100, 120, 50)
+    xyz = np.column_stack([np.full(50, X0 + 10), np.full(50, Y0 + 10), z])
+    gdf = extract_towers([pred_pair(xyz, z - 100, 0.9, ["b"])], "b", BOUNDS, zone="z", min_width=1.0)
+    assert len(gdf) == 1
+    geom = gdf.geometry.iloc[0]
+    assert geom.is_valid and geom.geom_type == "Polygon" and geom.area > 0.5
+
+
+def test_match_towers_one_to_one():
+    import geopandas as gpd
+
+    truth = gpd.GeoDataFrame({"id": ["a", "b", "c"]},
+                             geometry=[shapely.box(0, 0, 6, 6), shapely.box(100, 0, 106, 6), shapely.box(300, 0, 306, 6)])
+    pred = gpd.GeoDataFrame({"tower_id": ["p1", "p2", "p3", "p4"]},
+                            geometry=[shapely.box(1, 1, 7, 7),           # overlaps a
+                                      shapely.box(0.5, 0, 6.5, 6),       # also near a: duplicate -> fp
+                                      shapely.box(108, 0, 112, 6),       # centroid 7 m from b, no overlap
+                                      shapely.box(200, 0, 206, 6)])      # nothing
+    r = match_towers(pred, truth, max_dist=5.0)
+    assert r["tp"] == 1 and r["fp"] == 3 and r["fn"] == 2
+    assert r["matches"][0]["pred"] == "p2" and r["matches"][0]["truth"] == "a"  # nearest centroid wins
+    assert r["precision"] == pytest.approx(0.25) and r["recall"] == pytest.approx(1 / 3)
+    r = match_towers(pred, truth, max_dist=8.0)
+    assert r["tp"] == 2 and {m["truth"] for m in r["matches"]} == {"a", "b"}
+    empty = match_towers(pred.iloc[:0], truth)
+    assert empty["precision"] is None and empty["recall"] == 0.0
+
+
+def test_towers_from_labels_and_evaluation():
+    xyz, hag = scene()
+    is_tower = np.ones(len(xyz), dtype=bool)
+    truth = towers_from_labels(xyz[:, 0], xyz[:, 1], xyz[:, 2], hag, is_tower, crs=CRS)
+    assert len(truth) == 2
+    pred = extract_towers([pred_pair(xyz, hag, 0.9, ["b"])], "b", BOUNDS, zone="z")
+    r = match_towers(pred, truth)
+    assert (r["precision"], r["recall"]) == (1.0, 1.0)
+    assert max(m["distance_m"] for m in r["matches"]) < 0.5

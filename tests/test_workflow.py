@@ -1,0 +1,100 @@
+"""The Snakemake workflow itself: lint, a small zone, a bad block, adding a block."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+import uuid
+
+import laspy
+import numpy as np
+import pytest
+import yaml
+
+from conftest import REPO, RGBNIR_BLOCK, need
+
+pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow]
+
+
+def snakemake(*args, check=True):
+    proc = subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=REPO, capture_output=True, text=True)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"snakemake {' '.join(args)} failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+    return proc
+
+
+def test_lint_is_clean():
+    proc = snakemake("--lint", check=False)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "Lints for" not in proc.stdout + proc.stderr
+
+
+def split_in_blocks(src, out_dir, n=3):
+    """Cut a real tile into n blocks along x (all attributes and VLRs kept)."""
+    las = laspy.read(src)
+    edges = np.linspace(las.header.mins[0], las.header.maxs[0] + 1e-6, n + 1)
+    out_dir.mkdir(parents=True)
+    for i in range(n):
+        part = laspy.LasData(las.header)
+        part.points = las.points[(las.x >= edges[i]) & (las.x < edges[i + 1])]
+        part.write(out_dir / f"b{i}.laz")
+    return sorted(out_dir.glob("*.laz"))
+
+
+@pytest.fixture
+def zone(tmp_path):
+    name = f"pytest_{uuid.uuid4().hex[:8]}"
+    yield name, tmp_path
+    shutil.rmtree(REPO / "results" / name, ignore_errors=True)
+
+
+def write_config(tmp_path, zone, indir, **extra):
+    cfg = {"zones": {zone: {"input": str(indir)}}, "workdir": str(tmp_path / "work"),
+           "preprocess": {"tile_size": 200.0}}
+    cfg.update(extra)
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    return path
+
+
+def planned_jobs(proc):
+    m = re.search(r"^total\s+(\d+)", proc.stdout, re.M)
+    return int(m.group(1)) if m else 0
+
+
+def test_zone_runs_and_adding_a_block_reruns_only_it(zone):
+    name, tmp = zone
+    blocks = split_in_blocks(need(RGBNIR_BLOCK), tmp / "all")
+    indir = tmp / "in"
+    indir.mkdir()
+    for b in blocks[:2]:
+        shutil.copy(b, indir / b.name)
+    cfg = write_config(tmp, name, indir)
+    snakemake("--cores", "2", f"results/{name}/", f"--configfile={cfg}")
+    out = REPO / "results" / name
+    assert sorted(p.name for p in (out / "preprocess").iterdir()) == ["b0.json", "b1.json"]
+    # nothing changed: nothing to do
+    assert planned_jobs(snakemake("-n", "--cores", "2", f"results/{name}/", f"--configfile={cfg}")) == 0
+    # a new block: its split, its tiles, its summary, the neighbours' edge tiles and the assembly
+    shutil.copy(blocks[2], indir / blocks[2].name)
+    proc = snakemake("-n", "--cores", "2", f"results/{name}/", f"--configfile={cfg}")
+    assert "split_block" in proc.stdout
+    assert re.search(r"^split_block\s+1$", proc.stdout, re.M), proc.stdout
+    assert re.search(r"^assemble_zone\s+1$", proc.stdout, re.M)
+
+
+def test_bad_block_costs_only_itself(zone):
+    name, tmp = zone
+    indir = tmp / "in"
+    blocks = split_in_blocks(need(RGBNIR_BLOCK), indir, n=2)
+    (indir / "broken.laz").write_bytes(b"not a point cloud" * 100)
+    cfg = write_config(tmp, name, indir)
+    proc = snakemake("--cores", "2", "--keep-going", f"results/{name}/", f"--configfile={cfg}", check=False)
+    assert proc.returncode != 0
+    work = tmp / "work" / name
+    assert sorted(p.name for p in (work / "prep").iterdir()) == sorted(f"{b.stem}.json" for b in blocks)
+    assert not (work / "cache" / "broken").exists(), "a failed job leaves no output behind"
+    log = (work / "logs" / "split_block" / "broken.log").read_text()
+    assert re.search(r"InputError: .*broken\.laz: not a readable LAS/LAZ file", log), log

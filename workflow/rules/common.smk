@@ -1,0 +1,130 @@
+# Helpers shared by the rules: zones, blocks, tiles and neighbours.
+# Logic lives in src/towerpipe; this file only maps config and files to paths.
+import functools
+import os
+from pathlib import Path
+
+from snakemake.exceptions import WorkflowError
+
+from towerpipe import tiling
+from towerpipe.errors import PdalError, TowerpipeError
+from towerpipe.lasio import find_blocks, read_header
+from towerpipe.pdal import pdal_version
+
+WORK = config["workdir"]
+PREP = config["preprocess"]
+
+
+wildcard_constraints:
+    zone=r"[A-Za-z0-9][A-Za-z0-9_.-]*",
+    block=r"[^/]+",
+    tile=r"-?\d+_-?\d+",
+
+
+try:
+    PDAL_VERSION = pdal_version()
+except PdalError as exc:
+    raise WorkflowError(f"towerpipe needs PDAL: {exc}")
+
+
+def zone_config(zone):
+    try:
+        return config["zones"][zone]
+    except KeyError:
+        known = ", ".join(sorted(config["zones"]))
+        raise WorkflowError(
+            f"zone {zone!r} is not configured (known: {known}); add "
+            f"`zones: {{{zone}: {{input: DIR}}}}` to a YAML file and pass it with --configfile"
+        )
+
+
+def zone_input(zone):
+    """The zone's input directory; generated first when the zone is synthetic."""
+    zc = zone_config(zone)
+    path = zc["input"]
+    if "synth" in zc:
+        if os.path.normpath(path) != os.path.normpath(f"data/{zone}"):
+            raise WorkflowError(f"zones.{zone}.input must be data/{zone} for a synthetic zone (got {path})")
+        checkpoints.synth_zone.get(zone=zone)
+    elif not os.path.isdir(path):
+        raise WorkflowError(f"zones.{zone}.input: directory {path!r} does not exist")
+    return path
+
+
+@functools.cache
+def _blocks(zone, path):
+    blocks = find_blocks(path)
+    if not blocks:
+        raise WorkflowError(f"zones.{zone}.input: no .las/.laz files under {path!r}")
+    return blocks
+
+
+def blocks(zone):
+    """Block name -> file, sorted by name."""
+    return _blocks(zone, zone_input(zone))
+
+
+def block_path(zone, block):
+    try:
+        return blocks(zone)[block]
+    except KeyError:
+        raise WorkflowError(f"block {block!r} is not in zone {zone!r}")
+
+
+@functools.cache
+def _headers(zone, path):
+    out = {}
+    for name, p in _blocks(zone, path).items():
+        try:
+            out[name] = read_header(p)
+        except TowerpipeError:
+            out[name] = None  # the block's split_block job reports the error
+    return out
+
+
+def headers(zone):
+    return _headers(zone, zone_input(zone))
+
+
+def bounds(zone):
+    """Header bounds of every readable block."""
+    return {b: h.bounds for b, h in headers(zone).items() if h is not None and h.point_count > 0}
+
+
+def tiles(zone, block):
+    b = bounds(zone).get(block)
+    return [] if b is None else tiling.tile_ids(b, PREP["tile_size"])
+
+
+def tile_blocks(zone, block, tile):
+    """Blocks whose points may fall in the tile's core or buffer (the block itself first)."""
+    others = tiling.blocks_for_tile(tile, PREP["tile_size"], PREP["buffer"], bounds(zone))
+    return [block] + [b for b in others if b != block]
+
+
+def block_points(zone, block):
+    h = headers(zone).get(block)
+    return h.point_count if h is not None else 0
+
+
+def cache_dir(zone, block):
+    return f"{WORK}/{zone}/cache/{block}"
+
+
+def tile_file(zone, block, tile):
+    return f"{WORK}/{zone}/tiles/{block}/{tile}.npz"
+
+
+def tile_files(zone):
+    return [tile_file(zone, b, t) for b in blocks(zone) for t in tiles(zone, b)]
+
+
+def mem_mb_for_points(points, per_point_bytes, base_mb=400):
+    return int(base_mb + points * per_point_bytes / 2**20)
+
+
+def zone_products(zone):
+    files = {}
+    for b in blocks(zone):
+        files[f"preprocess/{b}.json"] = f"{WORK}/{zone}/prep/{b}.json"
+    return files

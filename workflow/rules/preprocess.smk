@@ -1,0 +1,70 @@
+# Preprocessing (paper 3.1): decode once per block, then ground/DTM/HAG/noise per tile.
+
+
+rule split_block:
+    input:
+        block=lambda wc: block_path(wc.zone, wc.block),
+    output:
+        cache=directory(f"{WORK}/{{zone}}/cache/{{block}}"),
+    params:
+        crs=lambda wc: zone_config(wc.zone).get("crs"),
+        preprocess=PREP,
+    log:
+        f"{WORK}/{{zone}}/logs/split_block/{{block}}.log",
+    benchmark:
+        f"{WORK}/{{zone}}/benchmarks/split_block/{{block}}.tsv"
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 2
+    resources:
+        mem_mb=lambda wc: mem_mb_for_points(block_points(wc.zone, wc.block), 160),
+        runtime=30,
+    script:
+        "../scripts/split_block.py"
+
+
+rule preprocess_tile:
+    input:
+        caches=lambda wc: [cache_dir(wc.zone, b) for b in tile_blocks(wc.zone, wc.block, wc.tile)],
+    output:
+        tile=f"{WORK}/{{zone}}/tiles/{{block}}/{{tile}}.npz",
+        dtm=f"{WORK}/{{zone}}/dtm/{{block}}/{{tile}}.tif",
+    params:
+        blocks=lambda wc: tile_blocks(wc.zone, wc.block, wc.tile),
+        preprocess=PREP,
+    log:
+        f"{WORK}/{{zone}}/logs/preprocess_tile/{{block}}/{{tile}}.log",
+    benchmark:
+        f"{WORK}/{{zone}}/benchmarks/preprocess_tile/{{block}}/{{tile}}.tsv"
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 1
+    resources:
+        mem_mb=lambda wc: mem_mb_for_points(
+            block_points(wc.zone, wc.block)
+            * min(1.0, ((PREP["tile_size"] + 2 * PREP["buffer"]) ** 2) / 1e6),
+            260,
+        ),
+        runtime=30,
+    script:
+        "../scripts/preprocess_tile.py"
+
+
+rule preprocess_block:
+    input:
+        cache=lambda wc: cache_dir(wc.zone, wc.block),
+        tiles=lambda wc: [tile_file(wc.zone, wc.block, t) for t in tiles(wc.zone, wc.block)],
+    output:
+        summary=f"{WORK}/{{zone}}/prep/{{block}}.json",
+    log:
+        f"{WORK}/{{zone}}/logs/preprocess_block/{{block}}.log",
+    benchmark:
+        f"{WORK}/{{zone}}/benchmarks/preprocess_block/{{block}}.tsv"
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 1
+    resources:
+        mem_mb=500,
+        runtime=10,
+    script:
+        "../scripts/preprocess_block.py"

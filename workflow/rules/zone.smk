@@ -1,0 +1,22 @@
+# Zone assembly: results/<zone>/ from per-block products (hard links).
+
+
+rule assemble_zone:
+    input:
+        lambda wc: list(zone_products(wc.zone).values()),
+    output:
+        directory("results/{zone}/"),
+    params:
+        files=lambda wc: zone_products(wc.zone),
+    log:
+        f"{WORK}/{{zone}}/logs/assemble_zone.log",
+    benchmark:
+        f"{WORK}/{{zone}}/benchmarks/assemble_zone.tsv"
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    script:
+        "../scripts/assemble_zone.py"

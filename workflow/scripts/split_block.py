@@ -1,0 +1,7 @@
+from towerpipe.preprocess import PreprocessConfig, split_block
+from towerpipe.smk import run_step
+
+run_step(snakemake, lambda: split_block(
+    snakemake.input.block, snakemake.output.cache, block=snakemake.wildcards.block,
+    zone=snakemake.wildcards.zone, crs=snakemake.params.crs,
+    config=PreprocessConfig.from_dict(snakemake.params.preprocess)))
