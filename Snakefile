@@ -15,7 +15,10 @@ validate(config, "config/schema.yaml")
 include: "workflow/rules/common.smk"
 include: "workflow/rules/synth.smk"
 include: "workflow/rules/preprocess.smk"
+include: "workflow/rules/infer.smk"
+include: "workflow/rules/products.smk"
 include: "workflow/rules/zone.smk"
+include: "workflow/rules/train.smk"
 
 
 rule all:

@@ -124,26 +124,27 @@ def split_file(src, out_dir, x_cut):
 def test_neighbour_block_buffer(tmp_path):
     src = need(RGBNIR_BLOCK)
     hdr = laspy.open(src).header
-    size = 25.0  # tile edges every 25 m: the cut below is a tile edge
-    x_cut = float(np.floor((hdr.mins[0] + hdr.maxs[0]) / 2 / size) * size)
+    x_cut = float(np.floor((hdr.mins[0] + hdr.maxs[0]) / 2))
     west, east = split_file(src, tmp_path / "in", x_cut)
+    w = laspy.read(west)
+    wb = (float(w.header.mins[0]), float(w.header.mins[1]), float(w.header.maxs[0]), float(w.header.maxs[1]))
+    size = (wb[2] - wb[0]) / 3 + 1e-6  # three tile columns; the third ends at the cut
     cfg = PreprocessConfig(tile_size=size, buffer=40.0)
     caches = {}
     for p in (west, east):
         caches[p.stem] = tmp_path / "cache" / p.stem
         split_block(p, caches[p.stem], block=p.stem, zone="z", config=cfg)
-    y_mid = (hdr.mins[1] + hdr.maxs[1]) / 2
-    tid = f"{int(x_cut // size) - 1}_{int(y_mid // size)}"  # the west tile touching the cut
+    grid = tiling.TileGrid(wb, size)
+    tid = f"{grid.shape[0] - 1}_0"  # the west tile touching the cut
     preprocess_tile("z", "west", tid, caches, tmp_path / "t.npz", config=cfg)
     t = load_tile(tmp_path / "t.npz")
     from_east = t["block_id"] == t.meta["blocks"].index("east")
     assert from_east.any(), "buffer points must come from the neighbouring block"
     assert not t["core"][from_east].any(), "a neighbour's points are never in this tile's core"
     xe = t["x"][from_east]
-    assert xe.min() >= x_cut and xe.max() <= x_cut + 40.0 + 1e-6 and xe.max() > x_cut + 35.0
+    assert xe.min() >= x_cut and xe.max() <= wb[2] + 40.0 + 1e-6 and xe.max() > x_cut + 35.0
     # the buffer's ground gets HAG ~0 too: the DTM spans the cut with the neighbour's ground
     ground = t["classification"] == 2
     assert np.median(np.abs(t["hag"][ground & from_east])) < 0.05
-    w = laspy.read(west)
-    expected = tiling.core_mask(np.asarray(w.x), np.asarray(w.y), tid, size).sum()
+    expected = grid.core_mask(np.asarray(w.x), np.asarray(w.y), tid).sum()
     assert t["core"].sum() == expected > 0

@@ -43,6 +43,22 @@ def split_in_blocks(src, out_dir, n=3):
     return sorted(out_dir.glob("*.laz"))
 
 
+@pytest.fixture(scope="module")
+def random_model(tmp_path_factory):
+    """A randomly initialised model bundle: the plumbing tests do not depend on model quality."""
+    from towerpipe.features import FEATURE_SETS
+    from towerpipe.model import PointNetClassifier, PointNetSegmenter, save_bundle
+    from towerpipe.modelcard import code_version, config_hash
+
+    c = len(FEATURE_SETS["full"])
+    card = {"name": "towerpipe-random", "version": "0", "bundle_version": 1, "feature_set": "full",
+            "features": FEATURE_SETS["full"], "normalisation": {}, "sampling": {"n_points": 2048},
+            "training_data": {"tiles": []}, "metrics": {"classifier": {}}, "code": code_version(),
+            "config_hash": config_hash({})}
+    out = tmp_path_factory.mktemp("model") / "towerpipe-random-v0"
+    return save_bundle(out, PointNetClassifier(c).eval(), PointNetSegmenter(c).eval(), card)
+
+
 @pytest.fixture
 def zone(tmp_path):
     name = f"pytest_{uuid.uuid4().hex[:8]}"
@@ -50,9 +66,10 @@ def zone(tmp_path):
     shutil.rmtree(REPO / "results" / name, ignore_errors=True)
 
 
-def write_config(tmp_path, zone, indir, **extra):
+def write_config(tmp_path, zone, indir, model, **extra):
+    # gate 1.0: no window passes, the products are made with no towers (plumbing only)
     cfg = {"zones": {zone: {"input": str(indir)}}, "workdir": str(tmp_path / "work"),
-           "preprocess": {"tile_size": 200.0}}
+           "preprocess": {"tile_size": 200.0}, "inference": {"model": str(model), "gate": 1.0}}
     cfg.update(extra)
     path = tmp_path / "config.yaml"
     path.write_text(yaml.safe_dump(cfg))
@@ -64,37 +81,61 @@ def planned_jobs(proc):
     return int(m.group(1)) if m else 0
 
 
-def test_zone_runs_and_adding_a_block_reruns_only_it(zone):
+def planned(proc):
+    """(rule, block) of every job of a dry run."""
+    jobs = re.findall(r"^rule (\w+):\n(.*?)(?=^rule |\Z)", proc.stdout, re.M | re.S)
+    return [(r, (re.search(r"block=([^,\s]+)", body) or [None, None])[1]) for r, body in jobs]
+
+
+def job_count(proc, rule):
+    m = re.search(rf"^{rule}\s+(\d+)$", proc.stdout, re.M)
+    return int(m.group(1)) if m else 0
+
+
+def test_zone_runs_and_adding_a_block_reruns_only_it(zone, random_model):
     name, tmp = zone
     blocks = split_in_blocks(need(RGBNIR_BLOCK), tmp / "all")
     indir = tmp / "in"
     indir.mkdir()
     for b in blocks[:2]:
         shutil.copy(b, indir / b.name)
-    cfg = write_config(tmp, name, indir)
+    cfg = write_config(tmp, name, indir, random_model)
     snakemake("--cores", "2", f"results/{name}/", f"--configfile={cfg}")
     out = REPO / "results" / name
-    assert sorted(p.name for p in (out / "preprocess").iterdir()) == ["b0.json", "b1.json"]
+    assert sorted(p.name for p in (out / "blocks").iterdir()) == ["b0.laz", "b1.laz"]
+    assert sorted(p.name for p in (out / "towers").iterdir()) == ["b0.gpkg", "b1.gpkg"]
+    assert {"b0.html", "b1.html", "index.html"} <= {p.name for p in (out / "qa").iterdir()}
+    assert (out / "towers.gpkg").is_file()
     # nothing changed: nothing to do
     assert planned_jobs(snakemake("-n", "--cores", "2", f"results/{name}/", f"--configfile={cfg}")) == 0
     # a new block: its split, its tiles, its summary, the neighbours' edge tiles and the assembly
     shutil.copy(blocks[2], indir / blocks[2].name)
     proc = snakemake("-n", "--cores", "2", f"results/{name}/", f"--configfile={cfg}")
-    assert "split_block" in proc.stdout
-    assert re.search(r"^split_block\s+1$", proc.stdout, re.M), proc.stdout
-    assert re.search(r"^assemble_zone\s+1$", proc.stdout, re.M)
+    assert job_count(proc, "split_block") == 1, proc.stdout
+    # the new block, plus the neighbour whose edge tile now has the new block in its buffer
+    # (its windows see across the seam); a block not touching the new one is left alone
+    assert job_count(proc, "merge_block") == 2
+    heavy = {"split_block", "preprocess_tile", "infer_tile", "merge_block"}
+    assert not [j for j in planned(proc) if j[1] == "b0" and j[0] in heavy], proc.stdout
+    assert job_count(proc, "assemble_zone") == 1
+    # a changed model reprocesses every tile of every block
+    (random_model / "segmenter.pt").touch()
+    proc = snakemake("-n", "--cores", "2", f"results/{name}/", f"--configfile={cfg}")
+    n_tiles = len(list((tmp / "work" / name / "tiles").rglob("*.npz")))
+    assert job_count(proc, "infer_tile") >= n_tiles
+    assert job_count(proc, "merge_block") == 3
 
 
-def test_bad_block_costs_only_itself(zone):
+def test_bad_block_costs_only_itself(zone, random_model):
     name, tmp = zone
     indir = tmp / "in"
     blocks = split_in_blocks(need(RGBNIR_BLOCK), indir, n=2)
     (indir / "broken.laz").write_bytes(b"not a point cloud" * 100)
-    cfg = write_config(tmp, name, indir)
+    cfg = write_config(tmp, name, indir, random_model)
     proc = snakemake("--cores", "2", "--keep-going", f"results/{name}/", f"--configfile={cfg}", check=False)
     assert proc.returncode != 0
     work = tmp / "work" / name
-    assert sorted(p.name for p in (work / "prep").iterdir()) == sorted(f"{b.stem}.json" for b in blocks)
+    assert sorted(p.name for p in (work / "out").iterdir()) == sorted(f"{b.stem}.laz" for b in blocks)
     assert not (work / "cache" / "broken").exists(), "a failed job leaves no output behind"
     log = (work / "logs" / "split_block" / "broken.log").read_text()
     assert re.search(r"InputError: .*broken\.laz: not a readable LAS/LAZ file", log), log

@@ -18,6 +18,7 @@ from towerpipe.errors import TowerpipeError
 #: Modules that add sub-commands, in --help order.
 COMMAND_MODULES = [
     "towerpipe.synth.cli",
+    "towerpipe.train",
     "towerpipe.bench",
 ]
 
@@ -28,13 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:  # a module still being written must not break the rest
-            if exc.name and exc.name.startswith("towerpipe"):
-                continue
-            raise
-        module.register(sub)
+        importlib.import_module(name).register(sub)
     return parser
 
 

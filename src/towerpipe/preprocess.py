@@ -348,21 +348,25 @@ def statistical_outliers(x: np.ndarray, y: np.ndarray, z: np.ndarray, workdir: P
 def gather_tile(zone: str, block: str, tile: str, caches: Mapping[str, BlockCache],
                 cfg: PreprocessConfig) -> Tile:
     """Core points of ``block`` in ``tile`` plus buffer points of every cached block."""
-    core_box = tiling.tile_bounds(tile, cfg.tile_size)
+    grid = tiling.TileGrid(tuple(caches[block].meta["header_bounds"]), cfg.tile_size)
+    core_box = grid.core_box(tile)
     box = tiling.expand(core_box, cfg.buffer)
     names = sorted(caches)
     parts: list[dict[str, np.ndarray]] = []
     for bid, name in enumerate(names):
         c = caches[name]
-        bx = c.meta["bounds"]
-        if not tiling.intersects(box, tuple(bx)):
-            continue
         x, y = c["x"], c["y"]
-        sel = np.flatnonzero(tiling.box_mask(x, y, box))
+        if name == block:  # the core by grid index (robust to points beyond the header bounds)
+            is_core_all = grid.core_mask(x, y, tile)
+            sel = np.flatnonzero(is_core_all | tiling.box_mask(x, y, box))
+            is_core = is_core_all[sel]
+        elif tiling.intersects(box, tuple(c.meta["bounds"])):
+            sel = np.flatnonzero(tiling.box_mask(x, y, box))
+            is_core = np.zeros(sel.size, bool)
+        else:
+            continue
         if sel.size == 0:
             continue
-        xs, ys = np.asarray(x[sel]), np.asarray(y[sel])
-        is_core = tiling.core_mask(xs, ys, tile, cfg.tile_size) if name == block else np.zeros(sel.size, bool)
         part = {col: np.asarray(c[col][sel]) for col in BLOCK_COLUMNS}
         part.update(block_id=np.full(sel.size, bid, np.int32), point_index=sel.astype(np.int64), core=is_core)
         parts.append(part)

@@ -364,7 +364,7 @@ def block_report(
     classified: str | os.PathLike[str] | Mapping[str, np.ndarray] | None = None,
     raster: str | os.PathLike[str] | None = None,
     truth: np.ndarray | None = None,
-    timings: Mapping[str, float | str | os.PathLike[str]] | None = None,
+    timings: Mapping[str, float | str | os.PathLike[str] | Mapping[str, Any]] | None = None,
     warnings: Sequence[str] = (),
     limits: Mapping[str, float] | None = None,
 ) -> dict[str, Any]:
@@ -559,6 +559,9 @@ def block_report(
                 warnings = [*warnings, f"benchmark file of {name} unreadable: {exc}"]
                 continue
             stage_time.append({"stage": name, "seconds": b.get("seconds"), "max_rss_mb": b.get("max_rss_mb")})
+        elif isinstance(v, Mapping):  # aggregated over several jobs: {"seconds", "max_rss_mb", "jobs"}
+            label = f"{name} ({v['jobs']} jobs)" if v.get("jobs", 1) > 1 else name
+            stage_time.append({"stage": label, "seconds": v.get("seconds"), "max_rss_mb": v.get("max_rss_mb")})
         else:
             stage_time.append({"stage": name, "seconds": float(v), "max_rss_mb": None})
     warnings = [str(w) for w in warnings]

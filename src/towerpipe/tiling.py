@@ -1,47 +1,90 @@
 """Tiles, cores, buffers and neighbouring blocks.
 
-Tiles sit on a global grid of ``tile_size`` metres (so tile names are stable and
-neighbouring blocks agree on them). A tile of a block is named ``"{ix}_{iy}"``
-with ``ix = floor(x / tile_size)``; its *core* is the block's points in the
-half-open square ``[ix*T, (ix+1)*T) × [iy*T, (iy+1)*T)`` — so every point of a
-block is in exactly one tile core — and its *buffer* is every point of the
-block *and of neighbouring blocks* within ``buffer`` metres of the square that
-is not in the core.
+Each block is cut into ``nx × ny`` equal tiles no larger than ``tile_size``
+(``nx = ceil(width / tile_size)``), named ``"{ix}_{iy}"``. A point's tile is
+``clip(floor((x - xmin) / tile_width), 0, nx - 1)`` (same in y), so every point
+of a block is in exactly one tile *core*, points on or beyond the header's
+edges included, and no sliver tiles appear when a block is a hair wider than
+a multiple of ``tile_size``. A tile's *buffer* is every point of the block *and
+of neighbouring blocks* within ``buffer`` metres of the core square that is not
+in the core.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
 Bounds = tuple[float, float, float, float]  # xmin, ymin, xmax, ymax
 
 
-def tile_index(x: np.ndarray, tile_size: float) -> np.ndarray:
-    """Global grid index of each coordinate."""
-    return np.floor(np.asarray(x, dtype=np.float64) / tile_size).astype(np.int64)
+@dataclass(frozen=True)
+class TileGrid:
+    """The tiles of one block.
+
+    Parameters
+    ----------
+    bounds
+        The block's ``(xmin, ymin, xmax, ymax)`` (from its header).
+    tile_size
+        Largest tile side in metres.
+    """
+
+    bounds: Bounds
+    tile_size: float
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        xmin, ymin, xmax, ymax = self.bounds
+        nx = max(1, math.ceil((xmax - xmin) / self.tile_size - 1e-9))
+        ny = max(1, math.ceil((ymax - ymin) / self.tile_size - 1e-9))
+        return nx, ny
+
+    @property
+    def cell(self) -> tuple[float, float]:
+        xmin, ymin, xmax, ymax = self.bounds
+        nx, ny = self.shape
+        return max(xmax - xmin, 1e-9) / nx, max(ymax - ymin, 1e-9) / ny
+
+    def ids(self) -> list[str]:
+        """Tile names, row-major."""
+        nx, ny = self.shape
+        return [f"{ix}_{iy}" for iy in range(ny) for ix in range(nx)]
+
+    def core_box(self, tile: str) -> Bounds:
+        """Nominal core square of a tile."""
+        ix, iy = parse_tile_id(tile)
+        w, h = self.cell
+        x0, y0 = self.bounds[0] + ix * w, self.bounds[1] + iy * h
+        return (x0, y0, x0 + w, y0 + h)
+
+    def index(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tile column and row of each point (clipped into the grid)."""
+        nx, ny = self.shape
+        w, h = self.cell
+        ix = np.clip(np.floor((np.asarray(x) - self.bounds[0]) / w), 0, nx - 1).astype(np.int32)
+        iy = np.clip(np.floor((np.asarray(y) - self.bounds[1]) / h), 0, ny - 1).astype(np.int32)
+        return ix, iy
+
+    def core_mask(self, x: np.ndarray, y: np.ndarray, tile: str) -> np.ndarray:
+        """Points of the block that belong to ``tile``'s core."""
+        tx, ty = parse_tile_id(tile)
+        ix, iy = self.index(x, y)
+        return (ix == tx) & (iy == ty)
 
 
 def tile_ids(bounds: Bounds, tile_size: float) -> list[str]:
-    """Names of the grid tiles a block's bounds touch (row-major, sorted)."""
-    xmin, ymin, xmax, ymax = bounds
-    ix0, ix1 = math.floor(xmin / tile_size), math.floor(xmax / tile_size)
-    iy0, iy1 = math.floor(ymin / tile_size), math.floor(ymax / tile_size)
-    return [f"{ix}_{iy}" for iy in range(iy0, iy1 + 1) for ix in range(ix0, ix1 + 1)]
+    """Names of a block's tiles (see :class:`TileGrid`)."""
+    return TileGrid(tuple(bounds), tile_size).ids()
 
 
 def parse_tile_id(tile: str) -> tuple[int, int]:
-    """``"12_34"`` → ``(12, 34)`` (negative indices allowed: ``"-1_5"``)."""
+    """``"1_3"`` → ``(1, 3)``."""
     ix, iy = tile.rsplit("_", 1)
     return int(ix), int(iy)
-
-
-def tile_bounds(tile: str, tile_size: float) -> Bounds:
-    """Core square of a tile."""
-    ix, iy = parse_tile_id(tile)
-    return (ix * tile_size, iy * tile_size, (ix + 1) * tile_size, (iy + 1) * tile_size)
 
 
 def expand(bounds: Bounds, margin: float) -> Bounds:
@@ -60,18 +103,11 @@ def neighbours(block: str, all_bounds: Mapping[str, Bounds], margin: float) -> l
     return sorted(b for b, bb in all_bounds.items() if b != block and intersects(box, bb))
 
 
-def blocks_for_tile(tile: str, tile_size: float, buffer: float, all_bounds: Mapping[str, Bounds],
-                    candidates: Sequence[str] | None = None) -> list[str]:
+def blocks_for_tile(block_bounds: Bounds, tile: str, tile_size: float, buffer: float,
+                    all_bounds: Mapping[str, Bounds]) -> list[str]:
     """Blocks that may hold points of a tile's core or buffer (sorted)."""
-    box = expand(tile_bounds(tile, tile_size), buffer)
-    names = all_bounds if candidates is None else candidates
-    return sorted(b for b in names if intersects(box, all_bounds[b]))
-
-
-def core_mask(x: np.ndarray, y: np.ndarray, tile: str, tile_size: float) -> np.ndarray:
-    """Points of ``x, y`` inside the tile's half-open core square."""
-    ix, iy = parse_tile_id(tile)
-    return (tile_index(x, tile_size) == ix) & (tile_index(y, tile_size) == iy)
+    box = expand(TileGrid(tuple(block_bounds), tile_size).core_box(tile), buffer)
+    return sorted(b for b, bb in all_bounds.items() if intersects(box, bb))
 
 
 def box_mask(x: np.ndarray, y: np.ndarray, box: Bounds) -> np.ndarray:

@@ -98,7 +98,8 @@ def tiles(zone, block):
 
 def tile_blocks(zone, block, tile):
     """Blocks whose points may fall in the tile's core or buffer (the block itself first)."""
-    others = tiling.blocks_for_tile(tile, PREP["tile_size"], PREP["buffer"], bounds(zone))
+    b = bounds(zone)
+    others = tiling.blocks_for_tile(b[block], tile, PREP["tile_size"], PREP["buffer"], b)
     return [block] + [b for b in others if b != block]
 
 
@@ -124,7 +125,80 @@ def mem_mb_for_points(points, per_point_bytes, base_mb=400):
 
 
 def zone_products(zone):
+    """Relative path in results/<zone>/ -> per-block product."""
     files = {}
     for b in blocks(zone):
-        files[f"preprocess/{b}.json"] = f"{WORK}/{zone}/prep/{b}.json"
+        files[f"blocks/{b}.laz"] = f"{WORK}/{zone}/out/{b}.laz"
+        files[f"towers/{b}.gpkg"] = f"{WORK}/{zone}/towers/{b}.gpkg"
+        files[f"qa/{b}.html"] = f"{WORK}/{zone}/qa/{b}.html"
+        files[f"qa/{b}.json"] = f"{WORK}/{zone}/qa/{b}.json"
     return files
+
+
+INFER = config["inference"]
+TOWERS = config["towers"]
+
+
+def model_dir():
+    from towerpipe.steps import resolve_model
+
+    return str(resolve_model(INFER["model"]))
+
+
+def model_files():
+    """The model's files: inputs of every inference job, so a new model reruns the zone."""
+    d = model_dir()
+    return [f"{d}/classifier.pt", f"{d}/segmenter.pt", f"{d}/model_card.json"]
+
+
+def pred_file(zone, block, tile):
+    return f"{WORK}/{zone}/pred/{block}/{tile}.npz"
+
+
+def block_preds(zone, block):
+    return [pred_file(zone, block, t) for t in tiles(zone, block)]
+
+
+def block_neighbours(zone, block):
+    b = bounds(zone)
+    if block not in b:
+        return []
+    return tiling.neighbours(block, b, PREP["buffer"])
+
+
+def run_params():
+    """Parameters that change the products (recorded in the GeoPackage as a hash)."""
+    return {"preprocess": PREP, "inference": INFER, "towers": TOWERS}
+
+
+def block_benchmarks(zone, block):
+    bench = f"{WORK}/{zone}/benchmarks"
+    return {
+        "split": [f"{bench}/split_block/{block}.tsv"],
+        "preprocess": [f"{bench}/preprocess_tile/{block}/{t}.tsv" for t in tiles(zone, block)],
+        "inference": [f"{bench}/infer_tile/{block}/{t}.tsv" for t in tiles(zone, block)],
+        "merge": [f"{bench}/merge_block/{block}.tsv"],
+        "towers": [f"{bench}/towers_block/{block}.tsv"],
+    }
+
+
+TRAIN = config["training"]
+
+
+def training_tiles():
+    """Tile files of every training zone (their preprocessing runs first)."""
+    return lambda wc: [p for z in TRAIN["zones"] for p in tile_files(z)]
+
+
+def model_spec(name):
+    try:
+        return TRAIN["models"][name]
+    except KeyError:
+        known = ", ".join(sorted(TRAIN["models"]))
+        raise WorkflowError(f"model {name!r} is not in training.models (known: {known})")
+
+
+def model_train_config(name, ablation=False):
+    base = dict(TRAIN["ablation_config"] if ablation else TRAIN["train"])
+    base.update(model_spec(name).get("train", {}))
+    return base

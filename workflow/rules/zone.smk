@@ -1,4 +1,4 @@
-# Zone assembly: results/<zone>/ from per-block products (hard links).
+# Zone assembly: results/<zone>/ from per-block products (hard links), zone GeoPackage, QA index.
 
 
 rule assemble_zone:
@@ -8,6 +8,9 @@ rule assemble_zone:
         directory("results/{zone}/"),
     params:
         files=lambda wc: zone_products(wc.zone),
+        gpkgs=lambda wc: [f"{WORK}/{wc.zone}/towers/{b}.gpkg" for b in blocks(wc.zone)],
+        qa=lambda wc: [f"{WORK}/{wc.zone}/qa/{b}.json" for b in blocks(wc.zone)],
+        run=run_params(),
     log:
         f"{WORK}/{{zone}}/logs/assemble_zone.log",
     benchmark:

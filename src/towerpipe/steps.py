@@ -1,0 +1,157 @@
+"""One function per workflow job that combines several library calls.
+
+The scripts in ``workflow/scripts/`` call exactly one function each, from here
+or from the module that owns the concept (``preprocess``, ``infer``, ``merge``).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from towerpipe import __version__
+from towerpipe.assemble import assemble_directory
+
+log = logging.getLogger(__name__)
+
+
+def resolve_model(spec: str) -> Path:
+    """A model directory from the config's ``inference.model``.
+
+    ``"full"`` / ``"geometry"`` name the shipped models; anything else is a path.
+    """
+    from towerpipe.model import default_model_path
+
+    if spec in ("full", "geometry"):
+        return default_model_path(spec)
+    return Path(spec)
+
+
+def config_hash(cfg: Mapping[str, Any]) -> str:
+    """Short stable hash of the parameters that change the products."""
+    import hashlib
+
+    return hashlib.sha256(json.dumps(cfg, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+def _json(path: str | os.PathLike[str]) -> dict[str, Any]:
+    return json.loads(Path(path).read_text())
+
+
+def _tile_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
+    with np.load(path, allow_pickle=False) as z:
+        return json.loads(bytes(z["meta"]).decode())
+
+
+def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Sequence[str],
+                out_gpkg: str | os.PathLike[str], *, towers_cfg: Mapping[str, Any],
+                source_files: Mapping[str, str], run_cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """Towers owned by ``block`` (from its and its neighbours' predictions) → GeoPackage."""
+    from towerpipe.gpkg import run_metadata, write_towers_gpkg
+    from towerpipe.predfile import load_pred
+    from towerpipe.towers import extract_towers
+
+    loaded = [load_pred(p) for p in preds]
+    own = [p for p in loaded if p.meta.get("block") == block] or loaded
+    model_meta = own[0].meta.get("model") if own else None
+    crs_wkt = own[0].meta.get("crs_wkt") if own else None
+    gdf = extract_towers(loaded, block, block_bounds, zone=zone, model_meta=model_meta,
+                         source_files=source_files, crs=crs_wkt, **dict(towers_cfg))
+    meta = run_metadata(model_meta=model_meta, config=run_cfg, zone=zone, block=block)
+    write_towers_gpkg(out_gpkg, gdf, crs_wkt=crs_wkt, metadata=meta)
+    return {"towers": len(gdf)}
+
+
+def _block_dtm(dtm_paths: Sequence[str], out: Path) -> Path | None:
+    """Mosaic of a block's tile DTMs (for the QA hillshade)."""
+    import rasterio
+    from rasterio.merge import merge
+
+    srcs = []
+    try:
+        for p in dtm_paths:
+            ds = rasterio.open(p)
+            if ds.width > 1 or ds.height > 1:
+                srcs.append(ds)
+            else:
+                ds.close()
+        if not srcs:
+            return None
+        mosaic, transform = merge(srcs)
+        profile = srcs[0].profile | {"width": mosaic.shape[2], "height": mosaic.shape[1], "transform": transform,
+                                     "tiled": False}
+        profile.pop("blockxsize", None)
+        profile.pop("blockysize", None)
+        with rasterio.open(out, "w", **profile) as dst:
+            dst.write(mosaic)
+        return out
+    finally:
+        for ds in srcs:
+            ds.close()
+
+
+def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_files: Sequence[str],
+            pred_files: Sequence[str], towers_gpkg: str, classified: str, dtm_files: Sequence[str],
+            benchmarks: Mapping[str, Sequence[str]], out_html: str, out_json: str) -> dict[str, Any]:
+    """The block's QA page: preprocessing summary, gate counts, towers, labels if any."""
+    from towerpipe.qa import block_report, read_benchmark
+
+    summary = _json(summary_json)
+    truth = None
+    cls = np.load(Path(cache_dir) / "classification.npy", mmap_mode="r")
+    if summary.get("class_counts", {}).get("15"):
+        truth = np.asarray(cls) == 15
+    timings: dict[str, Any] = {}
+    for stage, tsvs in benchmarks.items():
+        rows = [read_benchmark(t) for t in tsvs if Path(t).exists()]
+        if rows:
+            timings[stage] = {"seconds": sum(r.get("seconds", 0.0) for r in rows),
+                              "max_rss_mb": max(r.get("max_rss_mb", 0.0) for r in rows), "jobs": len(rows)}
+    with tempfile.TemporaryDirectory(prefix="towerpipe-qa-") as tmp:
+        raster = _block_dtm(dtm_files, Path(tmp) / "dtm.tif")
+        return block_report(
+            out_html, out_json, block_name=block, zone=zone, block_bounds=summary["bounds"], stats=summary,
+            tile_metas=[_tile_meta(p) for p in tile_files], pred_metas=[_tile_meta(p) for p in pred_files],
+            towers=towers_gpkg, classified=classified, raster=str(raster) if raster else None, truth=truth,
+            timings=timings, warnings=summary.get("warnings", []),
+        )
+
+
+def zone_step(zone: str, out_dir: str, files: Mapping[str, str], *, tower_gpkgs: Sequence[str],
+              qa_jsons: Sequence[str], failures: Mapping[str, str] | None = None,
+              run_cfg: Mapping[str, Any] | None = None) -> Path:
+    """Assemble ``results/<zone>/``: per-block links, zone GeoPackage and QA index, atomically."""
+    from towerpipe.gpkg import merge_gpkgs
+    from towerpipe.qa import zone_index
+
+    def build(tmp: Path) -> None:
+        merge_gpkgs(list(tower_gpkgs), tmp / "towers.gpkg",
+                    metadata={"zone": zone, "towerpipe_version": __version__,
+                              "assembled_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                              "config_hash": config_hash(run_cfg or {})})
+        (tmp / "qa").mkdir(exist_ok=True)
+        zone_index(tmp / "qa" / "index.html", [str(tmp / "qa" / Path(j).name) for j in qa_jsons],
+                   failures=dict(failures or {}), zone=zone, out_json=tmp / "qa" / "index.json")
+
+    return assemble_directory(out_dir, files, build)
+
+
+def model_results_step(bundle_dir: str, ablation_dirs: Sequence[str], out_dir: str) -> Path:
+    """``results/models/<name>/``: checkpoint, card, curves, ``metrics.json`` (+ ablation), atomically."""
+    files = {p.name: str(p) for p in sorted(Path(bundle_dir).iterdir()) if p.is_file()}
+    for d in ablation_dirs:
+        files.update({p.name: str(p) for p in sorted(Path(d).iterdir()) if p.is_file()})
+
+    def build(tmp: Path) -> None:
+        card = _json(Path(bundle_dir) / "model_card.json")
+        (tmp / "metrics.json").write_text(json.dumps(card.get("metrics", {}), indent=1))
+
+    return assemble_directory(out_dir, files, build)

@@ -1,0 +1,228 @@
+"""Transmission tower designs as sets of members (local frame: x across the line,
+y along the line, z up, base centre at the origin).
+
+Designs: ``lattice_waist`` (waist-type / cat-head lattice, one circuit in a
+horizontal plane), ``double_circuit`` (tall lattice, three arm levels each side),
+``small_lattice`` (10-20 m, one cross-arm), ``monopole`` (tapered tube with arms).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+
+from towerpipe.synth.primitives import Primitives, patch, segments
+
+DESIGNS = ("lattice_waist", "double_circuit", "small_lattice", "monopole")
+
+#: height range (m) per design, all within 10-50 m
+HEIGHTS = {"lattice_waist": (22.0, 40.0), "double_circuit": (30.0, 50.0),
+           "small_lattice": (10.0, 20.0), "monopole": (15.0, 36.0)}
+
+_CORNERS = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], float)
+
+
+@dataclass
+class Tower:
+    """A tower placed in the zone.
+
+    Attributes
+    ----------
+    tower_id
+        Unique id (> 0) within the zone.
+    design
+        One of :data:`DESIGNS` or ``"real:<name>"``.
+    x, y, base_z
+        Base centre and ground elevation there.
+    height
+        Top above ``base_z``.
+    rot
+        Rotation of the local x axis (across the line), radians.
+    prim
+        Members in world coordinates (lattice / tube designs), or empty.
+    attach
+        (K, 3) world coordinates of wire attachment points (conductors, shields).
+    base_width
+        Width of the base (m).
+    points
+        Fixed point set in world coordinates (real towers), else ``None``.
+    line_id
+        Line the tower belongs to.
+    """
+
+    tower_id: int
+    design: str
+    x: float
+    y: float
+    base_z: float
+    height: float
+    rot: float
+    prim: Primitives
+    attach: np.ndarray
+    base_width: float
+    points: np.ndarray | None = None
+    line_id: int = 0
+    extra: dict = field(default_factory=dict)
+
+    def outline(self) -> shapely.Polygon:
+        """Footprint: convex hull of the tower's horizontal projection."""
+        xy = self.points[:, :2] if self.points is not None else self.prim.xy_points()
+        return shapely.convex_hull(shapely.MultiPoint(xy)).buffer(0.25, quad_segs=2)
+
+
+def _body(levels: np.ndarray, half: np.ndarray, rng: np.random.Generator, member: float) -> list[np.ndarray]:
+    """Square lattice body: legs, horizontals and X-bracing between ``levels``."""
+    c = _CORNERS[None, :, :] * half[:, None, None]                          # (L, 4, 2)
+    p = np.concatenate([c, np.broadcast_to(levels[:, None, None], (len(levels), 4, 1))], axis=2)
+    segs = []
+    segs.append(np.stack([p[:-1], p[1:]], axis=2).reshape(-1, 2, 3))        # legs
+    nxt = np.roll(p, -1, axis=1)
+    segs.append(np.stack([p, nxt], axis=2).reshape(-1, 2, 3))              # horizontals
+    segs.append(np.stack([p[:-1], nxt[1:]], axis=2).reshape(-1, 2, 3))     # diagonals /
+    segs.append(np.stack([nxt[:-1], p[1:]], axis=2).reshape(-1, 2, 3))     # diagonals \
+    return segs
+
+
+def _levels(z0: float, z1: float, hw0: float, hw1: float) -> tuple[np.ndarray, np.ndarray]:
+    """Panel levels whose height is about the local width."""
+    z = [z0]
+    while z[-1] < z1 - 0.5:
+        w = 2 * np.interp(z[-1], [z0, z1], [hw0, hw1])
+        z.append(min(z1, z[-1] + max(1.2, 0.9 * w)))
+    z = np.array(z)
+    return z, np.interp(z, [z0, z1], [hw0, hw1])
+
+
+def _arm(z: float, hw: float, length: float, side: int, depth: float) -> np.ndarray:
+    """Triangular cross-arm truss from the body face at ``x = side*hw`` to its tip."""
+    tip = np.array([side * (hw + length), 0.0, z])
+    a = np.array([[side * hw, hw, z], [side * hw, -hw, z], [side * hw, 0.0, z + depth]])
+    segs = [[a[0], tip], [a[1], tip], [a[2], tip], [a[0], a[1]], [a[0], a[2]], [a[1], a[2]]]
+    mid = (a + tip) / 2
+    segs += [[mid[0], mid[1]], [mid[0], mid[2]], [mid[1], mid[2]], [a[0], mid[1]], [a[2], mid[0]]]
+    return np.array(segs, float)
+
+
+def build_design(design: str, height: float, rng: np.random.Generator
+                 ) -> tuple[Primitives, np.ndarray, float]:
+    """Members, wire attachments (local) and base width of one tower.
+
+    Parameters
+    ----------
+    design
+        One of :data:`DESIGNS`.
+    height
+        Total height (m).
+    rng
+        Random generator for the free proportions.
+    """
+    h = float(height)
+    member = 0.12
+    if design == "lattice_waist":
+        base = rng.uniform(0.2, 0.3) * h
+        zw, zb = 0.62 * h, 0.8 * h
+        hww = rng.uniform(0.6, 0.9)
+        arm = rng.uniform(6.5, 10.0) * h / 32
+        z, hw = _levels(0.0, zw, base / 2, hww)
+        segs = _body(z, hw, rng, member)
+        # the waist opens into two inclined legs up to the beam
+        legs = []
+        for s in (-1, 1):
+            for yy in (-hww, hww):
+                legs.append([[s * hww, yy, zw], [s * arm * 0.45, yy * 1.2, zb]])
+            legs.append([[s * hww, -hww, zw], [s * arm * 0.45, hww * 1.2, zb]])
+        segs.append(np.array(legs))
+        # horizontal beam (two chords top and bottom, both faces) with verticals / diagonals
+        xs = np.linspace(-arm, arm, 9)
+        beam = []
+        for yy in (-1.0, 1.0):
+            for zz in (zb, zb + 2.0):
+                beam += [[[xs[i], yy, zz], [xs[i + 1], yy, zz]] for i in range(8)]
+            beam += [[[xv, yy, zb], [xv, yy, zb + 2.0]] for xv in xs]
+            beam += [[[xs[i], yy, zb], [xs[i + 1], yy, zb + 2.0]] for i in range(8)]
+        beam += [[[xv, -1.0, zb], [xv, 1.0, zb]] for xv in xs]
+        segs.append(np.array(beam))
+        peaks = [[[s * arm * 0.55, 0, zb + 2.0], [s * arm * 0.5, 0, h]] for s in (-1, 1)]
+        peaks += [[[s * arm * 0.45, -1, zb + 2.0], [s * arm * 0.5, 0, h]] for s in (-1, 1)]
+        segs.append(np.array(peaks))
+        cz = zb - 2.8
+        ins = np.array([[[xv, 0, zb], [xv, 0, cz]] for xv in (-arm + 0.5, 0.0, arm - 0.5)])
+        prim = Primitives.concat([segments(np.concatenate(segs), member), segments(ins, 0.25)])
+        attach = np.array([[-arm + 0.5, 0, cz], [0, 0, cz], [arm - 0.5, 0, cz],
+                           [-arm * 0.5, 0, h], [arm * 0.5, 0, h]])
+        return prim, attach, base
+    if design == "double_circuit":
+        base = rng.uniform(0.17, 0.3) * h
+        top_hw = rng.uniform(0.7, 1.1)
+        z, hw = _levels(0.0, h - 3.0, base / 2, top_hw)
+        segs = _body(z, hw, rng, member)
+        segs.append(np.array([[[cx * top_hw, cy * top_hw, h - 3.0], [0, 0, h]] for cx, cy in _CORNERS]))
+        gap = rng.uniform(0.11, 0.15) * h
+        arm_len = rng.uniform(4.0, 7.0) * np.array([1.0, 1.25, 1.0])
+        attach = []
+        ins = []
+        for k in range(3):
+            za = h - 4.5 - k * gap
+            hwa = np.interp(za, z, hw)
+            for s in (-1, 1):
+                segs.append(_arm(za, hwa, arm_len[k], s, 1.6))
+                tip = s * (hwa + arm_len[k] - 0.3)
+                ins.append([[tip, 0, za], [tip, 0, za - 2.6]])
+                attach.append([tip, 0, za - 2.6])
+        attach.append([0, 0, h])
+        prim = Primitives.concat([segments(np.concatenate(segs), member), segments(np.array(ins), 0.25)])
+        return prim, np.array(attach, float), base
+    if design == "small_lattice":
+        base = rng.uniform(1.4, 3.4) * h / 15
+        top_hw = rng.uniform(0.25, 0.4)
+        z, hw = _levels(0.0, h - 1.0, base / 2, top_hw)
+        segs = _body(z, hw, rng, 0.08)
+        segs.append(np.array([[[cx * top_hw, cy * top_hw, h - 1.0], [0, 0, h]] for cx, cy in _CORNERS]))
+        arm = rng.uniform(2.2, 4.0)
+        za = h - 1.8
+        for s in (-1, 1):
+            segs.append(_arm(za, top_hw, arm, s, 0.9))
+        ins = [[[s * (top_hw + arm - 0.2), 0, za], [s * (top_hw + arm - 0.2), 0, za - 1.4]] for s in (-1, 1)]
+        prim = Primitives.concat([segments(np.concatenate(segs), 0.08), segments(np.array(ins), 0.2)])
+        attach = np.array([[-(top_hw + arm - 0.2), 0, za - 1.4], [top_hw + arm - 0.2, 0, za - 1.4], [0, 0, h]])
+        return prim, attach, base
+    if design == "monopole":
+        d0 = rng.uniform(0.9, 1.7)
+        zs = np.linspace(0, h, 7)
+        dz = np.interp(zs[:-1] + h / 12, [0, h], [d0, 0.45])
+        tube = np.stack([np.c_[np.zeros(6), np.zeros(6), zs[:-1]], np.c_[np.zeros(6), np.zeros(6), zs[1:]]], axis=1)
+        parts = [Primitives(tube, dz, np.ones(6, bool), np.zeros((0, 6)))]
+        arm = rng.uniform(2.5, 4.0)
+        attach = []
+        arms = []
+        levels = [h - 2.0, h - 5.0, h - 8.0] if h > 22 else [h - 2.0, h - 4.5]
+        for k, za in enumerate(levels):
+            for s in ((-1, 1) if h > 22 or k == 0 else (1,)):
+                arms.append([[0, 0, za], [s * arm, 0, za]])
+                arms.append([[0, 0, za - 0.8], [s * arm, 0, za]])
+                attach.append([s * arm, 0, za - 1.8])
+        parts.append(segments(np.array(arms), 0.22, tube=True))
+        parts.append(segments(np.array([[a, [a[0], 0, a[2] + 1.8]] for a in attach]), 0.22))
+        parts.append(patch(0, 0, h, 0.3, 0.3))
+        attach.append([0, 0, h])
+        return Primitives.concat(parts), np.array(attach, float), d0
+    raise ValueError(f"unknown tower design {design!r}")
+
+
+def place_tower(tower_id: int, design: str, x: float, y: float, rot: float, height: float,
+                terrain_z, rng: np.random.Generator, line_id: int = 0) -> Tower:
+    """Build a design and place it at (x, y) on the terrain (legs reach the ground)."""
+    prim, attach, base = build_design(design, height, rng)
+    base_z = float(terrain_z(np.array([x]), np.array([y]))[0])
+    w = prim.transformed(x, y, base_z, rot)
+    # leg feet follow the slope: end points at local z == 0 go to the terrain
+    foot = np.abs(prim.seg[..., 2]) < 1e-9
+    if foot.any():
+        w.seg[..., 2][foot] = terrain_z(w.seg[..., 0][foot], w.seg[..., 1][foot])
+    c, s = np.cos(rot), np.sin(rot)
+    aw = np.c_[x + c * attach[:, 0] - s * attach[:, 1], y + s * attach[:, 0] + c * attach[:, 1],
+               base_z + attach[:, 2]]
+    return Tower(tower_id, design, float(x), float(y), base_z, float(height), float(rot), w, aw,
+                 float(base), line_id=line_id)

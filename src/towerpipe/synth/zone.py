@@ -1,0 +1,167 @@
+"""Public entry point: :func:`generate_zone` writes blocks + truth sidecars."""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import geopandas as gpd
+import numpy as np
+import shapely
+
+from towerpipe.errors import ConfigError
+from towerpipe.synth.lasout import write_block
+from towerpipe.synth.params import SceneParams, preset as get_preset, with_overrides
+from towerpipe.synth.scene import Zone, block_name, block_points, build_zone
+
+log = logging.getLogger(__name__)
+
+TRUTH_GPKG = "towers_truth.gpkg"
+TRUTH_GEOJSON = "towers_truth.geojson"
+META_JSON = "synth_meta.json"
+TERRAIN_NPZ = "terrain.npz"
+TOWER_SOURCES = ("synthetic", "real", "mixed")
+
+
+@dataclass
+class ZoneTruth:
+    """What :func:`generate_zone` wrote.
+
+    Attributes
+    ----------
+    out_dir
+        The zone directory.
+    blocks
+        One dict per block: ``name``, ``path``, ``bounds``, ``n_points``, ``counts`` (per class).
+    towers
+        The truth table (GeoDataFrame, layer ``towers`` of the sidecar).
+    spans
+        (S, 2) consecutive tower ids joined by wires.
+    meta
+        Everything in ``synth_meta.json``.
+    """
+
+    out_dir: Path
+    blocks: list[dict]
+    towers: gpd.GeoDataFrame
+    spans: np.ndarray
+    meta: dict
+
+
+def generate_zone(out_dir: str | Path, *, seed: int, blocks: int = 4, size: float = 250.0,
+                  density: float = 10.0, crs: str = "EPSG:25831",
+                  origin: tuple[float, float] = (400000.0, 4600000.0), preset: str = "catalonia",
+                  params: SceneParams | None = None, edge_tower: bool = False,
+                  tower_source: str = "synthetic", real_towers: str | Path | None = None,
+                  real_backgrounds: str | Path | None = None, parallel: bool = False,
+                  **overrides) -> ZoneTruth:
+    """Generate a synthetic airborne zone of adjoining LAZ blocks with truth.
+
+    Parameters
+    ----------
+    out_dir
+        Output directory (created); blocks are ``<xmin>_<ymin>.laz``.
+    seed
+        Random seed; the same seed gives identical files.
+    blocks, size
+        Number of square blocks and their side (m); laid out as square a grid as possible.
+    density
+        Requested density of all returns (pts/m²), 6-20 is realistic.
+    crs, origin
+        CRS of the output and lower-left corner of the zone.
+    preset, params, overrides
+        Scene parameters: a preset name, or a full :class:`SceneParams`, plus field overrides.
+    edge_tower
+        Force one tower centred on an inner block edge (needs ``blocks >= 2``).
+    tower_source
+        "synthetic", "real" (real tower point sets from ``real_towers``) or "mixed".
+    real_towers
+        Directory laid out as ``../shared/data/real/towers`` (needed unless synthetic).
+    real_backgrounds
+        Directory of real background ``*.laz`` tiles; when given, towers are inserted
+        into those tiles instead of a synthetic zone (see :mod:`towerpipe.synth.real`).
+    parallel
+        Multi-threaded LAZ compression.
+    """
+    out = Path(out_dir)
+    if tower_source not in TOWER_SOURCES:
+        raise ConfigError(f"tower_source {tower_source!r} unknown; choose one of {TOWER_SOURCES}")
+    if tower_source != "synthetic" and real_towers is None:
+        raise ConfigError(f"tower_source={tower_source!r} needs real_towers (e.g. ../shared/data/real/towers)")
+    if blocks < 1 or size <= 0 or density <= 0:
+        raise ConfigError("synth: blocks, size and density must be positive")
+    if real_backgrounds is not None:
+        from towerpipe.synth.real import generate_real_background_zone
+        return generate_real_background_zone(out, seed=seed, backgrounds=real_backgrounds,
+                                             tower_source=tower_source, real_towers=real_towers,
+                                             params=params or get_preset(preset, **overrides))
+    p = params if params is not None else get_preset(preset)
+    p = with_overrides(p, **overrides)
+    if edge_tower:
+        p = with_overrides(p, edge_tower=True)
+    factory = None
+    if tower_source != "synthetic":
+        from towerpipe.synth.real import RealTowerLibrary
+        lib = RealTowerLibrary(real_towers)
+        factory = lib.factory(density, p, share=1.0 if tower_source == "real" else 0.5)
+    t0 = time.perf_counter()
+    zone = build_zone(seed, blocks=blocks, size=size, density=density, origin=origin, params=p,
+                      tower_factory=factory)
+    if factory is not None:
+        from towerpipe.synth.real import finalize_real_towers
+        finalize_real_towers(zone)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    n_tower = {}
+    for i, b in enumerate(zone.blocks):
+        pts = block_points(zone, i)
+        name = block_name(b[0], b[1])
+        path = out / f"{name}.laz"
+        write_block(path, pts, crs, bounds=b, parallel=parallel)
+        ids, cnt = np.unique(pts["tower_id"][pts["tower_id"] > 0], return_counts=True)
+        for a, c in zip(ids.tolist(), cnt.tolist()):
+            n_tower[a] = n_tower.get(a, 0) + c
+        cls, cc = np.unique(pts["classification"], return_counts=True)
+        written.append({"name": name, "path": str(path), "bounds": list(b), "n_points": int(len(pts["x"])),
+                        "counts": {int(k): int(v) for k, v in zip(cls, cc)}})
+        log.info("synth block %s: %d points", name, len(pts["x"]))
+    towers = truth_table(zone, n_tower, crs)
+    write_truth(out, towers)
+    zone.terrain.save(out / TERRAIN_NPZ)
+    meta = {"seed": seed, "density": density, "size": size, "crs": crs, "origin": list(origin),
+            "bounds": list(zone.bounds), "blocks": written, "params": p.to_dict(),
+            "tower_source": tower_source, "spans": zone.lines.spans.tolist(),
+            "negatives": [{"kind": n.kind, "x": n.x, "y": n.y, "height": n.height} for n in zone.negatives],
+            "seconds": round(time.perf_counter() - t0, 3)}
+    (out / META_JSON).write_text(json.dumps(meta, indent=1))
+    return ZoneTruth(out, written, towers, zone.lines.spans, meta)
+
+
+def truth_table(zone: Zone, n_points: dict[int, int], crs) -> gpd.GeoDataFrame:
+    """Truth rows of the towers that have points."""
+    rows = []
+    for t in zone.towers:
+        fp = t.outline()
+        blocks = [block_name(b[0], b[1]) for b in zone.blocks
+                  if fp.intersects(shapely.box(*b))]
+        home = next(block_name(b[0], b[1]) for b in zone.blocks if b[0] <= t.x < b[2] and b[1] <= t.y < b[3])
+        c = fp.centroid
+        rows.append({"tower_id": t.tower_id, "design": t.design, "height": round(t.height, 3),
+                     "base_z": round(t.base_z, 3), "base_width": round(t.base_width, 3),
+                     "x": t.x, "y": t.y, "centroid_x": c.x, "centroid_y": c.y,
+                     "n_points": int(n_points.get(t.tower_id, 0)), "block": home,
+                     "blocks": ",".join(blocks), "line_id": t.line_id, "geometry": fp})
+    cols = ["tower_id", "design", "height", "base_z", "base_width", "x", "y", "centroid_x", "centroid_y",
+            "n_points", "block", "blocks", "line_id", "geometry"]
+    return gpd.GeoDataFrame(rows, columns=cols, geometry="geometry", crs=crs)
+
+
+def write_truth(out: Path, towers: gpd.GeoDataFrame) -> None:
+    """Write the GeoPackage (layer ``towers``) and the GeoJSON twin."""
+    for f in (TRUTH_GPKG, TRUTH_GEOJSON):
+        (out / f).unlink(missing_ok=True)
+    towers.to_file(out / TRUTH_GPKG, layer="towers", driver="GPKG", engine="pyogrio")
+    towers.to_file(out / TRUTH_GEOJSON, driver="GeoJSON", engine="pyogrio")

@@ -1,0 +1,129 @@
+"""Window building from labelled tile files: towers, positives/negatives, block split."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from towerpipe.dataset import KINDS, SPLITS, build_windows, load_windows, split_blocks, tower_instances
+from towerpipe.errors import ConfigError
+from towerpipe.tilefile import Tile, empty_arrays, save_tile
+
+
+def make_tile(path, block: str, origin: tuple[float, float], towers: list[tuple[float, float]],
+              seed: int = 0, n_veg: int = 6000, size: float = 100.0, tower_pts: int = 400) -> Tile:
+    """A tiny labelled tile: scattered vegetation plus lattice-tower columns of class 15."""
+    rng = np.random.default_rng(seed)
+    ox, oy = origin
+    # vegetation: clustered shrubs and trees, HAG 0.5-18 m, green, high NIR
+    vx = rng.uniform(ox - 20, ox + size + 20, n_veg)
+    vy = rng.uniform(oy - 20, oy + size + 20, n_veg)
+    vh = np.abs(rng.gamma(2.0, 2.5, n_veg)) + 0.3
+    parts = [dict(x=vx, y=vy, h=vh, cls=np.where(vh < 3, 3, np.where(vh < 8, 4, 5)),
+                  rgb=(60, 120, 50), nir=200, inten=rng.normal(60, 15, n_veg), nret=rng.integers(1, 4, n_veg))]
+    for tx, ty in towers:
+        h = rng.uniform(0, 25, tower_pts)
+        half = 3.0 * (1 - h / 35)  # legs converge with height
+        leg = rng.integers(0, 4, tower_pts)
+        sx = np.where(leg % 2 == 0, -1, 1) * half
+        sy = np.where(leg < 2, -1, 1) * half
+        along = rng.uniform(-1, 1, tower_pts) * half * (rng.random(tower_pts) < 0.3)  # cross bars
+        x = tx + sx + np.where(leg < 2, along, 0)
+        y = ty + sy + np.where(leg >= 2, along, 0)
+        parts.append(dict(x=x, y=y, h=h, cls=np.full(tower_pts, 15), rgb=(140, 140, 140), nir=120,
+                          inten=rng.normal(150, 20, tower_pts), nret=np.ones(tower_pts, int)))
+    n = sum(len(p["x"]) for p in parts)
+    a = empty_arrays(n)
+    s = 0
+    for p in parts:
+        e = s + len(p["x"])
+        a["x"][s:e], a["y"][s:e] = p["x"], p["y"]
+        a["hag"][s:e] = p["h"]
+        a["z"][s:e] = 100.0 + p["h"]
+        a["classification"][s:e] = p["cls"]
+        a["red"][s:e], a["green"][s:e], a["blue"][s:e] = p["rgb"]
+        a["nir"][s:e] = p["nir"]
+        a["intensity"][s:e] = np.clip(p["inten"], 1, 65535)
+        a["number_of_returns"][s:e] = p["nret"]
+        a["return_number"][s:e] = 1
+        s = e
+    a["point_index"] = np.arange(n)
+    a["model_input"][:] = True
+    a["core"] = (a["x"] >= ox) & (a["x"] < ox + size) & (a["y"] >= oy) & (a["y"] < oy + size)
+    meta = {"zone": "t", "block": block, "tile": f"{block}_0", "blocks": [block], "crs_wkt": "",
+            "core_bounds": [ox, oy, ox + size, oy + size], "buffer": 20.0, "has_rgb": True, "has_nir": True,
+            "color_bits": 8, "ground_source": "class2", "counts": {}}
+    tile = Tile(a, meta)
+    save_tile(path, tile)
+    return tile
+
+
+def make_tiles(tmp_path, n_blocks: int = 5, seed: int = 0, **kw) -> list[str]:
+    """``n_blocks`` single-tile blocks, each with two towers."""
+    paths = []
+    for b in range(n_blocks):
+        ox = 1000.0 * b
+        p = tmp_path / f"b{b}" / f"b{b}_0.npz"
+        make_tile(p, f"b{b}", (ox, 0.0), [(ox + 30, 30), (ox + 70, 65)], seed=seed + b, **kw)
+        paths.append(str(p))
+    return paths
+
+
+def test_tower_instances_link_and_min_points():
+    rng = np.random.default_rng(1)
+    a = rng.normal(0, 0.5, (30, 3))
+    b = rng.normal(0, 0.5, (10, 3)) + [50, 0, 0]  # too small
+    c = rng.normal(0, 0.5, (25, 3)) + [0, 40, 0]
+    comps = tower_instances(np.vstack([a, b, c]), 2.5, 20)
+    assert sorted(len(x) for x in comps) == [25, 30]
+
+
+def test_build_windows_counts_and_labels(tmp_path):
+    paths = make_tiles(tmp_path, 5)
+    ws = build_windows(paths, {"n_points": 256, "seed": 3})
+    assert ws.meta["towers"] == 10
+    pos = ws.kind == KINDS["positive"]
+    assert pos.sum() == 10 and (ws.kind == KINDS["positive_shifted"]).sum() == 10
+    assert (ws.kind == KINDS["hard_negative"]).sum() == 20
+    # positives carry the tower points, hard negatives none
+    for i in np.flatnonzero(ws.label == 1):
+        assert ws.point_label[ws.offsets[i]:ws.offsets[i + 1]].sum() >= 20
+    for i in np.flatnonzero(ws.kind == KINDS["hard_negative"]):
+        assert ws.point_label[ws.offsets[i]:ws.offsets[i + 1]].sum() == 0
+        assert ws.label[i] == 0
+    for i in np.flatnonzero(np.isin(ws.kind, [KINDS["random_negative"], KINDS["tall_negative"]])):
+        assert ws.point_label[ws.offsets[i]:ws.offsets[i + 1]].sum() == 0
+    assert (ws.kind == KINDS["tall_negative"]).sum() > 0
+    x, lab = ws.sampled(np.arange(len(ws)), "full")
+    assert x.shape == (len(ws), 256, 7) and lab.shape == (len(ws), 256)
+    assert np.abs(x[..., :2]).max() <= 20 * np.sqrt(2) / 57.4 + 1e-2  # inside the window, unit-sphere scale
+    # shifted positives are within 10 m of a tower centre (x/y each)
+    unshifted = ws.center[pos]
+    for c in ws.center[ws.kind == KINDS["positive_shifted"]]:
+        assert np.min(np.max(np.abs(unshifted - c), axis=1)) <= 10.0
+    # round trip
+    p = ws.save(tmp_path / "w.npz")
+    ws2 = load_windows(p)
+    np.testing.assert_array_equal(ws2.feat, ws.feat)
+    assert ws2.meta["split"] == ws.meta["split"]
+
+
+def test_split_by_block_has_no_leakage(tmp_path):
+    paths = make_tiles(tmp_path, 6)
+    ws = build_windows(paths, {"n_points": 128, "seed": 0, "val_fraction": 0.2, "test_fraction": 0.2})
+    per_block = {}
+    for b, s in zip(ws.block_id, ws.split):
+        per_block.setdefault(int(b), set()).add(int(s))
+    assert all(len(s) == 1 for s in per_block.values()), per_block
+    assert {SPLITS["train"], SPLITS["val"], SPLITS["test"]} <= set(ws.split.tolist())
+    # windows of the same tower (positive, shifted, hard negatives) share a split
+    assert set(ws.meta["split"].values()) == {"train", "val", "test"}
+
+
+def test_split_blocks_rules():
+    s = split_blocks({f"b{i}": i < 5 for i in range(9)}, 0.2, 0.2, seed=1)
+    tower_splits = [s[f"b{i}"] for i in range(5)]
+    assert tower_splits.count("val") >= 1 and tower_splits.count("test") >= 1 and tower_splits.count("train") >= 1
+    assert s == split_blocks({f"b{i}": i < 5 for i in range(9)}, 0.2, 0.2, seed=1)
+    with pytest.raises(ConfigError, match="3 blocks"):
+        split_blocks({"a": True, "b": True}, 0.2, 0.2, seed=0)

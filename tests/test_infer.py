@@ -1,0 +1,302 @@
+"""Tests of gated window inference (towerpipe.infer): plumbing, not model quality.
+
+A test double implements the ModelBundle interface: its classifier says "tower" when a
+window's sampled points hold a tall narrow column, its segmenter thresholds normalised
+height (with a window-position term so that overlapping windows disagree and the
+combine rule is observable).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from towerpipe import features
+from towerpipe.errors import ConfigError, ModelError
+from towerpipe.infer import check_model_compatibility, infer_tile, predict_tile
+from towerpipe.predfile import PRED_META_KEYS, load_pred
+from towerpipe.tilefile import Tile, empty_arrays, save_tile
+
+R = features.NORM_RADIUS
+CORE = (400000.0, 4600000.0, 400160.0, 4600160.0)
+TOWER = (400090.0, 4600110.0)  # lies in windows kx in {20003, 20004}, ky in {230004, 230005}
+
+
+class FakeBundle:
+    """ModelBundle double on the ``geometry`` features (x, y, z are columns 0, 1, 2)."""
+
+    name = "fake"
+    version = "0"
+    feature_set = "geometry"
+    card: dict = {}
+
+    def __init__(self, n_points: int = 256):
+        self.n_points = n_points
+        self.batch_sizes: list[int] = []
+        self.segment_sizes: list[int] = []
+
+    def classify(self, feats: np.ndarray) -> np.ndarray:
+        assert feats.dtype == np.float32 and feats.ndim == 3 and feats.shape[1] == self.n_points
+        self.batch_sizes.append(feats.shape[0])
+        out = np.zeros(feats.shape[0], dtype=np.float32)
+        for b, f in enumerate(feats):
+            tall = f[:, 2] * R > 12.0
+            if tall.sum() >= 5:
+                spread = (f[tall, :2] * R).std(axis=0).max()
+                # depends on which points were sampled: exposes sampling non-determinism
+                out[b] = 0.5 + 0.5 * min(1.0, tall.mean()) if spread < 3.0 else 0.1
+        return out
+
+    def segment(self, feats: np.ndarray) -> np.ndarray:
+        assert feats.dtype == np.float32 and feats.ndim == 2
+        self.segment_sizes.append(len(feats))
+        return fake_segment(feats[:, 0], feats[:, 2])
+
+
+def fake_segment(xn: np.ndarray, zn: np.ndarray) -> np.ndarray:
+    """Tall points are tower; the x position in the window modulates the probability."""
+    return np.where(zn * R > 5.0, np.clip(0.6 + xn, 0.0, 1.0), 0.0).astype(np.float32)
+
+
+def make_tile(seed: int = 0, tower: tuple[float, float] | None = TOWER, density: float = 0.6) -> Tile:
+    """Vegetation (HAG 0.5-6 m), ground, noise and an optional 4x4 m lattice column to 35 m."""
+    rng = np.random.default_rng(seed)
+    xmin, ymin, xmax, ymax = CORE
+    area = (xmax - xmin + 80) * (ymax - ymin + 80)
+    n_veg, n_ground = int(area * density), int(area * density / 2)
+    n_tower = 400 if tower else 0
+    n = n_veg + n_ground + n_tower + 5
+    a = empty_arrays(n)
+    x = rng.uniform(xmin - 40, xmax + 40, n)
+    y = rng.uniform(ymin - 40, ymax + 40, n)
+    hag = np.zeros(n, np.float32)
+    hag[:n_veg] = rng.uniform(0.5, 6.0, n_veg)
+    if tower:
+        s = slice(n_veg + n_ground, n_veg + n_ground + n_tower)
+        x[s] = tower[0] + rng.uniform(-2, 2, n_tower)
+        y[s] = tower[1] + rng.uniform(-2, 2, n_tower)
+        hag[s] = rng.uniform(0.5, 35.0, n_tower)
+    hag[-5:] = 300.0  # noise, not model input
+    a["x"], a["y"] = x, y
+    a["hag"] = hag
+    a["z"] = 200.0 + hag.astype(np.float64) + 0.01 * (x - xmin)
+    a["intensity"] = rng.integers(0, 4000, n).astype(np.uint16)
+    a["return_number"] = np.ones(n, np.uint8)
+    a["number_of_returns"] = rng.integers(1, 4, n).astype(np.uint8)
+    a["classification"] = np.where(hag == 0, 2, 1).astype(np.uint8)
+    a["classification"][-5:] = 7
+    # east buffer comes from the neighbouring block
+    a["block_id"] = np.where(x >= xmax, 1, 0).astype(np.int32)
+    a["point_index"] = rng.permutation(n).astype(np.int64)
+    a["core"] = (x >= xmin) & (x < xmax) & (y >= ymin) & (y < ymax)
+    a["model_input"] = (hag > 0.3) & (hag < 100)
+    meta = {"zone": "z", "block": "b0", "tile": "t0", "crs_wkt": "", "core_bounds": list(CORE), "buffer": 40.0,
+            "blocks": ["b0", "b1"], "has_rgb": False, "has_nir": False, "color_bits": 16,
+            "ground_source": "class2", "counts": {}, "timings": {}}
+    return Tile(a, meta)
+
+
+def expected_probs(tile: Tile, passed_keys: list[tuple[int, int]], combine: str, window=40.0):
+    """Independent reference: combine fake_segment over the passed windows containing each point."""
+    a = tile.arrays
+    sel = np.flatnonzero(a["core"] & a["model_input"])
+    vals = [[] for _ in sel]
+    for kx, ky in passed_keys:
+        ox, oy = kx * 20.0, ky * 20.0
+        inside = (a["x"][sel] >= ox) & (a["x"][sel] < ox + window) & (a["y"][sel] >= oy) & (a["y"][sel] < oy + window)
+        cx = ox + window / 2
+        p = fake_segment(((a["x"][sel] - cx) / R).astype(np.float32), (a["hag"][sel] / R).astype(np.float32))
+        for j in np.flatnonzero(inside):
+            vals[j].append(p[j])
+    keep = np.array([len(v) > 0 for v in vals], bool)
+    comb = np.array([(max(v) if combine == "max" else np.mean(v)) if v else 0.0 for v in vals], np.float32)
+    return sel[keep], comb[keep]
+
+
+def by_id(arrays):
+    order = np.lexsort((arrays["point_index"], arrays["block_id"]))
+    return {k: v[order] for k, v in arrays.items()}
+
+
+# ----------------------------------------------------------------------------- gating
+
+def test_gate_counts_and_tower_windows():
+    tile = make_tile()
+    bundle = FakeBundle()
+    out, st = predict_tile(tile, bundle, batch_size=8)
+    # 160 m core + windows reaching into the buffer: (160/20 + 1)^2 windows with core points
+    assert st["windows_total"] + st["windows_empty"] == 81
+    passed = sorted((k[0], k[1]) for k in st["window_probs"])
+    assert passed == [(20003, 230004), (20003, 230005), (20004, 230004), (20004, 230005)]
+    assert st["windows_passed_gate"] == st["windows_segmented"] == 4 == len(bundle.segment_sizes)
+    assert sum(bundle.batch_sizes) == st["windows_total"] and max(bundle.batch_sizes) == 8
+    assert st["windows_passed_gate"] / st["windows_total"] <= 0.1
+    # points of segmented windows: all of their points went to the segmenter
+    assert all(s > bundle.n_points for s in bundle.segment_sizes)
+    assert len(out["prob"]) == st["points_predicted"] > 0
+
+
+def test_no_tower_no_segmentation(tmp_path):
+    tile = make_tile(tower=None)
+    save_tile(tmp_path / "t.npz", tile)
+    bundle = FakeBundle()
+    meta = infer_tile(tmp_path / "t.npz", bundle, tmp_path / "p.npz")
+    pred = load_pred(tmp_path / "p.npz")
+    assert len(pred) == 0 and meta["windows_passed_gate"] == 0 and bundle.segment_sizes == []
+    assert meta["windows_total"] > 0
+
+
+def test_height_prefilter_skips_low_windows_without_changing_results():
+    tile = make_tile(density=0.3)
+    b_all, b_pre = FakeBundle(), FakeBundle()
+    ref, st_ref = predict_tile(tile, b_all)
+    out, st = predict_tile(tile, b_pre, min_height=10.0)
+    assert st["windows_classified"] == 4 and st["windows_prefiltered"] == st["windows_total"] - 4
+    assert sum(b_pre.batch_sizes) == 4
+    assert st["window_probs"] == st_ref["window_probs"]
+    for k in ref:
+        np.testing.assert_array_equal(ref[k], out[k])
+
+
+def test_gate_threshold_zero_segments_every_window():
+    tile = make_tile(density=0.2)
+    _, st = predict_tile(tile, FakeBundle(), gate=0.0)
+    assert st["windows_segmented"] == st["windows_total"]
+
+
+# ----------------------------------------------------------------------------- combine, ownership
+
+@pytest.mark.parametrize("combine", ["max", "mean"])
+def test_combine_rule_matches_reference(combine):
+    tile = make_tile(density=0.3)
+    out, st = predict_tile(tile, FakeBundle(), combine=combine)
+    keys = [(k[0], k[1]) for k in st["window_probs"]]
+    sel, want = expected_probs(tile, keys, combine)
+    a = tile.arrays
+    np.testing.assert_array_equal(out["point_index"], a["point_index"][sel])
+    np.testing.assert_allclose(out["prob"], want, atol=2e-6)
+    # points of the tower core get probability > 0; combine rules differ on overlaps
+    assert (out["prob"] > 0.5).sum() > 100
+
+
+def test_max_and_mean_differ_only_on_overlaps():
+    tile = make_tile(density=0.3)
+    o_max, _ = predict_tile(tile, FakeBundle(), combine="max")
+    o_mean, _ = predict_tile(tile, FakeBundle(), combine="mean")
+    np.testing.assert_array_equal(o_max["point_index"], o_mean["point_index"])
+    assert (o_max["prob"] >= o_mean["prob"] - 1e-6).all()
+    assert (o_max["prob"] > o_mean["prob"] + 1e-3).any()
+
+
+def test_only_core_model_input_points_are_written(tmp_path):
+    tile = make_tile()
+    save_tile(tmp_path / "t.npz", tile)
+    meta = infer_tile(tmp_path / "t.npz", FakeBundle(), tmp_path / "pred" / "p.npz")
+    pred = load_pred(tmp_path / "pred" / "p.npz")
+    a = tile.arrays
+    key = {(int(b), int(p)): i for i, (b, p) in enumerate(zip(a["block_id"], a["point_index"]))}
+    rows = np.array([key[(int(b), int(p))] for b, p in zip(pred["block_id"], pred["point_index"])])
+    assert len(np.unique(rows)) == len(rows)
+    assert a["core"][rows].all() and a["model_input"][rows].all()
+    assert (pred["block_id"] == 0).all()  # the core lies in block b0
+    np.testing.assert_array_equal(pred["x"], a["x"][rows])
+    np.testing.assert_array_equal(pred["hag"], a["hag"][rows])
+    # contract meta
+    for k in PRED_META_KEYS:
+        assert k in pred.meta, k
+    assert pred.meta["points_core"] == int(a["core"].sum())
+    assert pred.meta["points_model_input_core"] == int((a["core"] & a["model_input"]).sum())
+    assert pred.meta["model"]["name"] == "fake" and pred.meta["combine"] == "max"
+    assert pred.meta["peak_rss_mb"] > 0 and "classify" in pred.meta["timings"]
+    assert meta["windows_total"] == pred.meta["windows_total"]
+
+
+def test_adjacent_tiles_give_identical_probabilities_on_shared_windows():
+    """The same window seen from two tiles yields the same per-point result."""
+    tile = make_tile(density=0.3)
+    a = tile.arrays
+    # a second tile owning the west half of the same points (same buffer context)
+    west = a["x"] < 400080.0
+    t_w = Tile(dict(a, core=a["core"] & west), dict(tile.meta, tile="tw"))
+    t_e = Tile(dict(a, core=a["core"] & ~west), dict(tile.meta, tile="te"))
+    o_all, _ = predict_tile(tile, FakeBundle())
+    o_w, _ = predict_tile(t_w, FakeBundle())
+    o_e, _ = predict_tile(t_e, FakeBundle())
+    merged = {k: np.concatenate([o_w[k], o_e[k]]) for k in o_all}
+    for k in ("point_index", "prob"):
+        np.testing.assert_array_equal(by_id(merged)[k], by_id(o_all)[k])
+
+
+# ----------------------------------------------------------------------------- determinism, batching
+
+def test_deterministic_order_and_batch_independent():
+    tile = make_tile(density=0.3)
+    ref, st_ref = predict_tile(tile, FakeBundle(), batch_size=32, seed=5)
+    again, _ = predict_tile(tile, FakeBundle(), batch_size=32, seed=5)
+    one, _ = predict_tile(tile, FakeBundle(), batch_size=1, seed=5)
+    for k in ref:
+        np.testing.assert_array_equal(ref[k], again[k])
+        np.testing.assert_array_equal(ref[k], one[k])
+    # same points stored in another order: same result per point
+    perm = np.random.default_rng(2).permutation(len(tile))
+    shuffled, st_sh = predict_tile(tile.subset(perm), FakeBundle(), seed=5)
+    assert st_sh["window_probs"] == st_ref["window_probs"]
+    for k in ref:
+        np.testing.assert_array_equal(by_id(ref)[k], by_id(shuffled)[k])
+
+
+def test_seed_changes_sampling():
+    tile = make_tile(density=0.6)
+    _, s0 = predict_tile(tile, FakeBundle(n_points=64), seed=0)
+    _, s1 = predict_tile(tile, FakeBundle(n_points=64), seed=1)
+    assert [k[:2] for k in s0["window_probs"]] == [k[:2] for k in s1["window_probs"]]
+    assert [k[2] for k in s0["window_probs"]] != [k[2] for k in s1["window_probs"]]
+
+
+# ----------------------------------------------------------------------------- compatibility, config
+
+def test_check_model_compatibility_names_missing_dimensions():
+    class Full(FakeBundle):
+        feature_set = "full"
+        name = "towerpipe-full"
+
+    meta = {"tile": "t0", "block": "b0", "has_rgb": True, "has_nir": False}
+    with pytest.raises(ModelError, match=r"NIR.*geometry"):
+        check_model_compatibility(meta, Full())
+    with pytest.raises(ModelError, match=r"RED, GREEN, BLUE, NIR"):
+        check_model_compatibility(dict(meta, has_rgb=False), Full())
+    check_model_compatibility(dict(meta, has_nir=True), Full())
+    check_model_compatibility(dict(meta, has_rgb=False), FakeBundle())  # geometry needs nothing
+    with pytest.raises(ModelError):
+        predict_tile(make_tile(density=0.1), Full())
+
+
+def test_bad_config_rejected():
+    tile = make_tile(density=0.1)
+    with pytest.raises(ConfigError):
+        predict_tile(tile, FakeBundle(), combine="median")
+    with pytest.raises(ConfigError):
+        predict_tile(tile, FakeBundle(), gate=1.5)
+
+
+# ----------------------------------------------------------------------------- the real model
+
+def test_random_initialised_real_bundle_runs(tmp_path):
+    torch = pytest.importorskip("torch")
+    model = pytest.importorskip("towerpipe.model")
+    torch.manual_seed(0)
+    c = len(features.FEATURE_SETS["geometry"])
+    bundle = model.ModelBundle(name="random", version="0", feature_set="geometry", card={}, n_points=2048,
+                               classifier=model.PointNetClassifier(c), segmenter=model.PointNetSegmenter(c))
+    tile = make_tile(density=0.1)
+    save_tile(tmp_path / "t.npz", tile)
+    kw = dict(gate=0.0, stride=40.0)  # 25 windows, all segmented: keeps the CPU test short
+    m1 = infer_tile(tmp_path / "t.npz", bundle, tmp_path / "p1.npz", **kw)
+    m2 = infer_tile(tmp_path / "t.npz", bundle, tmp_path / "p2.npz", batch_size=7, **kw)
+    p1, p2 = load_pred(tmp_path / "p1.npz"), load_pred(tmp_path / "p2.npz")
+    assert m1["windows_segmented"] == m1["windows_total"] > 0
+    assert len(p1) == m1["points_model_input_core"]  # gate 0: every core model-input point is written
+    assert ((p1["prob"] >= 0) & (p1["prob"] <= 1)).all()
+    np.testing.assert_array_equal(p1["point_index"], p2["point_index"])
+    np.testing.assert_allclose(p1["prob"], p2["prob"], atol=1e-5)
+    assert m2["windows_total"] == m1["windows_total"]

@@ -1,0 +1,258 @@
+"""Tests of towerpipe.merge: every input point, every byte but Classification, kept."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pytest
+from laspy.vlrs.known import ExtraBytesVlr, LasZipVlr
+from laspy.vlrs.vlrlist import VLRList
+
+from towerpipe.errors import InputError, TowerpipeError
+from towerpipe.merge import PROB_DIMENSION, block_probabilities, merge_block, relabel
+from towerpipe.predfile import PRED_META_KEYS, save_pred
+
+REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "backgrounds"
+real = pytest.mark.skipif(not REAL.is_dir(), reason=f"real LiDAR data not found at {REAL}")
+
+
+# ----------------------------------------------------------------------------- helpers
+
+def write_pred(path: Path, block: str, point_index: np.ndarray, prob: np.ndarray,
+               blocks: list[str] | None = None, block_id: np.ndarray | None = None) -> Path:
+    blocks = blocks or [block]
+    n = len(point_index)
+    arrays = {
+        "block_id": np.full(n, blocks.index(block), np.int32) if block_id is None else block_id,
+        "point_index": np.asarray(point_index, np.int64),
+        "x": np.zeros(n), "y": np.zeros(n), "z": np.zeros(n),
+        "hag": np.zeros(n, np.float32),
+        "prob": np.asarray(prob, np.float32),
+    }
+    meta = {k: None for k in PRED_META_KEYS}
+    meta.update(block=block, blocks=blocks, tile="t0", zone="z")
+    save_pred(path, arrays, meta)
+    return path
+
+
+def raw_bytes(las: laspy.LasData) -> np.ndarray:
+    arr = las.points.array
+    return arr.view(np.uint8).reshape(len(arr), arr.dtype.itemsize)
+
+
+def class_offset(las: laspy.LasData) -> int:
+    dt = las.points.array.dtype
+    name = "classification" if las.header.point_format.id >= 6 else "raw_classification"
+    return dt.fields[name][1]
+
+
+def vlr_key(v) -> tuple:
+    return (v.user_id, v.record_id, v.description, bytes(v.record_data_bytes()))
+
+
+def assert_invariant(inp: Path, out: Path, expected_prob: np.ndarray, threshold: float = 0.5) -> None:
+    """Everything but Classification bit for bit; classes and probabilities as specified."""
+    a = laspy.read(inp)
+    b = laspy.read(out)
+    ha, hb = a.header, b.header
+    assert hb.point_count == ha.point_count == len(expected_prob)
+    assert (hb.version, hb.point_format.id) == (ha.version, ha.point_format.id)
+    np.testing.assert_array_equal(hb.scales, ha.scales)
+    np.testing.assert_array_equal(hb.offsets, ha.offsets)
+    np.testing.assert_array_equal(hb.mins, ha.mins)
+    np.testing.assert_array_equal(hb.maxs, ha.maxs)
+    assert hb.file_source_id == ha.file_source_id
+    assert hb.system_identifier == ha.system_identifier
+    assert hb.creation_date == ha.creation_date
+    assert hb.global_encoding.value | 16 == ha.global_encoding.value | 16
+    assert hb.number_of_points_by_return.tolist() == ha.number_of_points_by_return.tolist()
+
+    # point records: the input bytes are a prefix of the output bytes, except classification
+    ra, rb = raw_bytes(a), raw_bytes(b)
+    size_a = ra.shape[1]
+    assert rb.shape[1] == size_a + 4
+    co = class_offset(a)
+    keep = np.ones(size_a, bool)
+    keep[co] = False
+    assert np.array_equal(rb[:, :size_a][:, keep], ra[:, keep])
+    if ha.point_format.id < 6:  # flags in the high bits of the 1.2 class byte kept
+        assert np.array_equal(rb[:, co] & 0xE0, ra[:, co] & 0xE0)
+    # every named input dimension (incl. extra bytes) identical, except classification
+    for name in a.point_format.dimension_names:
+        if name in ("classification", "raw_classification") or name not in b.point_format.dimension_names:
+            continue
+        assert np.array_equal(np.asarray(a[name]), np.asarray(b[name])), name
+
+    # classes and probability
+    prob = np.asarray(b[PROB_DIMENSION])
+    assert prob.dtype == np.float32
+    np.testing.assert_array_equal(prob, expected_prob.astype(np.float32))
+    cls_in = np.asarray(a.classification)
+    want = np.where(expected_prob >= threshold, 15, np.where(cls_in == 15, 1, cls_in))
+    np.testing.assert_array_equal(np.asarray(b.classification), want)
+
+    # VLRs: all but the Extra Bytes / LAZ ones identical and in order; EB descriptors kept
+    va = [vlr_key(v) for v in ha.vlrs if not isinstance(v, (ExtraBytesVlr, LasZipVlr))]
+    vb = [vlr_key(v) for v in hb.vlrs if not isinstance(v, (ExtraBytesVlr, LasZipVlr))]
+    assert va == vb
+    eb_a = b"".join(bytes(v.record_data_bytes()) for v in ha.vlrs if isinstance(v, ExtraBytesVlr))
+    eb_b = [v for v in hb.vlrs if isinstance(v, ExtraBytesVlr)]
+    assert len(eb_b) == 1
+    data_b = bytes(eb_b[0].record_data_bytes())
+    assert data_b[: len(eb_a)] == eb_a and len(data_b) == len(eb_a) + 192
+    prob_struct = eb_b[0].extra_bytes_structs[-1]
+    assert prob_struct.name == PROB_DIMENSION.encode()
+    assert prob_struct.min_is_relevant() and prob_struct.max_is_relevant()
+    assert float(prob_struct._raw_min()[0]) == pytest.approx(float(expected_prob.min()))
+    assert float(prob_struct._raw_max()[0]) == pytest.approx(float(expected_prob.max()))
+    # EVLRs
+    ea = [vlr_key(v) for v in (ha.evlrs or [])]
+    eb = [vlr_key(v) for v in (hb.evlrs or [])]
+    assert ea == eb
+    # CRS and the WKT bit
+    if ha.parse_crs() is not None:
+        assert hb.parse_crs() == ha.parse_crs()
+    if hb.version.minor >= 4 and any(type(v).__name__ == "WktCoordinateSystemVlr" for v in hb.vlrs):
+        assert hb.global_encoding.wkt
+
+
+def make_las(path: Path, *, version: str, point_format: int, n: int, seed: int = 0,
+             crs: str | None = "EPSG:25831", extra: bool = False, evlr: bool = False) -> Path:
+    rng = np.random.default_rng(seed)
+    header = laspy.LasHeader(point_format=point_format, version=version)
+    header.scales = np.array([0.01, 0.01, 0.001])
+    header.offsets = np.array([400000.0, 4600000.0, 0.0])
+    header.system_identifier = "towerpipe test"
+    if extra:
+        header.add_extra_dims([laspy.ExtraBytesParams("TowerId", "uint32"),
+                               laspy.ExtraBytesParams("Amp", "float64", scales=None)])
+    if crs is not None:
+        import pyproj
+        header.add_crs(pyproj.CRS.from_user_input(crs))
+    las = laspy.LasData(header)
+    las.x = 400000 + rng.uniform(0, 500, n)
+    las.y = 4600000 + rng.uniform(0, 500, n)
+    las.z = rng.uniform(100, 160, n)
+    las.intensity = rng.integers(0, 65535, n, dtype=np.uint16)
+    las.return_number = rng.integers(1, 4, n, dtype=np.uint8)
+    las.number_of_returns = np.maximum(las.return_number, rng.integers(1, 4, n, dtype=np.uint8))
+    las.classification = rng.choice(np.array([1, 2, 3, 5, 6, 15], np.uint8), n)
+    las.synthetic = rng.random(n) < 0.1
+    las.withheld = rng.random(n) < 0.05
+    if "gps_time" in las.point_format.dimension_names:
+        las.gps_time = np.sort(rng.uniform(0, 1e5, n))
+    if "red" in las.point_format.dimension_names:
+        las.red = rng.integers(0, 65535, n, dtype=np.uint16)
+    if extra:
+        las.TowerId = rng.integers(0, 9, n, dtype=np.uint32)
+        las.Amp = rng.normal(size=n)
+    if evlr:
+        las.evlrs = VLRList([laspy.VLR("towerpipe", 42, "test evlr", b"\x01\x02\x03payload" * 10)])
+    las.write(path)
+    return path
+
+
+# ----------------------------------------------------------------------------- unit
+
+def test_relabel_rules():
+    cls = np.array([1, 2, 15, 15, 6, 65, 2], np.uint8)
+    prob = np.array([0.0, 0.7, 0.9, 0.2, 0.5, 0.0, 0.49], np.float32)
+    np.testing.assert_array_equal(relabel(cls, prob, 0.5), [1, 15, 15, 1, 15, 65, 2])
+
+
+def test_block_probabilities_filters_block_and_checks_range(tmp_path):
+    blocks = ["a", "b"]
+    p1 = write_pred(tmp_path / "t1.npz", "a", np.array([0, 5, 9]), np.array([0.1, 0.9, 0.6]), blocks=blocks,
+                    block_id=np.array([0, 0, 1], np.int32))
+    prob, info = block_probabilities([p1], 10, block="a")
+    np.testing.assert_array_equal(prob, np.array([0.1, 0, 0, 0, 0, 0.9, 0, 0, 0, 0], np.float32))
+    assert info["pred_points"] == 2
+    with pytest.raises(InputError, match="out of range"):
+        block_probabilities([p1], 5, block="a")
+
+
+# ----------------------------------------------------------------------------- files
+
+@pytest.mark.parametrize("version,pf", [("1.2", 1), ("1.2", 3), ("1.2", 0), ("1.4", 6), ("1.4", 7), ("1.4", 8)])
+def test_merge_generated_formats(tmp_path, version, pf):
+    n = 20_000
+    src = make_las(tmp_path / "b.laz", version=version, point_format=pf, n=n, extra=(pf in (3, 8)),
+                   evlr=(pf == 6))
+    rng = np.random.default_rng(1)
+    idx = rng.choice(n, 3000, replace=False)
+    p = rng.random(3000).astype(np.float32)
+    half = 1500
+    preds = [write_pred(tmp_path / "t1.npz", "b", idx[:half], p[:half]),
+             write_pred(tmp_path / "t2.npz", "b", idx[half:], p[half:])]
+    out = tmp_path / "out" / "b.laz"
+    stats = merge_block(src, preds, out, threshold=0.5, chunk_size=7_000)
+    expected = np.zeros(n, np.float32)
+    expected[idx] = p
+    assert_invariant(src, out, expected)
+    assert stats["points"] == n
+    assert stats["tower_points"] == int((expected >= 0.5).sum())
+    cls_in = np.asarray(laspy.read(src).classification)
+    assert stats["input_tower_points"] == int((cls_in == 15).sum())
+    assert stats["relabelled_15_to_1"] == int(((cls_in == 15) & (expected < 0.5)).sum())
+    assert not (out.parent / "b.laz.part").exists()
+    assert laspy.open(out).header.are_points_compressed
+
+
+def test_merge_without_predictions_only_demotes_input_towers(tmp_path):
+    src = make_las(tmp_path / "b.las", version="1.2", point_format=1, n=5000)
+    out = tmp_path / "b_out.laz"
+    stats = merge_block(src, [], out)
+    assert_invariant(src, out, np.zeros(5000, np.float32))
+    cls_in = np.asarray(laspy.read(src).classification)
+    assert stats["relabelled_15_to_1"] == int((cls_in == 15).sum()) > 0
+    assert stats["tower_points"] == 0
+
+
+def test_merge_adds_crs_when_missing(tmp_path):
+    src = make_las(tmp_path / "b.laz", version="1.4", point_format=6, n=1000, crs=None)
+    out = tmp_path / "o.laz"
+    merge_block(src, [], out, crs="EPSG:25831")
+    h = laspy.open(out).header
+    assert h.parse_crs().to_epsg() == 25831
+    assert h.global_encoding.wkt
+
+
+def test_merge_rejects_bad_threshold_and_rerun_of_output(tmp_path):
+    src = make_las(tmp_path / "b.laz", version="1.4", point_format=6, n=1000)
+    with pytest.raises(TowerpipeError):
+        merge_block(src, [], tmp_path / "o.laz", threshold=0.0)
+    merge_block(src, [], tmp_path / "o.laz")
+    with pytest.raises(InputError, match=PROB_DIMENSION):
+        merge_block(tmp_path / "o.laz", [], tmp_path / "o2.laz")
+    assert not (tmp_path / "o2.laz").exists() and not (tmp_path / "o2.laz.part").exists()
+
+
+@real
+@pytest.mark.shared
+@pytest.mark.parametrize("name", ["ign_rgbnir_block.laz", "ign_high_noise.laz", "ign_rgb_subset.laz",
+                                  "ign_bridge.laz"])
+def test_merge_real_blocks_invariant(tmp_path, name):
+    src = REAL / name
+    n = laspy.open(src).header.point_count
+    rng = np.random.default_rng(7)
+    idx = rng.choice(n, min(n, 20_000), replace=False)
+    p = rng.random(len(idx)).astype(np.float32)
+    pred = write_pred(tmp_path / "t.npz", "blk", idx, p)
+    out = tmp_path / "out.laz"
+    merge_block(src, [pred], out, threshold=0.5, chunk_size=300_000)
+    expected = np.zeros(n, np.float32)
+    expected[idx] = p
+    assert_invariant(src, out, expected)
+
+
+@real
+@pytest.mark.shared
+def test_merge_several_extra_byte_blocks_described_in_output(tmp_path):
+    """The input has two Extra Bytes VLRs; both descriptors survive in the output."""
+    src = REAL / "ign_rgbnir_block.laz"
+    out = tmp_path / "out.laz"
+    merge_block(src, [], out)
+    names = list(laspy.open(out).header.point_format.extra_dimension_names)
+    assert names == ["Deviation", "confidence", PROB_DIMENSION]

@@ -1,0 +1,123 @@
+"""PointNet_L / PointNet: parameter counts, permutation invariance, chunked segmentation, checkpoints."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from towerpipe.errors import ModelError
+from towerpipe.features import FEATURE_SETS
+from towerpipe.model import (PointNetClassifier, PointNetSegmenter, count_parameters, default_model_path,
+                             load_bundle, save_bundle, segment_points)
+from towerpipe.modelcard import code_version, config_hash, validate_card
+
+torch.set_num_threads(2)
+
+
+def _card(feature_set: str = "full") -> dict:
+    return {"name": f"towerpipe-{feature_set}", "version": "1", "bundle_version": 1, "feature_set": feature_set,
+            "features": FEATURE_SETS[feature_set], "normalisation": {"norm_radius_m": 57.45},
+            "sampling": {"n_points": 2048}, "training_data": {"tiles": []}, "metrics": {"classifier": {}},
+            "code": code_version(), "config_hash": config_hash({"a": 1})}
+
+
+def _trained_like(model: torch.nn.Module, seed: int = 0) -> torch.nn.Module:
+    """Perturb every parameter (T-Nets leave identity) and calibrate batch-norm statistics
+    on random data, so the tests do not pass on a trivial initial state."""
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(torch.randn(p.shape, generator=g) * 0.05)
+        for m in model.modules():
+            if isinstance(m, torch.nn.BatchNorm1d):
+                m.momentum = 1.0
+        model.train()
+        model(torch.randn(4, 512, model.hparams["in_channels"], generator=g))
+    return model.eval()
+
+
+def test_parameter_counts_match_paper():
+    counts = {(arch, kind): count_parameters(cls(7, arch)) for arch in ("light", "full")
+              for kind, cls in (("classifier", PointNetClassifier), ("segmenter", PointNetSegmenter))}
+    for key, n in counts.items():
+        print(f"{key[0]:>5} {key[1]:<10} {n:>9,d} parameters")
+    # paper: PointNet_L ~0.9 M, PointNet ~3.5 M
+    assert counts[("light", "classifier")] == pytest.approx(0.9e6, rel=0.05)
+    assert counts[("light", "segmenter")] == pytest.approx(0.9e6, rel=0.05)
+    assert counts[("full", "classifier")] == pytest.approx(3.5e6, rel=0.05)
+    assert counts[("full", "segmenter")] == pytest.approx(3.5e6, rel=0.05)
+
+
+@pytest.mark.parametrize("arch", ["light", "full"])
+def test_permutation_invariance(arch):
+    torch.manual_seed(0)
+    x = torch.randn(3, 300, 7)
+    perm = torch.randperm(300)
+    clf = _trained_like(PointNetClassifier(7, arch))
+    seg = _trained_like(PointNetSegmenter(7, arch), 1)
+    with torch.no_grad():
+        a, _ = clf(x)
+        b, _ = clf(x[:, perm])
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+        s1, _ = seg(x)
+        s2, _ = seg(x[:, perm])
+        torch.testing.assert_close(s1[:, perm], s2, rtol=1e-4, atol=1e-5)
+        assert torch.allclose(a.exp().sum(-1), torch.ones(3))
+
+
+def test_segment_chunked_equals_unchunked():
+    torch.manual_seed(0)
+    seg = _trained_like(PointNetSegmenter(6, "light"), 2)
+    x = np.random.default_rng(0).uniform(-0.5, 0.5, size=(5000, 6)).astype(np.float32)
+    whole = segment_points(seg, x, chunk=10**6)
+    chunked = segment_points(seg, x, chunk=777)
+    with torch.no_grad():
+        ref = seg(torch.from_numpy(x)[None])[0][0, :, 1].exp().numpy()
+    np.testing.assert_allclose(whole, ref, rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(chunked, ref, rtol=1e-4, atol=1e-6)
+    assert np.unique(chunked).size > 100  # point-dependent output, not a constant
+
+
+def test_bundle_round_trip(tmp_path):
+    clf = _trained_like(PointNetClassifier(7, "light"), 3)
+    seg = _trained_like(PointNetSegmenter(7, "light"), 4)
+    out = save_bundle(tmp_path / "m", clf, seg, _card())
+    assert sorted(p.name for p in out.iterdir()) == ["MODEL_CARD.md", "classifier.pt", "model_card.json",
+                                                    "segmenter.pt"]
+    b = load_bundle(out)
+    assert (b.name, b.version, b.feature_set, b.n_points) == ("towerpipe-full", "1", "full", 2048)
+    x = np.random.default_rng(1).normal(size=(4, 256, 7)).astype(np.float32)
+    with torch.no_grad():
+        ref = clf(torch.from_numpy(x))[0][:, 1].exp().numpy()
+    np.testing.assert_array_equal(b.classify(x), ref)
+    np.testing.assert_array_equal(b.segment(x[0]), segment_points(seg, x[0]))
+    assert b.classify(x).shape == (4,) and b.segment(x[0]).shape == (256,)
+
+
+def test_load_errors_name_file_and_fix(tmp_path):
+    with pytest.raises(ModelError, match="not found"):
+        load_bundle(tmp_path / "nope")
+    out = save_bundle(tmp_path / "m", PointNetClassifier(7), PointNetSegmenter(7), _card())
+    card = json.loads((out / "model_card.json").read_text())
+    del card["features"]
+    (out / "model_card.json").write_text(json.dumps(card))
+    with pytest.raises(ModelError, match=r"model_card.json.*retrain"):
+        load_bundle(out)
+    out2 = save_bundle(tmp_path / "m2", PointNetClassifier(7), PointNetSegmenter(7), _card())
+    (out2 / "segmenter.pt").write_bytes(b"garbage")
+    with pytest.raises(ModelError, match="segmenter.pt"):
+        load_bundle(out2)
+    with pytest.raises(ModelError, match="features"):
+        validate_card(dict(_card(), features=["x", "y"]))
+
+
+def test_default_model_path(monkeypatch, tmp_path):
+    monkeypatch.delenv("TOWERPIPE_MODELS", raising=False)
+    p = default_model_path("geometry")
+    assert p.name == "towerpipe-geometry-v1" and p.parent.name == "models"
+    assert (p.parent.parent / "pyproject.toml").is_file()
+    monkeypatch.setenv("TOWERPIPE_MODELS", str(tmp_path))
+    assert default_model_path() == tmp_path / "towerpipe-full-v1"

@@ -1,0 +1,53 @@
+# Gated window inference per tile, then back into every point of each block.
+
+
+rule infer_tile:
+    input:
+        tile=f"{WORK}/{{zone}}/tiles/{{block}}/{{tile}}.npz",
+        model=model_files(),
+    output:
+        pred=f"{WORK}/{{zone}}/pred/{{block}}/{{tile}}.npz",
+    params:
+        model=lambda wc, input: os.path.dirname(input.model[0]),
+        inference=INFER,
+    log:
+        f"{WORK}/{{zone}}/logs/infer_tile/{{block}}/{{tile}}.log",
+    benchmark:
+        f"{WORK}/{{zone}}/benchmarks/infer_tile/{{block}}/{{tile}}.tsv"
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 1
+    resources:
+        mem_mb=lambda wc: mem_mb_for_points(
+            block_points(wc.zone, wc.block)
+            * min(1.0, ((PREP["tile_size"] + 2 * PREP["buffer"]) ** 2) / 1e6),
+            120,
+            base_mb=800,
+        ),
+        runtime=60,
+    script:
+        "../scripts/infer_tile.py"
+
+
+rule merge_block:
+    input:
+        block=lambda wc: block_path(wc.zone, wc.block),
+        preds=lambda wc: block_preds(wc.zone, wc.block),
+        summary=f"{WORK}/{{zone}}/prep/{{block}}.json",
+    output:
+        laz=f"{WORK}/{{zone}}/out/{{block}}.laz",
+    params:
+        threshold=INFER["threshold"],
+        crs=lambda wc: zone_config(wc.zone).get("crs"),
+    log:
+        f"{WORK}/{{zone}}/logs/merge_block/{{block}}.log",
+    benchmark:
+        f"{WORK}/{{zone}}/benchmarks/merge_block/{{block}}.tsv"
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 2
+    resources:
+        mem_mb=lambda wc: mem_mb_for_points(block_points(wc.zone, wc.block), 24),
+        runtime=30,
+    script:
+        "../scripts/merge_block.py"

@@ -1,0 +1,57 @@
+# Per-block products: towers (GeoPackage) and the QA page.
+
+
+rule towers_block:
+    input:
+        preds=lambda wc: block_preds(wc.zone, wc.block),
+        neighbour_preds=lambda wc: [
+            p for n in block_neighbours(wc.zone, wc.block) for p in block_preds(wc.zone, n)
+        ],
+        summary=f"{WORK}/{{zone}}/prep/{{block}}.json",
+    output:
+        gpkg=f"{WORK}/{{zone}}/towers/{{block}}.gpkg",
+    params:
+        bounds=lambda wc: bounds(wc.zone).get(wc.block),
+        source_files=lambda wc: blocks(wc.zone),
+        towers=TOWERS,
+        run=run_params(),
+    log:
+        f"{WORK}/{{zone}}/logs/towers_block/{{block}}.log",
+    benchmark:
+        f"{WORK}/{{zone}}/benchmarks/towers_block/{{block}}.tsv"
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    script:
+        "../scripts/towers_block.py"
+
+
+rule qa_block:
+    input:
+        summary=f"{WORK}/{{zone}}/prep/{{block}}.json",
+        cache=lambda wc: cache_dir(wc.zone, wc.block),
+        tiles=lambda wc: [tile_file(wc.zone, wc.block, t) for t in tiles(wc.zone, wc.block)],
+        dtms=lambda wc: [f"{WORK}/{wc.zone}/dtm/{wc.block}/{t}.tif" for t in tiles(wc.zone, wc.block)],
+        preds=lambda wc: block_preds(wc.zone, wc.block),
+        towers=f"{WORK}/{{zone}}/towers/{{block}}.gpkg",
+        classified=f"{WORK}/{{zone}}/out/{{block}}.laz",
+    output:
+        html=f"{WORK}/{{zone}}/qa/{{block}}.html",
+        json=f"{WORK}/{{zone}}/qa/{{block}}.json",
+    params:
+        benchmarks=lambda wc: block_benchmarks(wc.zone, wc.block),
+    log:
+        f"{WORK}/{{zone}}/logs/qa_block/{{block}}.log",
+    benchmark:
+        f"{WORK}/{{zone}}/benchmarks/qa_block/{{block}}.tsv"
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 1
+    resources:
+        mem_mb=lambda wc: mem_mb_for_points(block_points(wc.zone, wc.block), 60),
+        runtime=10,
+    script:
+        "../scripts/qa_block.py"

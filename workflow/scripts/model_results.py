@@ -1,0 +1,5 @@
+from towerpipe.smk import run_step
+from towerpipe.steps import model_results_step
+
+run_step(snakemake, lambda: model_results_step(
+    snakemake.input.bundle, snakemake.input.ablation, snakemake.output[0]))
