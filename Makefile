@@ -7,7 +7,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 CORES ?= 2
 
-.PHONY: setup pdal demo test lint bench clean-demo
+.PHONY: setup pdal demo test lint bench train ship-models clean-demo
 
 setup: pdal $(VENV)/.installed
 
@@ -32,6 +32,18 @@ lint: setup
 
 bench: setup
 	$(BIN)/python -m towerpipe.bench preprocess
+	$(BIN)/python -m towerpipe.bench e2e
+
+MODELS := towerpipe-full-v1 towerpipe-geometry-v1
+
+# Retrain the shipped models on the synthetic training zones (CPU: <= 45 min for both).
+train: setup
+	$(BIN)/snakemake --cores $(CORES) $(foreach m,$(MODELS),results/models/$(m)/)
+
+# Copy trained checkpoints + model cards into models/ (what inference uses by default).
+ship-models:
+	for m in $(MODELS); do mkdir -p models/$$m && \
+	  cp results/models/$$m/{classifier.pt,segmenter.pt,model_card.json,MODEL_CARD.md,metrics.json,classifier_curves.png,segmenter_curves.png} models/$$m/; done
 
 clean-demo:
 	rm -rf results/demo work/demo data/demo

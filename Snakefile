@@ -12,6 +12,9 @@ configfile: "config/config.yaml"
 validate(config, "config/schema.yaml")
 
 
+report: "workflow/report/workflow.rst"
+
+
 include: "workflow/rules/common.smk"
 include: "workflow/rules/synth.smk"
 include: "workflow/rules/preprocess.smk"
@@ -25,3 +28,15 @@ rule all:
     default_target: True
     input:
         "results/demo/",
+
+
+onerror:
+    # With --keep-going the other blocks completed: publish them, and the failures, in an
+    # explicitly INCOMPLETE zone directory whose QA index names each failed block and why.
+    from towerpipe.steps import assemble_incomplete_zone, failures_from_log
+
+    for _zone, _failed in failures_from_log(log, WORK).items():
+        if _zone in config["zones"]:
+            assemble_incomplete_zone(_zone, f"results/{_zone}", zone_products(_zone), _failed,
+                                     run_cfg=run_params())
+            print(f"towerpipe: results/{_zone}/ is INCOMPLETE; failed blocks: {', '.join(sorted(_failed))}")

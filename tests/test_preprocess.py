@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import rasterio
 
-from conftest import HIGH_NOISE, RGB_SUBSET, RGBNIR_BLOCK, need
+from conftest import HIGH_NOISE, RGB_SUBSET, RGBNIR_BLOCK, RGBNIR_SMALL, need
 from towerpipe import tiling
 from towerpipe.preprocess import PreprocessConfig, preprocess_tile, split_block, summarize_block
 from towerpipe.tilefile import load_tile
@@ -148,3 +148,30 @@ def test_neighbour_block_buffer(tmp_path):
     assert np.median(np.abs(t["hag"][ground & from_east])) < 0.05
     expected = grid.core_mask(np.asarray(w.x), np.asarray(w.y), tid).sum()
     assert t["core"].sum() == expected > 0
+
+
+def test_block_without_ground_is_classified_by_pdal(tmp_path):
+    src = laspy.read(need(RGBNIR_BLOCK))
+    truth_ground = np.asarray(src.classification) == 2
+    src.classification = np.where(truth_ground, 1, src.classification)  # no class 2 at all
+    noground = tmp_path / "noground.laz"
+    src.write(noground)
+    meta, tiles = run_block(tmp_path, noground, tile_size=200.0)
+    assert meta["ground_source"] == "smrf"
+    c = core_points(tiles)
+    truth = truth_ground[c["point_index"]]
+    # SMRF finds the same ground: true ground points get HAG ~0 and leave the model input
+    assert np.median(np.abs(c["hag"][truth])) < 0.1
+    assert (~c["model_input"][truth]).mean() > 0.9
+    assert c["model_input"][~truth].mean() > 0.5
+
+
+def test_block_in_another_crs_than_its_zone(tmp_path):
+    from pyproj import CRS
+
+    from towerpipe.errors import InputError
+
+    with pytest.raises(InputError, match=r"small\.laz: its CRS \(EPSG:2154\) differs from the rest of zone 'z' "
+                                         r"\(EPSG:25831\); reproject it"):
+        split_block(need(RGBNIR_SMALL), tmp_path / "c", block="small", zone="z",
+                    zone_crs=CRS.from_epsg(25831).to_wkt())

@@ -139,3 +139,9 @@ def test_bad_block_costs_only_itself(zone, random_model):
     assert not (work / "cache" / "broken").exists(), "a failed job leaves no output behind"
     log = (work / "logs" / "split_block" / "broken.log").read_text()
     assert re.search(r"InputError: .*broken\.laz: not a readable LAS/LAZ file", log), log
+    # the zone directory is published as INCOMPLETE, its QA index naming the bad block and why
+    out = REPO / "results" / name
+    assert "broken: split_block: InputError" in (out / "INCOMPLETE.txt").read_text()
+    index = (out / "qa" / "index.html").read_text()
+    assert "broken" in index and "not a readable LAS/LAZ file" in index
+    assert sorted(p.name for p in (out / "blocks").iterdir()) == sorted(f"{b.stem}.laz" for b in blocks)

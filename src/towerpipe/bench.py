@@ -28,6 +28,7 @@ from pathlib import Path
 
 import yaml
 
+from towerpipe.columnfile import read_meta
 from towerpipe.lasio import read_header
 
 REPO = Path(__file__).resolve().parents[2]
@@ -43,11 +44,13 @@ def time_cmd(cmd: list[str], *, cwd: Path | None = None, env: dict | None = None
     return dt
 
 
-def make_block(out_dir: Path, *, size: float, density: float, seed: int) -> Path:
-    """One synthetic block (``towerpipe synth``) of ``size`` m at ``density`` pts/m²."""
+def make_block(out_dir: Path, *, size: float, density: float, seed: int, one_line: bool = False) -> Path:
+    """One synthetic block of ``size`` m at ``density`` pts/m² (``one_line``: a single power line)."""
+    from towerpipe.synth import generate_zone
+
     out_dir.mkdir(parents=True, exist_ok=True)
-    time_cmd([sys.executable, "-m", "towerpipe.cli", "synth", "--seed", str(seed), "--blocks", "1",
-              "--size", str(size), "--density", str(density), "--out", str(out_dir)])
+    extra = {"lines_per_km2": 0.0, "min_lines": 1} if one_line else {}
+    generate_zone(out_dir, seed=seed, blocks=1, size=size, density=density, **extra)
     blocks = sorted(out_dir.glob("*.laz"))
     if len(blocks) != 1:
         raise RuntimeError(f"expected one block in {out_dir}, found {len(blocks)}")
@@ -133,6 +136,61 @@ def bench_preprocess(args: argparse.Namespace) -> int:
     return 0
 
 
+def stage_split(rows: list[dict]) -> dict[str, dict[str, float]]:
+    """Seconds (sum over jobs) and peak RSS (max over jobs) per rule."""
+    out: dict[str, dict[str, float]] = {}
+    for r in rows:
+        d = out.setdefault(r["rule"], {"s": 0.0, "max_rss_mb": 0.0, "jobs": 0})
+        d["s"] += r["s"]
+        d["max_rss_mb"] = max(d["max_rss_mb"], r["max_rss_mb"])
+        d["jobs"] += 1
+    return out
+
+
+def gate_stats(work: Path) -> dict[str, int]:
+    """Windows total / passed the gate / segmented over all prediction files under ``work``."""
+    tot = {"windows_total": 0, "windows_passed_gate": 0, "windows_segmented": 0}
+    for p in work.rglob("pred/*/*.npz"):
+        meta = read_meta(p)
+        for k in tot:
+            tot[k] += int(meta.get(k, 0))
+    return tot
+
+
+def bench_e2e(args: argparse.Namespace) -> int:
+    tmp = Path(args.workdir or tempfile.mkdtemp(prefix="towerpipe-bench-"))
+    tmp.mkdir(parents=True, exist_ok=True)
+    block = Path(args.block) if args.block else make_block(tmp / "block_e2e", size=args.size, density=args.density,
+                                                           seed=args.seed, one_line=True)
+    n = read_header(block).point_count
+    tr, wf = [], []
+    rows: list[dict] = []
+    for r in range(args.repeat):
+        tr.append(pdal_translate(block, tmp))
+        dt, rows = run_workflow(block, tmp, zone=f"e2e{r}", target="results/{zone}/",
+                                extra_config={"inference": {"model": args.model}} if args.model else None)
+        wf.append(dt)
+    work = tmp / f"work_e2e{args.repeat - 1}"
+    g = gate_stats(work)
+    res = {"points": n, "translate_s": statistics.median(tr), "e2e_s": statistics.median(wf),
+           "translate_runs": tr, "e2e_runs": wf, "stages": stage_split(rows), **g}
+    res["ratio"] = res["e2e_s"] / res["translate_s"]
+    res["gate_skip_rate"] = 1 - g["windows_passed_gate"] / max(g["windows_total"], 1)
+    print(f"e2e: {n / 1e6:.2f} Mpts  pdal translate {res['translate_s']:.1f} s  raw block -> zone products "
+          f"(--cores 2) {res['e2e_s']:.1f} s  ratio {res['ratio']:.2f}  {n / res['e2e_s'] / 1e6:.2f} Mpts/s")
+    print(f"gate: {g['windows_total']} windows, {g['windows_passed_gate']} passed, {g['windows_segmented']} segmented "
+          f"-> {100 * res['gate_skip_rate']:.1f} % skipped")
+    for rule, d in sorted(res["stages"].items(), key=lambda kv: -kv[1]["s"]):
+        print(f"  {rule:<16} {d['s']:7.1f} s over {d['jobs']:3d} job(s)   peak RSS {d['max_rss_mb']:6.0f} MiB")
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=1))
+    for r in range(args.repeat):
+        shutil.rmtree(REPO / "results" / f"e2e{r}", ignore_errors=True)
+    if not args.keep and not args.workdir:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="benchmarks against a plain `pdal translate` (see towerpipe.bench)")
     bsub = p.add_subparsers(dest="bench", metavar="BENCH", required=True)
@@ -147,6 +205,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     pp.add_argument("--keep", action="store_true", help="keep the temporary directory")
     pp.add_argument("--json", help="also write the figures to this JSON file")
     pp.set_defaults(func=bench_preprocess)
+    pe = bsub.add_parser("e2e", help="raw block -> zone products through Snakemake vs pdal translate")
+    pe.add_argument("--block", help="existing block (default: a generated 1 km² block with one power line)")
+    pe.add_argument("--size", type=float, default=1000.0)
+    pe.add_argument("--density", type=float, default=10.0)
+    pe.add_argument("--seed", type=int, default=11)
+    pe.add_argument("--model", help="model directory (default: the shipped full model)")
+    pe.add_argument("--repeat", type=int, default=1)
+    pe.add_argument("--workdir")
+    pe.add_argument("--keep", action="store_true")
+    pe.add_argument("--json")
+    pe.set_defaults(func=bench_e2e)
 
 
 def main(argv: list[str] | None = None) -> int:

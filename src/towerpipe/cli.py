@@ -19,6 +19,7 @@ from towerpipe.errors import TowerpipeError
 COMMAND_MODULES = [
     "towerpipe.synth.cli",
     "towerpipe.train",
+    "towerpipe.evaluate",
     "towerpipe.bench",
 ]
 

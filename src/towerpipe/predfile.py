@@ -24,7 +24,6 @@ array             dtype     meaning
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +31,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from towerpipe.columnfile import load_columns, save_columns, validate_columns
 from towerpipe.errors import InputError
 
 #: Arrays of a prediction file and their dtypes, in file order.
@@ -102,16 +102,7 @@ class PredFile:
 
     def validate(self, path: str | os.PathLike[str] = "<pred>") -> None:
         """Check names, dtypes, lengths and meta keys; raise :class:`InputError` otherwise."""
-        missing = sorted(set(PRED_ARRAYS) - set(self.arrays))
-        if missing:
-            raise InputError(path, f"prediction file lacks arrays {missing}; rerun the inference")
-        n = len(self.arrays["prob"])
-        for name, dtype in PRED_ARRAYS.items():
-            arr = self.arrays[name]
-            if arr.shape != (n,):
-                raise InputError(path, f"prediction array {name!r} has shape {arr.shape}, expected ({n},)")
-            if arr.dtype != dtype:
-                raise InputError(path, f"prediction array {name!r} is {arr.dtype}, expected {dtype}")
+        validate_columns(self.arrays, PRED_ARRAYS, path, "prediction", "rerun the inference")
         missing_meta = [k for k in PRED_META_KEYS if k not in self.meta]
         if missing_meta:
             raise InputError(path, f"prediction file meta lacks {missing_meta}; rerun the inference")
@@ -146,26 +137,12 @@ def save_pred(
         cast[name] = np.ascontiguousarray(np.asarray(arrays[name]).astype(dtype, copy=False))
     pred = PredFile(cast, dict(meta))
     pred.validate(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    doc = dict(meta, format_version=FORMAT_VERSION)
-    tmp = path.with_name(path.name + ".part")
-    try:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, meta=np.frombuffer(json.dumps(doc).encode(), dtype=np.uint8), **cast)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    save_columns(path, cast, dict(meta, format_version=FORMAT_VERSION))
 
 
 def load_pred(path: str | os.PathLike[str]) -> PredFile:
     """Read and validate a prediction file written by :func:`save_pred`."""
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(bytes(z["meta"]).decode())
-            arrays = {k: z[k] for k in PRED_ARRAYS}
-    except (OSError, ValueError, KeyError) as exc:
-        raise InputError(path, f"not a readable towerpipe prediction file ({exc}); rerun the inference") from exc
+    arrays, meta = load_columns(path, list(PRED_ARRAYS), "prediction", "rerun the inference")
     pred = PredFile(arrays, meta)
     pred.validate(path)
     return pred

@@ -38,6 +38,7 @@ import rasterio
 from rasterio.fill import fillnodata
 
 from towerpipe import tiling
+from towerpipe.columnfile import read_meta
 from towerpipe.errors import InputError
 from towerpipe.lasio import BLOCK_COLUMNS, color_info, iter_block
 from towerpipe.pdal import run_pipeline
@@ -102,7 +103,7 @@ def peak_rss_mb() -> float:
 
 
 def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, block: str,
-                zone: str | None = None, crs: str | None = None,
+                zone: str | None = None, crs: str | None = None, zone_crs: str | None = None,
                 config: PreprocessConfig | None = None) -> dict[str, Any]:
     """Decode a block once into an uncompressed column cache.
 
@@ -118,6 +119,9 @@ def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         Names (for metadata and messages).
     crs
         The zone's CRS override.
+    zone_crs
+        The CRS the zone's other blocks have (WKT); a block in another CRS is refused
+        (a zone is one CRS: windows, neighbours and the GeoPackage mix blocks).
 
     Returns
     -------
@@ -128,6 +132,9 @@ def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     t0 = time.perf_counter()
     it = iter_block(path, crs=crs, zone=zone)
     header, crs_wkt = next(it)
+    if zone_crs and not crs and not _same_crs(crs_wkt, zone_crs):
+        raise InputError(path, f"its CRS ({_crs_name(crs_wkt)}) differs from the rest of zone {zone!r} "
+                               f"({_crs_name(zone_crs)}); reproject it or put it in a zone of its own")
     n = header.point_count
     out_dir = Path(out_dir)
     tmp = out_dir.with_name(out_dir.name + ".part")
@@ -188,6 +195,20 @@ def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     shutil.rmtree(out_dir, ignore_errors=True)
     os.replace(tmp, out_dir)
     return meta
+
+
+def _same_crs(a: str, b: str) -> bool:
+    from pyproj import CRS
+
+    return CRS.from_wkt(a).equals(CRS.from_wkt(b), ignore_axis_order=True)
+
+
+def _crs_name(wkt: str) -> str:
+    from pyproj import CRS
+
+    c = CRS.from_wkt(wkt)
+    epsg = c.to_epsg()
+    return f"EPSG:{epsg}" if epsg else c.name
 
 
 @dataclass
@@ -267,7 +288,7 @@ def build_dtm(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray, box: tiling.Bounds
         run_pipeline([
             {"type": "readers.las", "filename": str(src)},
             {"type": "writers.gdal", "filename": str(raw), "resolution": resolution,
-             "output_type": "idw", "window_size": 2, "data_type": "float32", "nodata": nodata,
+             "output_type": "mean", "window_size": 2, "data_type": "float32", "nodata": nodata,
              "bounds": f"([{xmin},{xmin + width * resolution}],[{ymin},{ymin + height * resolution}])"},
         ], what=f"{what}: DTM (writers.gdal)")
         with rasterio.open(raw) as ds:
@@ -485,8 +506,7 @@ def summarize_block(cache_dir: str | os.PathLike[str], tile_paths: list[str],
     tiles: dict[str, Any] = {}
     warnings: list[str] = []
     for p in tile_paths:
-        with np.load(p, allow_pickle=False) as z:
-            meta = json.loads(bytes(z["meta"]).decode())
+        meta = read_meta(p)
         tiles[meta["tile"]] = {k: meta.get(k) for k in ("counts", "timings", "dtm", "peak_rss_mb")}
         for k, v in meta.get("counts", {}).items():
             if k.endswith("_core") or k == "core":

@@ -19,6 +19,7 @@ import numpy as np
 
 from towerpipe import __version__
 from towerpipe.assemble import assemble_directory
+from towerpipe.columnfile import read_meta
 
 log = logging.getLogger(__name__)
 
@@ -44,11 +45,6 @@ def config_hash(cfg: Mapping[str, Any]) -> str:
 
 def _json(path: str | os.PathLike[str]) -> dict[str, Any]:
     return json.loads(Path(path).read_text())
-
-
-def _tile_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
-    with np.load(path, allow_pickle=False) as z:
-        return json.loads(bytes(z["meta"]).decode())
 
 
 def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Sequence[str],
@@ -119,7 +115,7 @@ def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_fi
         raster = _block_dtm(dtm_files, Path(tmp) / "dtm.tif")
         return block_report(
             out_html, out_json, block_name=block, zone=zone, block_bounds=summary["bounds"], stats=summary,
-            tile_metas=[_tile_meta(p) for p in tile_files], pred_metas=[_tile_meta(p) for p in pred_files],
+            tile_metas=[read_meta(p) for p in tile_files], pred_metas=[read_meta(p) for p in pred_files],
             towers=towers_gpkg, classified=classified, raster=str(raster) if raster else None, truth=truth,
             timings=timings, warnings=summary.get("warnings", []),
         )
@@ -155,3 +151,55 @@ def model_results_step(bundle_dir: str, ablation_dirs: Sequence[str], out_dir: s
         (tmp / "metrics.json").write_text(json.dumps(card.get("metrics", {}), indent=1))
 
     return assemble_directory(out_dir, files, build)
+
+
+def failures_from_log(snakemake_log: str | os.PathLike[str] | Sequence[str], work: str) -> dict[str, dict[str, str]]:
+    """Failed blocks per zone, with their one-line reason, from Snakemake's main log.
+
+    The reason is the job log's ``towerpipe`` error line (``InputError: <file>: <cause>``)
+    or its last line.
+    """
+    import re
+
+    failures: dict[str, dict[str, str]] = {}
+    logs = [snakemake_log] if isinstance(snakemake_log, (str, os.PathLike)) else list(snakemake_log or [])
+    text = "\n".join(Path(p).read_text(errors="replace") for p in logs if Path(p).exists())
+    work_abs = Path(work).resolve()
+    for rule, job_log in re.findall(r"Error in rule (\w+):.*?\n\s+log: (\S+)", text, re.S):
+        p = Path(job_log).resolve()
+        try:
+            rel = p.relative_to(work_abs).parts  # zone/logs/rule/block(.log | /tile.log)
+        except ValueError:
+            continue
+        if len(rel) < 4 or rel[1] != "logs":
+            continue
+        zone, block = rel[0], rel[3].removesuffix(".log")
+        reason = f"{rule} failed"
+        if p.exists():
+            lines = [ln.strip() for ln in p.read_text(errors="replace").splitlines() if ln.strip()]
+            err = [ln for ln in lines if re.search(r"\b\w*Error: ", ln)]
+            if err or lines:
+                reason = f"{rule}: " + re.sub(r"^.*? ERROR towerpipe: ", "", (err or lines)[-1])[:300]
+        failures.setdefault(zone, {}).setdefault(block, reason)
+    return failures
+
+
+def assemble_incomplete_zone(zone: str, out_dir: str, files: Mapping[str, str], failures: Mapping[str, str],
+                             *, run_cfg: Mapping[str, Any] | None = None) -> Path:
+    """``results/<zone>/`` from the blocks that completed, the failed ones listed.
+
+    Written after a failed run (``--keep-going``): the QA index names each failed
+    block and why, and ``INCOMPLETE.txt`` says the zone is not complete, so the
+    directory can never be taken for a finished one.
+    """
+    have = {rel: src for rel, src in files.items() if Path(src).exists()}
+    ok_blocks = {Path(rel).stem for rel in have if rel.startswith("qa/") and rel.endswith(".json")}
+    have = {rel: src for rel, src in have.items() if Path(rel).stem in ok_blocks}
+    gpkgs = [src for rel, src in have.items() if rel.startswith("towers/")]
+    qa = [src for rel, src in have.items() if rel.startswith("qa/") and rel.endswith(".json")]
+    out = zone_step(zone, out_dir, have, tower_gpkgs=gpkgs, qa_jsons=qa, failures=failures, run_cfg=run_cfg)
+    (out / "INCOMPLETE.txt").write_text(
+        "This zone is INCOMPLETE: the run failed for these blocks (see qa/index.html):\n"
+        + "".join(f"  {b}: {r}\n" for b, r in sorted(failures.items()))
+        + "Fix the inputs (or remove them) and rerun the same snakemake command.\n")
+    return out

@@ -35,15 +35,13 @@ window centre (UTM northings lose ~0.5 m in float32).
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from towerpipe.errors import InputError
+from towerpipe.columnfile import load_columns, save_columns, validate_columns
 
 #: Arrays of a tile file and their dtypes, in file order.
 TILE_ARRAYS: dict[str, np.dtype] = {
@@ -95,16 +93,7 @@ class Tile:
 
     def validate(self, path: str | os.PathLike[str] = "<tile>") -> None:
         """Check names, dtypes and lengths; raise :class:`InputError` otherwise."""
-        missing = sorted(set(TILE_ARRAYS) - set(self.arrays))
-        if missing:
-            raise InputError(path, f"tile file lacks arrays {missing}; rerun the preprocessing")
-        n = len(self.arrays["x"])
-        for name, dtype in TILE_ARRAYS.items():
-            arr = self.arrays[name]
-            if arr.shape != (n,):
-                raise InputError(path, f"tile array {name!r} has shape {arr.shape}, expected ({n},)")
-            if arr.dtype != dtype:
-                raise InputError(path, f"tile array {name!r} is {arr.dtype}, expected {dtype}")
+        validate_columns(self.arrays, TILE_ARRAYS, path, "tile", "rerun the preprocessing")
 
 
 def empty_arrays(n: int = 0) -> dict[str, np.ndarray]:
@@ -115,13 +104,7 @@ def empty_arrays(n: int = 0) -> dict[str, np.ndarray]:
 def save_tile(path: str | os.PathLike[str], tile: Tile) -> None:
     """Write ``tile`` atomically (temporary file, then rename) as uncompressed ``.npz``."""
     tile.validate(path)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    meta = dict(tile.meta, format_version=FORMAT_VERSION)
-    tmp = path.with_name(path.name + ".part")
-    with open(tmp, "wb") as fh:
-        np.savez(fh, meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), **tile.arrays)
-    os.replace(tmp, path)
+    save_columns(path, tile.arrays, dict(tile.meta, format_version=FORMAT_VERSION))
 
 
 def load_tile(path: str | os.PathLike[str], columns: list[str] | None = None) -> Tile:
@@ -134,13 +117,8 @@ def load_tile(path: str | os.PathLike[str], columns: list[str] | None = None) ->
     columns
         Only these arrays (default: all).
     """
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(bytes(z["meta"]).decode())
-            names = list(TILE_ARRAYS) if columns is None else columns
-            arrays = {k: z[k] for k in names}
-    except (OSError, ValueError, KeyError) as exc:
-        raise InputError(path, f"not a readable towerpipe tile file ({exc}); rerun the preprocessing") from exc
+    arrays, meta = load_columns(path, list(TILE_ARRAYS) if columns is None else columns, "tile",
+                                "rerun the preprocessing")
     tile = Tile(arrays, meta)
     if columns is None:
         tile.validate(path)

@@ -86,6 +86,14 @@ def headers(zone):
     return _headers(zone, zone_input(zone))
 
 
+def zone_crs(zone):
+    """The CRS most blocks of a zone have (WKT), or None: a block in another CRS is refused."""
+    from collections import Counter
+
+    wkts = [h.crs_wkt for h in headers(zone).values() if h is not None and h.crs_wkt]
+    return Counter(wkts).most_common(1)[0][0] if wkts else None
+
+
 def bounds(zone):
     """Header bounds of every readable block."""
     return {b: h.bounds for b, h in headers(zone).items() if h is not None and h.point_count > 0}

@@ -8,6 +8,7 @@ rule split_block:
         cache=directory(f"{WORK}/{{zone}}/cache/{{block}}"),
     params:
         crs=lambda wc: zone_config(wc.zone).get("crs"),
+        zone_crs=lambda wc: zone_crs(wc.zone),
         preprocess=PREP,
     log:
         f"{WORK}/{{zone}}/logs/split_block/{{block}}.log",

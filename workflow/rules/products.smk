@@ -39,7 +39,13 @@ rule qa_block:
         towers=f"{WORK}/{{zone}}/towers/{{block}}.gpkg",
         classified=f"{WORK}/{{zone}}/out/{{block}}.laz",
     output:
-        html=f"{WORK}/{{zone}}/qa/{{block}}.html",
+        html=report(
+            f"{WORK}/{{zone}}/qa/{{block}}.html",
+            caption="../report/qa.rst",
+            category="QA",
+            subcategory="{zone}",
+            labels={"zone": "{zone}", "block": "{block}"},
+        ),
         json=f"{WORK}/{{zone}}/qa/{{block}}.json",
     params:
         benchmarks=lambda wc: block_benchmarks(wc.zone, wc.block),

@@ -1,0 +1,81 @@
+"""End to end on the CI zone (.test/config): raw blocks in -> classified blocks, towers, QA out.
+
+Uses the shipped default model, and checks that it reproduces the metrics recorded in its
+model card on this (deterministically generated) zone.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+
+import laspy
+import numpy as np
+import pyogrio
+import pytest
+
+from conftest import REPO
+
+pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow]
+
+ZONE = "ci"
+
+
+@pytest.fixture(scope="module")
+def zone_run(tmp_path_factory):
+    work = tmp_path_factory.mktemp("work")
+    cmd = [sys.executable, "-m", "snakemake", "--cores", "2", f"results/{ZONE}/",
+           "--configfile=.test/config/config.yaml", "--config", f"workdir={work}"]
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    yield REPO / "results" / ZONE, REPO / "data" / ZONE
+    shutil.rmtree(REPO / "results" / ZONE, ignore_errors=True)
+
+
+def test_every_point_and_attribute_survives(zone_run):
+    out, data = zone_run
+    inputs = sorted(data.glob("*.laz"))
+    assert inputs
+    for src in inputs:
+        a = laspy.read(src)
+        b = laspy.read(out / "blocks" / src.name)
+        assert len(b.points) == len(a.points)
+        assert b.header.parse_crs() == a.header.parse_crs()
+        assert "TowerProbability" in b.point_format.dimension_names
+        for dim in a.point_format.dimension_names:
+            if dim != "classification":
+                np.testing.assert_array_equal(np.asarray(b[dim]), np.asarray(a[dim]), err_msg=f"{src.name}: {dim}")
+        cls_in, cls_out = np.asarray(a.classification), np.asarray(b.classification)
+        changed = cls_in != cls_out
+        assert set(np.unique(cls_out[changed])) <= {1, 15}, "only tower labels change"
+        prob = np.asarray(b["TowerProbability"])
+        assert ((cls_out == 15) == (prob >= 0.5)).all()
+
+
+def test_geopackage_and_qa(zone_run):
+    out, _ = zone_run
+    layers = dict(pyogrio.list_layers(out / "towers.gpkg"))
+    assert layers.get("towers") == "Polygon" and layers.get("tower_points") == "Point"
+    info = pyogrio.read_info(out / "towers.gpkg", layer="towers")
+    assert "25831" in info["crs"]
+    index = (out / "qa" / "index.html").read_text()
+    assert "<img" in index or "data:image/png" in index or "block" in index
+    for page in (out / "qa").glob("*.html"):
+        assert "http://" not in page.read_text() and "https://" not in page.read_text()
+
+
+def test_shipped_model_reproduces_its_recorded_metrics(zone_run):
+    from towerpipe.evaluate import evaluate_zone
+    from towerpipe.model import default_model_path
+
+    out, data = zone_run
+    card = json.loads((default_model_path("full") / "model_card.json").read_text())
+    ref = card["metrics"]["reference_zone"]
+    assert ref["zone_config"] == ".test/config/config.yaml"
+    res = evaluate_zone(data, out)
+    assert res["towers_true"] == ref["towers_true"]
+    for key in ("tower_precision", "tower_recall", "point_iou_tower"):
+        assert res[key] == pytest.approx(ref[key], abs=0.05), key
+    assert res["towers_reported_twice"] == 0
