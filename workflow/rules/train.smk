@@ -27,7 +27,7 @@ rule ablation:
     input:
         tiles=training_tiles(),
     output:
-        out=directory(f"{WORK}/models/{{name}}_ablation"),
+        out=directory(f"{WORK}/ablation/{{name}}"),
     params:
         feature_set=lambda wc: model_spec(wc.name)["feature_set"],
         train=lambda wc: model_train_config(wc.name, ablation=True),
@@ -48,7 +48,7 @@ rule ablation:
 rule model_results:
     input:
         bundle=f"{WORK}/models/{{name}}",
-        ablation=lambda wc: [f"{WORK}/models/{wc.name}_ablation"] if TRAIN["ablation"] else [],
+        ablation=lambda wc: [f"{WORK}/ablation/{wc.name}"] if TRAIN["ablation"] else [],
     output:
         directory("results/models/{name}/"),
     log:
