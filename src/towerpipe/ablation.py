@@ -37,7 +37,8 @@ REFERENCE: dict[str, Any] = {"feature_set": "full", "sampling": "constrained", "
 def _run_row(windows_path: str, config: dict[str, Any]) -> dict[str, Any]:
     """Train both networks for one row (runs in a worker process)."""
     from towerpipe.dataset import load_windows
-    from towerpipe.train import peak_rss_mb, train_classifier, train_segmenter
+    from towerpipe.resources import peak_rss_mb
+    from towerpipe.train import train_classifier, train_segmenter
 
     ws = load_windows(windows_path)
     t0 = time.perf_counter()

@@ -19,7 +19,6 @@ towers gets valid empty layers with the full schema.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import os
@@ -35,6 +34,7 @@ import pandas as pd
 import pyogrio
 
 from towerpipe.errors import InputError
+from towerpipe.modelcard import config_hash
 from towerpipe.towers import TOWER_COLUMNS, empty_towers
 
 log = logging.getLogger(__name__)
@@ -70,12 +70,6 @@ def default_style(geometry: str = "polygon") -> str:
     return qml.replace("<layerGeometryType>2</layerGeometryType>", "<layerGeometryType>0</layerGeometryType>")
 
 
-def config_hash(config: Mapping[str, Any] | None) -> str:
-    """sha256 (first 16 hex digits) of the canonical JSON of a configuration dict."""
-    text = json.dumps(config or {}, sort_keys=True, separators=(",", ":"), default=str)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
 def run_metadata(*, model_meta: Mapping[str, Any] | None = None, config: Mapping[str, Any] | None = None,
                  run_time: str | None = None, **extra: Any) -> dict[str, str]:
     """Run metadata for :func:`write_towers_gpkg`.
@@ -99,7 +93,7 @@ def run_metadata(*, model_meta: Mapping[str, Any] | None = None, config: Mapping
         "model_name": str(model_meta.get("name", "")),
         "model_version": str(model_meta.get("version", "")),
         "model_sha256": str(model_meta.get("sha256", "")),
-        "config_hash": config_hash(config),
+        "config_hash": config_hash(config or {}),
         "run_time": run_time or datetime.now(timezone.utc).replace(microsecond=0).isoformat(),
     }
     md.update({str(k): (v if isinstance(v, str) else json.dumps(v, default=str)) for k, v in extra.items()})

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import resource
 import time
 from typing import Any, Mapping, Protocol
 
@@ -39,6 +38,7 @@ import numpy as np
 
 from towerpipe.errors import ConfigError, ModelError
 from towerpipe.predfile import save_pred
+from towerpipe.resources import peak_rss_mb
 from towerpipe.tilefile import Tile, load_tile
 from towerpipe.windows import WindowSet, sliding_windows
 
@@ -112,10 +112,6 @@ def _model_info(bundle: BundleLike, model_path: str | os.PathLike[str] | None) -
         sha = hashlib.sha256("".join(f"{k}:{files[k]}" for k in sorted(files)).encode()).hexdigest()
     return {"name": bundle.name, "version": str(bundle.version), "feature_set": bundle.feature_set,
             "path": None if path is None else str(path), "sha256": sha}
-
-
-def _peak_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def predict_tile(
@@ -336,7 +332,7 @@ def infer_tile(
     meta.update(stats)
     tw = time.perf_counter()
     meta["timings"] = timings
-    meta["peak_rss_mb"] = _peak_rss_mb()
+    meta["peak_rss_mb"] = peak_rss_mb()
     save_pred(out_path, arrays, meta)
     timings["write"] = time.perf_counter() - tw
     timings["total"] = time.perf_counter() - t0

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import copy
 import os
-import resource
 import time
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -40,6 +39,7 @@ from laspy.vlrs.known import ExtraBytesVlr
 
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.predfile import load_pred
+from towerpipe.resources import peak_rss_mb
 
 __all__ = ["TOWER_CLASS", "OTHER_CLASS", "PROB_DIMENSION", "merge_block", "block_probabilities", "relabel"]
 
@@ -342,6 +342,6 @@ def merge_block(
         threshold=float(threshold),
         timings=timings,
         mpts_per_s=n / total / 1e6 if total > 0 else float("nan"),
-        peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        peak_rss_mb=peak_rss_mb(),
     )
     return stats

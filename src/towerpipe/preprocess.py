@@ -23,7 +23,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import resource
 import shutil
 import tempfile
 import time
@@ -42,6 +41,7 @@ from towerpipe.columnfile import read_meta
 from towerpipe.errors import InputError
 from towerpipe.lasio import BLOCK_COLUMNS, color_info, iter_block
 from towerpipe.pdal import run_pipeline
+from towerpipe.resources import peak_rss_mb
 from towerpipe.tilefile import Tile, empty_arrays, save_tile
 
 log = logging.getLogger(__name__)
@@ -92,11 +92,6 @@ class PreprocessConfig:
         d = dict(d or {})
         known = {f for f in cls.__dataclass_fields__}
         return cls(**{k: v for k, v in d.items() if k in known})
-
-
-def peak_rss_mb() -> float:
-    """Peak resident memory of this process in MiB."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 # --------------------------------------------------------------------------- split

@@ -20,6 +20,7 @@ import numpy as np
 from towerpipe import __version__
 from towerpipe.assemble import assemble_directory
 from towerpipe.columnfile import read_meta
+from towerpipe.modelcard import config_hash
 
 log = logging.getLogger(__name__)
 
@@ -34,13 +35,6 @@ def resolve_model(spec: str) -> Path:
     if spec in ("full", "geometry"):
         return default_model_path(spec)
     return Path(spec)
-
-
-def config_hash(cfg: Mapping[str, Any]) -> str:
-    """Short stable hash of the parameters that change the products."""
-    import hashlib
-
-    return hashlib.sha256(json.dumps(cfg, sort_keys=True, default=str).encode()).hexdigest()[:12]
 
 
 def _json(path: str | os.PathLike[str]) -> dict[str, Any]:

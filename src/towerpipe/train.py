@@ -23,7 +23,6 @@ import json
 import logging
 import math
 import os
-import resource
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -39,6 +38,7 @@ from towerpipe.features import FEATURE_SETS, NORM_RADIUS, normalisation_spec
 from towerpipe.losses import class_balanced_weights, feature_transform_regulariser, weighted_nll
 from towerpipe.model import (BUNDLE_VERSION, PointNetClassifier, PointNetSegmenter, count_parameters,
                              save_bundle, segment_points)
+from towerpipe.resources import peak_rss_mb
 
 log = logging.getLogger(__name__)
 
@@ -81,12 +81,6 @@ def train_config(config: Mapping[str, Any] | None = None) -> dict[str, Any]:
     if out["sampling"] not in ("constrained", "random"):
         raise ConfigError("train config: sampling must be 'constrained' or 'random'")
     return out
-
-
-def peak_rss_mb() -> float:
-    """Peak resident memory of this process (MiB)."""
-    r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return r / (1024 * 1024) if sys.platform == "darwin" else r / 1024
 
 
 def _augment(x: np.ndarray, cfg: Mapping[str, Any], rng: np.random.Generator) -> np.ndarray:
