@@ -35,3 +35,26 @@ def pdal_cli():
     if shutil.which("pdal") is None:
         pytest.skip("the pdal CLI is not installed (bash scripts/install_pdal.sh)")
     return "pdal"
+
+
+@pytest.fixture(scope="session")
+def random_model_factory(tmp_path_factory):
+    """``make(feature_set)`` -> a randomly initialised model bundle directory (plumbing tests)."""
+    from towerpipe.features import FEATURE_SETS
+    from towerpipe.model import PointNetClassifier, PointNetSegmenter, save_bundle
+    from towerpipe.modelcard import code_version, config_hash
+
+    made = {}
+
+    def make(feature_set: str = "full") -> Path:
+        if feature_set not in made:
+            c = len(FEATURE_SETS[feature_set])
+            card = {"name": f"towerpipe-random-{feature_set}", "version": "0", "bundle_version": 1,
+                    "feature_set": feature_set, "features": FEATURE_SETS[feature_set], "normalisation": {},
+                    "sampling": {"n_points": 2048}, "training_data": {"tiles": []},
+                    "metrics": {"classifier": {}}, "code": code_version(), "config_hash": config_hash({})}
+            out = tmp_path_factory.mktemp("model") / f"towerpipe-random-{feature_set}-v0"
+            made[feature_set] = save_bundle(out, PointNetClassifier(c).eval(), PointNetSegmenter(c).eval(), card)
+        return made[feature_set]
+
+    return make

@@ -30,12 +30,12 @@ def zone_run(tmp_path_factory):
            "--configfile=.test/config/config.yaml", "--config", f"workdir={work}"]
     proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    yield REPO / "results" / ZONE, REPO / "data" / ZONE
+    yield REPO / "results" / ZONE, REPO / "data" / ZONE, cmd
     shutil.rmtree(REPO / "results" / ZONE, ignore_errors=True)
 
 
 def test_every_point_and_attribute_survives(zone_run):
-    out, data = zone_run
+    out, data, _ = zone_run
     inputs = sorted(data.glob("*.laz"))
     assert inputs
     for src in inputs:
@@ -55,7 +55,7 @@ def test_every_point_and_attribute_survives(zone_run):
 
 
 def test_geopackage_and_qa(zone_run):
-    out, _ = zone_run
+    out, _, _ = zone_run
     layers = dict(pyogrio.list_layers(out / "towers.gpkg"))
     assert layers.get("towers") == "Polygon" and layers.get("tower_points") == "Point"
     info = pyogrio.read_info(out / "towers.gpkg", layer="towers")
@@ -70,7 +70,7 @@ def test_shipped_model_reproduces_its_recorded_metrics(zone_run):
     from towerpipe.evaluate import evaluate_zone
     from towerpipe.model import default_model_path
 
-    out, data = zone_run
+    out, data, _ = zone_run
     card = json.loads((default_model_path("full") / "model_card.json").read_text())
     ref = card["metrics"]["reference_zone"]
     assert ref["zone_config"] == ".test/config/config.yaml"
@@ -79,3 +79,19 @@ def test_shipped_model_reproduces_its_recorded_metrics(zone_run):
     for key in ("tower_precision", "tower_recall", "point_iou_tower"):
         assert res[key] == pytest.approx(ref[key], abs=0.05), key
     assert res["towers_reported_twice"] == 0
+
+
+def test_snakemake_report_holds_the_qa_pages(zone_run, tmp_path):
+    report = tmp_path / "report.zip"
+    proc = subprocess.run(zone_run[2] + ["--report", str(report)], cwd=REPO, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    import zipfile
+
+    with zipfile.ZipFile(report) as z:
+        names = z.namelist()
+        qa = [n for n in names if n.endswith(".html") and not n.endswith("report.html")]
+        blocks = {p.stem for p in (REPO / "results" / ZONE / "blocks").glob("*.laz")}
+        assert {n.rsplit("/", 1)[-1][:-5] for n in qa} >= blocks, names
+        page = z.read(qa[0]).decode()
+        assert "data:image/png;base64," in page  # the QA plots are embedded in the report's pages
+        assert any(n.endswith("report.html") for n in names)

@@ -196,3 +196,31 @@ def test_zone_index(tmp_path):
     page = (tmp_path / "index.html").read_text()
     assert "href='qa/a.html'" in page and "merge_block failed" in page and "ground classified" in page
     assert json.loads((tmp_path / "index.json").read_text())["totals"]["towers"] == 2
+
+
+def test_edge_tower_reported_by_the_neighbour_counts_as_found(tmp_path):
+    # half of a labelled tower lies in this block, the neighbour (east) owns and reports it
+    pts = make_block(towers_at=((X0 + 60, Y0 + 60), (X0 + SIZE - 0.5, Y0 + 100)))
+    inside = pts["x"] < X0 + SIZE
+    pts = {k: v[inside] for k, v in pts.items()}
+    # with the neighbour's predictions the whole tower's centroid is east of the edge: this
+    # block reports only its first tower
+    gdf = towers_of(pts)
+    gdf = gdf[gdf["centroid_x"] < X0 + 100]
+    assert len(gdf) == 1
+    tiles, preds = metas()
+    truth = pts["classification"].copy()
+    kw = dict(block_name="b1", zone="z1", block_bounds=BOUNDS, tile_metas=tiles, pred_metas=preds, towers=gdf,
+              classified=pts, truth=truth)
+    alone = block_report(tmp_path / "a.html", tmp_path / "a.json", **kw)
+    assert alone["accuracy"]["recall"] == 0.5 and alone["status"] == "look"
+    full_tower = tower(X0 + SIZE - 0.5, Y0 + 100)
+    import shapely
+
+    nb = [{"tower_id": "T_z1_east", "footprint_wkt": shapely.MultiPoint(full_tower[:, :2]).convex_hull.wkt,
+           "blocks": "b1,b2"}]
+    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", neighbour_towers=nb, **kw)
+    acc = doc["accuracy"]
+    assert acc["recall"] == 1.0 and acc["precision"] == 1.0 and acc["fn"] == 0
+    assert any(m.get("owner") == "neighbour" for m in acc["matches"])
+    assert not any(f["code"] == "missed_towers" for f in doc["flags"])

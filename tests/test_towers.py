@@ -120,11 +120,15 @@ def test_tower_across_block_edge_reported_once():
     bw = (X0, Y0, edge, Y0 + 500)
     be = (edge, Y0, X0 + 500, Y0 + 500)
     # each block's job sees its own and its neighbour's predictions
-    west_towers = extract_towers([(arrays, meta)], "bw", bw, zone="z1", processed_at=STAMP)
-    east_towers = extract_towers([(arrays, meta)], "be", be, zone="z1", processed_at=STAMP)
+    west_nb, east_nb = [], []
+    west_towers = extract_towers([(arrays, meta)], "bw", bw, zone="z1", processed_at=STAMP, neighbours=west_nb)
+    east_towers = extract_towers([(arrays, meta)], "be", be, zone="z1", processed_at=STAMP, neighbours=east_nb)
     assert len(west_towers) == 0
     assert len(east_towers) == 1
     row = east_towers.iloc[0]
+    # the west block knows the tower it touches is the east block's (for its QA), the east one owns it
+    assert [t["tower_id"] for t in west_nb] == [row["tower_id"]] and east_nb == []
+    assert shapely.from_wkt(west_nb[0]["footprint_wkt"]).equals_exact(east_towers.geometry.iloc[0], 1e-6)
     assert row["block"] == "be" and row["blocks"] == "be,bw"
     assert row["n_points"] == len(xyz)
     assert 0 < row["edge_distance_m"] < 1.0

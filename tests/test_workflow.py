@@ -44,19 +44,9 @@ def split_in_blocks(src, out_dir, n=3):
 
 
 @pytest.fixture(scope="module")
-def random_model(tmp_path_factory):
+def random_model(random_model_factory):
     """A randomly initialised model bundle: the plumbing tests do not depend on model quality."""
-    from towerpipe.features import FEATURE_SETS
-    from towerpipe.model import PointNetClassifier, PointNetSegmenter, save_bundle
-    from towerpipe.modelcard import code_version, config_hash
-
-    c = len(FEATURE_SETS["full"])
-    card = {"name": "towerpipe-random", "version": "0", "bundle_version": 1, "feature_set": "full",
-            "features": FEATURE_SETS["full"], "normalisation": {}, "sampling": {"n_points": 2048},
-            "training_data": {"tiles": []}, "metrics": {"classifier": {}}, "code": code_version(),
-            "config_hash": config_hash({})}
-    out = tmp_path_factory.mktemp("model") / "towerpipe-random-v0"
-    return save_bundle(out, PointNetClassifier(c).eval(), PointNetSegmenter(c).eval(), card)
+    return random_model_factory("full")
 
 
 @pytest.fixture
@@ -136,12 +126,14 @@ def test_bad_block_costs_only_itself(zone, random_model):
     assert proc.returncode != 0
     work = tmp / "work" / name
     assert sorted(p.name for p in (work / "out").iterdir()) == sorted(f"{b.stem}.laz" for b in blocks)
-    assert not (work / "cache" / "broken").exists(), "a failed job leaves no output behind"
-    log = (work / "logs" / "split_block" / "broken.log").read_text()
+    # the split records the error (neighbours go on without the block), the block's own
+    # next step fails with it
+    assert sorted(p.name for p in (work / "cache" / "broken").iterdir() if not p.name.startswith(".")) == ["meta.json"]
+    log = (work / "logs" / "preprocess_block" / "broken.log").read_text()
     assert re.search(r"InputError: .*broken\.laz: not a readable LAS/LAZ file", log), log
     # the zone directory is published as INCOMPLETE, its QA index naming the bad block and why
     out = REPO / "results" / name
-    assert "broken: split_block: InputError" in (out / "INCOMPLETE.txt").read_text()
+    assert "broken: preprocess_block: InputError" in (out / "INCOMPLETE.txt").read_text()
     index = (out / "qa" / "index.html").read_text()
     assert "broken" in index and "not a readable LAS/LAZ file" in index
     assert sorted(p.name for p in (out / "blocks").iterdir()) == sorted(f"{b.stem}.laz" for b in blocks)

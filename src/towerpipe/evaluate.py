@@ -7,6 +7,12 @@ prediction (a tower reported twice). Point level: the classified blocks'
 ``Classification == 15`` against the input labels (class 15), as IoU.
 
 ``towerpipe evaluate --zone-dir data/holdout --results results/holdout``
+
+Window level (the paper's metrics, issue #4): :func:`evaluate_windows` builds windows
+from a held-out zone's labelled tiles exactly as for training (same dataset
+configuration as the model's card) and reports the classifier's F1 and the segmenter's
+IoU tower / IoU background / mIoU on all points of the positive windows.
+``towerpipe evaluate-windows --model models/towerpipe-full-v1 --tiles 'work/holdout/tiles/*/*.npz'``
 """
 
 from __future__ import annotations
@@ -38,7 +44,7 @@ def point_confusion(input_block: str | os.PathLike[str], classified_block: str |
 
 def evaluate_zone(input_dir: str | os.PathLike[str], results_dir: str | os.PathLike[str], *,
                   truth_gpkg: str | os.PathLike[str] | None = None, max_dist: float = 5.0,
-                  out_json: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+                  out_json: str | os.PathLike[str] | None = None, min_truth_points: int = 0) -> dict[str, Any]:
     """Tower precision/recall and point IoU of a processed zone.
 
     Parameters
@@ -50,6 +56,10 @@ def evaluate_zone(input_dir: str | os.PathLike[str], results_dir: str | os.PathL
         ``results/<zone>/``.
     truth_gpkg
         True tower footprints (default: ``input_dir/towers_truth.gpkg``).
+    min_truth_points
+        True towers with fewer points (``n_points`` of the truth file) are left out of
+        the tower figures, and a prediction matching one is not counted as false: the
+        paper drops towers under 20 points from its data. 0 evaluates every tower.
     """
     from towerpipe.gpkg import read_towers
     from towerpipe.towers import match_towers
@@ -58,6 +68,15 @@ def evaluate_zone(input_dir: str | os.PathLike[str], results_dir: str | os.PathL
     truth_path = Path(truth_gpkg) if truth_gpkg else input_dir / "towers_truth.gpkg"
     truth = gpd.read_file(truth_path, layer="towers")
     pred = read_towers(results_dir / "towers.gpkg")
+    ignored = 0
+    if min_truth_points and "n_points" in truth.columns:
+        small = truth["n_points"].to_numpy() < int(min_truth_points)
+        if small.any() and len(pred):
+            hits = match_towers(pred, truth[small], max_dist=max_dist)["matches"]
+            drop = {h["pred"] for h in hits}
+            ignored = len(drop)
+            pred = pred[~pred["tower_id"].astype(str).isin(drop)]
+        truth = truth[~small]
     m = match_towers(pred, truth, max_dist=max_dist)
     ids = pred["tower_id"].tolist() if len(pred) else []
     # a true tower hit by several predictions = reported twice (the one-to-one match keeps one)
@@ -77,7 +96,8 @@ def evaluate_zone(input_dir: str | os.PathLike[str], results_dir: str | os.PathL
         "towers_true": int(len(truth)), "towers_predicted": int(len(pred)),
         "tower_precision": m["precision"], "tower_recall": m["recall"], "tower_f1": m.get("f1"),
         "towers_reported_twice": int((claimed > 1).sum()), "duplicate_ids": len(ids) - len(set(ids)),
-        "point_iou_tower": iou, "points": {"tp": tp, "fp": fp, "fn": fn}, "per_block": per_block,
+        "point_iou_tower": iou, "min_truth_points": int(min_truth_points),
+        "predictions_on_small_towers_ignored": ignored, "points": {"tp": tp, "fp": fp, "fn": fn}, "per_block": per_block,
         "unmatched_truth": [str(t) for t in m.get("unmatched_truth", [])],
         "unmatched_pred": [str(t) for t in m.get("unmatched_pred", [])],
     }
@@ -101,8 +121,88 @@ def record_reference(model_dir: str | os.PathLike[str], result: dict[str, Any], 
     modelcard.write_card(Path(model_dir), card)
 
 
+def evaluate_windows(model_dir: str | os.PathLike[str], tile_paths: list[str], *,
+                     dataset_config: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Window-level metrics of a model bundle on labelled tiles of a held-out zone.
+
+    Parameters
+    ----------
+    model_dir
+        A model bundle directory.
+    tile_paths
+        Tile files (``work/<zone>/tiles/<block>/<tile>.npz``) of a zone never used in training.
+    dataset_config
+        Overrides of the window-building configuration; default: the one recorded in the
+        model card (so the mix of positives, hard and tall negatives is the training one).
+
+    Returns
+    -------
+    dict
+        ``classifier`` (F1, precision, recall, accuracy, n, positives), ``segmenter``
+        (IoU tower, IoU background, mIoU, points, windows), ``windows``, ``towers``.
+    """
+    from towerpipe.dataset import build_windows
+    from towerpipe.model import load_bundle
+    from towerpipe.train import classification_metrics, segmentation_metrics
+
+    bundle = load_bundle(model_dir)
+    paths = sorted(str(p) for p in tile_paths)
+    if not paths:
+        raise InputError(str(model_dir), "no tile files to evaluate on; run the zone's preprocessing first")
+    recorded = bundle.card.get("config") or {}
+    cfg = dict(recorded.get("dataset") or {})
+    cfg.update(dataset_config or {})
+    blocks = sorted({Path(p).parent.name for p in paths})
+    cfg["split"] = {"test": blocks}
+    ws = build_windows(paths, cfg)
+    idx = ws.indices("test")
+    fs = bundle.feature_set
+    prob = np.concatenate([bundle.classify(ws.sampled(idx[s:s + 64], fs, "constrained")[0])
+                           for s in range(0, len(idx), 64)]) if len(idx) else np.zeros(0, np.float32)
+    thr = float((recorded.get("train") or {}).get("threshold", 0.5))
+    clf = classification_metrics(prob, ws.label[idx], thr)
+    preds, labs = [], []
+    pos = idx[ws.label[idx] == 1]
+    for i in pos:
+        f, lab = ws.window_points(int(i), fs)
+        preds.append(bundle.segment(f) >= thr)
+        labs.append(lab)
+    seg = segmentation_metrics(np.concatenate(preds) if preds else np.zeros(0, bool),
+                               np.concatenate(labs) if labs else np.zeros(0, bool))
+    seg["windows"] = int(len(pos))
+    return {"model": bundle.name, "version": bundle.version, "tiles": paths, "windows": int(len(idx)),
+            "towers": int(ws.meta["towers"]), "classifier": clf, "segmenter": seg}
+
+
+def record_windows(model_dir: str | os.PathLike[str], result: dict[str, Any], zone: str) -> None:
+    """Store window-level held-out metrics in a model card (``metrics.holdout_windows.<zone>``)."""
+    from towerpipe import modelcard
+
+    card = modelcard.read_card(model_dir)
+    card.setdefault("metrics", {}).setdefault("holdout_windows", {})[zone] = {
+        "windows": result["windows"], "towers": result["towers"],
+        "classifier": result["classifier"], "segmenter": result["segmenter"]}
+    modelcard.write_card(Path(model_dir), card)
+
+
+def _cli_windows(args: argparse.Namespace) -> int:
+    import glob
+
+    res = evaluate_windows(args.model, sorted(glob.glob(args.tiles, recursive=True)))
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=1, default=str))
+    if args.record_in_card:
+        record_windows(args.model, res, args.zone or args.tiles)
+    c, s = res["classifier"], res["segmenter"]
+    print(f"{res['model']} v{res['version']}: {res['windows']} windows, {res['towers']} towers; classifier F1 "
+          f"{c['f1']:.3f} (P {c['precision']:.3f} R {c['recall']:.3f}); segmenter IoU tower {s['iou_tower']:.3f} "
+          f"IoU background {s['iou_background']:.3f} mIoU {s['miou']:.3f}")
+    return 0
+
+
 def _cli(args: argparse.Namespace) -> int:
-    res = evaluate_zone(args.zone_dir, args.results, truth_gpkg=args.truth, out_json=args.json)
+    res = evaluate_zone(args.zone_dir, args.results, truth_gpkg=args.truth, out_json=args.json,
+                        min_truth_points=args.min_truth_points)
     if args.record_in:
         record_reference(args.record_in, res, args.zone_config)
     print(f"towers: {res['towers_predicted']} predicted, {res['towers_true']} true; "
@@ -117,6 +217,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--results", required=True, help="results/<zone>/")
     p.add_argument("--truth", help="true tower footprints (default: ZONE_DIR/towers_truth.gpkg)")
     p.add_argument("--json", help="write the figures here")
+    p.add_argument("--min-truth-points", type=int, default=0,
+                   help="leave out true towers with fewer points (the paper drops towers under 20 points)")
     p.add_argument("--record-in", metavar="MODEL_DIR", help="store the figures in this model's card")
     p.add_argument("--zone-config", default=".test/config/config.yaml", help="config that defines the zone")
     p.set_defaults(func=_cli)
+    p = sub.add_parser("evaluate-windows", help="window-level F1 / IoU of a model on a held-out zone's tiles")
+    p.add_argument("--model", required=True, help="model bundle directory")
+    p.add_argument("--tiles", required=True, help="glob of the zone's tile files, e.g. 'work/holdout/tiles/*/*.npz'")
+    p.add_argument("--json", help="write the figures here")
+    p.add_argument("--record-in-card", action="store_true", help="store them in the model card (metrics.holdout_windows)")
+    p.add_argument("--zone", help="zone name recorded with the figures")
+    p.set_defaults(func=_cli_windows)

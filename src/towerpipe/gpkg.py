@@ -161,7 +161,7 @@ def write_towers_gpkg(path: str | os.PathLike[str], towers: gpd.GeoDataFrame | N
     md = {str(k): str(v) for k, v in (metadata or {}).items()}
     md.setdefault("n_towers", str(len(gdf)))
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.part.gpkg")
+    tmp = path.with_name(f".{path.stem}.part.gpkg")  # fixed name: a rerun after a kill replaces it
     try:
         if tmp.exists():
             tmp.unlink()

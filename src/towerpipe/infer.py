@@ -151,7 +151,8 @@ def predict_tile(
         raise ConfigError(f"infer.gate must be in [0, 1], got {gate}")
     if batch_size < 1:
         raise ConfigError(f"infer.batch_size must be >= 1, got {batch_size}")
-    check_model_compatibility(tile.meta, bundle)
+    if np.asarray(tile.arrays["model_input"], dtype=bool).any():  # nothing to predict needs no features
+        check_model_compatibility(tile.meta, bundle)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
 

@@ -38,8 +38,8 @@ from rasterio.fill import fillnodata
 
 from towerpipe import tiling
 from towerpipe.columnfile import read_meta
-from towerpipe.errors import InputError
-from towerpipe.lasio import BLOCK_COLUMNS, color_info, iter_block
+from towerpipe.errors import InputError, TowerpipeError
+from towerpipe.lasio import BLOCK_COLUMNS, color_info, iter_block, read_header
 from towerpipe.pdal import run_pipeline
 from towerpipe.resources import peak_rss_mb
 from towerpipe.tilefile import Tile, empty_arrays, save_tile
@@ -99,8 +99,15 @@ class PreprocessConfig:
 
 def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, block: str,
                 zone: str | None = None, crs: str | None = None, zone_crs: str | None = None,
-                config: PreprocessConfig | None = None) -> dict[str, Any]:
+                config: PreprocessConfig | None = None, record_errors: bool = False) -> dict[str, Any]:
     """Decode a block once into an uncompressed column cache.
+
+    With ``record_errors``, a block that cannot be read (:class:`InputError`: truncated,
+    wrong or missing CRS…) gets a cache holding only ``meta.json`` with the error,
+    instead of raising: the neighbouring blocks, whose tiles take buffer points from
+    this cache, then go on without this block's points (and say so in their QA), while
+    the block's own next step raises the recorded error (:meth:`BlockCache.open`). A bad
+    block thus costs only itself.
 
     Parameters
     ----------
@@ -123,6 +130,33 @@ def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     dict
         The metadata written to ``meta.json``.
     """
+    try:
+        return _split_block(path, out_dir, block=block, zone=zone, crs=crs, zone_crs=zone_crs, config=config)
+    except InputError as exc:
+        if not record_errors:
+            raise
+        log.error("%s: %s", type(exc).__name__, exc)
+        log.error("recorded in %s: block %r fails at its next step; its neighbours go on without its points",
+                  out_dir, block)
+        meta = {"block": block, "zone": zone, "path": str(path), "error": {"type": type(exc).__name__,
+                                                                           "path": exc.path, "cause": exc.cause}}
+        try:
+            meta["header_bounds"] = list(read_header(path).bounds)
+        except TowerpipeError:
+            pass
+        out_dir = Path(out_dir)
+        tmp = out_dir.with_name(out_dir.name + ".part")
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+        (tmp / CACHE_META).write_text(json.dumps(meta, indent=1))
+        shutil.rmtree(out_dir, ignore_errors=True)
+        os.replace(tmp, out_dir)
+        return meta
+
+
+def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, block: str,
+                 zone: str | None, crs: str | None, zone_crs: str | None,
+                 config: PreprocessConfig | None) -> dict[str, Any]:
     cfg = config or PreprocessConfig()
     t0 = time.perf_counter()
     it = iter_block(path, crs=crs, zone=zone)
@@ -215,13 +249,26 @@ class BlockCache:
     _cols: dict[str, np.ndarray] = field(default_factory=dict)
 
     @classmethod
-    def open(cls, directory: str | os.PathLike[str]) -> "BlockCache":
+    def open(cls, directory: str | os.PathLike[str], *, allow_failed: bool = False) -> "BlockCache":
+        """Open a cache; a cache that records a failed split raises that block's error.
+
+        With ``allow_failed`` it is returned instead (check :attr:`failed`).
+        """
         directory = Path(directory)
         try:
             meta = json.loads((directory / CACHE_META).read_text())
         except (OSError, ValueError) as exc:
             raise InputError(directory, f"block cache unreadable ({exc}); rerun the split_block job") from exc
+        err = meta.get("error")
+        if err and not allow_failed:
+            raise InputError(err["path"], err["cause"])
         return cls(directory, meta)
+
+    @property
+    def failed(self) -> str | None:
+        """The one-line error of a block that could not be split, else ``None``."""
+        err = self.meta.get("error")
+        return f"{err['type']}: {err['path']}: {err['cause']}" if err else None
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name not in self._cols:
@@ -431,7 +478,17 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
     what = f"{zone}/{block}/{tile}"
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    caches = {b: BlockCache.open(d) for b, d in cache_dirs.items()}
+    caches = {b: BlockCache.open(d, allow_failed=True) for b, d in cache_dirs.items()}
+    if caches[block].failed:
+        # keep the zone's DAG going (neighbours' towers read this tile's predictions):
+        # an empty tile; the block itself fails at preprocess_block with the recorded error
+        log.error("%s: %s; writing an empty tile", block, caches[block].failed)
+        return _failed_tile(zone, block, tile, caches[block], out_path, dtm_path, cfg)
+    warnings = [f"neighbour block {b} could not be read ({c.failed}); no buffer points from it"
+                for b, c in sorted(caches.items()) if c.failed]
+    for w in warnings:
+        log.warning("%s: %s", block, w)
+    caches = {b: c for b, c in caches.items() if not c.failed}
     t = gather_tile(zone, block, tile, caches, cfg)
     timings["gather"] = time.perf_counter() - t0
     n = len(t)
@@ -485,9 +542,25 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
                                                         cfg.tile_size, cfg.tile_size), t.meta["crs_wkt"])
     timings["total"] = time.perf_counter() - t0
     t.meta.update(counts=counts, timings=timings, dtm=dtm_info, peak_rss_mb=peak_rss_mb(),
-                  hag_max=cfg.hag_max, hag_min=cfg.hag_min)
+                  hag_max=cfg.hag_max, hag_min=cfg.hag_min, warnings=warnings)
     save_tile(out_path, t)
     return t.meta
+
+
+def _failed_tile(zone: str, block: str, tile: str, cache: BlockCache, out_path: str | os.PathLike[str],
+                 dtm_path: str | os.PathLike[str] | None, cfg: PreprocessConfig) -> dict[str, Any]:
+    """The empty tile of a block whose split failed (see :func:`split_block`)."""
+    hb = cache.meta.get("header_bounds")
+    core = list(tiling.TileGrid(tuple(hb), cfg.tile_size).core_box(tile)) if hb else [0.0, 0.0, 0.0, 0.0]
+    meta = {"zone": zone, "block": block, "tile": tile, "crs_wkt": None, "core_bounds": core, "buffer": cfg.buffer,
+            "tile_size": cfg.tile_size, "blocks": [block], "has_rgb": False, "has_nir": False, "color_bits": None,
+            "ground_source": None, "failed": cache.failed, "counts": {"points": 0, "core": 0}, "timings": {},
+            "dtm": {}, "warnings": [cache.failed]}
+    if dtm_path:
+        write_raster(Path(dtm_path), np.full((1, 1), NODATA, np.float32),
+                     rasterio.transform.from_origin(core[0], core[3], cfg.tile_size, cfg.tile_size), None)
+    save_tile(out_path, Tile(empty_arrays(0), meta))
+    return meta
 
 
 def summarize_block(cache_dir: str | os.PathLike[str], tile_paths: list[str],
@@ -509,6 +582,7 @@ def summarize_block(cache_dir: str | os.PathLike[str], tile_paths: list[str],
         fallback = (meta.get("dtm") or {}).get("fallback")
         if fallback:
             warnings.append(f"tile {meta['tile']}: {fallback}")
+        warnings += [f"tile {meta['tile']}: {w}" for w in meta.get("warnings", [])]
     m = cache.meta
     if totals.get("core", m["points"]) != m["points"]:
         warnings.append(f"tile cores hold {totals.get('core')} points, the block {m['points']}")

@@ -308,6 +308,7 @@ def extract_towers(
     source_files: Mapping[str, str] | None = None,
     crs: Any = None,
     processed_at: str | None = None,
+    neighbours: list[dict[str, Any]] | None = None,
 ) -> gpd.GeoDataFrame:
     """Towers owned by one block, built from the predictions of the block and its neighbours.
 
@@ -341,6 +342,11 @@ def extract_towers(
         ``meta["crs_wkt"]`` of the first prediction file.
     processed_at
         ISO timestamp recorded in every record (default: now, UTC).
+    neighbours
+        When a list is given, each tower that has points in this block but is owned by
+        a neighbour (its centroid lies there) is appended to it as ``{"tower_id",
+        "footprint_wkt", "blocks"}``; the block's QA uses them so that a labelled edge
+        tower reported by the neighbour is not counted as missed.
 
     Returns
     -------
@@ -372,14 +378,17 @@ def extract_towers(
         xy = xyz[g, :2]
         foot = _footprint(xy, min_width)
         c = foot.centroid
+        touched = sorted(set(pts["block"][g].tolist()))
         if not _in_bounds(np.array([c.x]), np.array([c.y]), block_bounds)[0]:
+            if neighbours is not None and str(block_name) in touched:
+                neighbours.append({"tower_id": tower_id(zone, c.x, c.y), "footprint_wkt": foot.wkt,
+                                   "blocks": ",".join(touched)})
             continue
         rect = shapely.oriented_envelope(foot)
         ring = np.asarray(rect.exterior.coords) if isinstance(rect, shapely.Polygon) else np.zeros((2, 2))
         sides = np.hypot(*np.diff(ring[:3], axis=0).T) if len(ring) >= 3 else np.zeros(2)
         hag = pts["hag"][g].astype(np.float64)
         prob = pts["prob"][g].astype(np.float64)
-        touched = sorted(set(pts["block"][g].tolist()))
         rows.append({
             "tower_id": tower_id(zone, c.x, c.y),
             "zone": str(zone),

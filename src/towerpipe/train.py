@@ -4,8 +4,11 @@ As in Carós et al. (2022, sec. 5.1): class-balanced NLL (effective number of sa
 ``beta``), Adam at 1e-3, learning rate halved when the validation loss has not improved
 for 10 epochs, at most 50 epochs with early stopping on the validation loss (the best
 epoch's weights are kept), batches of 32 windows of 2048 points. The classifier trains
-on every training window; the segmenter on the positive windows plus 5 % of the
-negatives. Optional augmentation: rotation about z and coordinate jitter.
+on every training window; the segmenter on the positive windows plus
+``seg_negatives_per_positive`` negative windows per positive, drawn first from the
+hard negatives (a positive window with its tower removed) and the tall negatives
+(centred on a tall non-tower object), so that a window wrongly passed by the gate does
+not produce tower points (a production addition; the paper trains on positives). Optional augmentation: rotation about z and coordinate jitter.
 
 Entry points take plain paths and dicts::
 
@@ -32,7 +35,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from towerpipe.dataset import DEFAULT_DATASET_CONFIG, WindowSet, load_or_build
+from towerpipe.dataset import DEFAULT_DATASET_CONFIG, KINDS, WindowSet, load_or_build
 from towerpipe.errors import ConfigError
 from towerpipe.features import FEATURE_SETS, NORM_RADIUS, normalisation_spec
 from towerpipe.losses import class_balanced_weights, feature_transform_regulariser, weighted_nll
@@ -57,7 +60,7 @@ DEFAULT_TRAIN_CONFIG: dict[str, Any] = {
     "ft_reg": 0.001,
     "rotate": True,
     "jitter_m": 0.05,
-    "seg_negative_fraction": 0.05,
+    "seg_negatives_per_positive": 0.5,
     "max_train_windows": None,
     "time_budget_s": None,
     "threads": 2,
@@ -279,8 +282,11 @@ def train_segmenter(windows: WindowSet, config: Mapping[str, Any] | None = None
         idx = windows.indices(split)
         pos = idx[windows.label[idx] == 1]
         neg = idx[windows.label[idx] == 0]
-        k = int(round(float(cfg["seg_negative_fraction"]) * len(neg)))
-        return np.sort(np.concatenate([pos, rng.choice(neg, k, replace=False) if k else neg[:0]]))
+        hard = np.isin(windows.kind[neg], [KINDS["hard_negative"], KINDS["tall_negative"]])
+        k = min(len(neg), int(round(float(cfg["seg_negatives_per_positive"]) * len(pos))))
+        first = rng.permutation(neg[hard])
+        chosen = np.concatenate([first, rng.permutation(neg[~hard])])[:k]
+        return np.sort(np.concatenate([pos, chosen]))
 
     train_idx = _subset(pick("train"), cfg["max_train_windows"], rng)
     if len(train_idx) < 2:

@@ -10,6 +10,7 @@ rule towers_block:
         summary=f"{WORK}/{{zone}}/prep/{{block}}.json",
     output:
         gpkg=f"{WORK}/{{zone}}/towers/{{block}}.gpkg",
+        neighbours=f"{WORK}/{{zone}}/towers/{{block}}.neighbours.json",
     params:
         bounds=lambda wc: bounds(wc.zone).get(wc.block),
         source_files=lambda wc: blocks(wc.zone),
@@ -37,6 +38,9 @@ rule qa_block:
         dtms=lambda wc: [f"{WORK}/{wc.zone}/dtm/{wc.block}/{t}.tif" for t in tiles(wc.zone, wc.block)],
         preds=lambda wc: block_preds(wc.zone, wc.block),
         towers=f"{WORK}/{{zone}}/towers/{{block}}.gpkg",
+        neighbours=f"{WORK}/{{zone}}/towers/{{block}}.neighbours.json",
+        # not read (the QA classifies from the cache as the merge does); it orders the
+        # QA after the merge, whose time and memory the page reports
         classified=f"{WORK}/{{zone}}/out/{{block}}.laz",
     output:
         html=report(
@@ -49,6 +53,7 @@ rule qa_block:
         json=f"{WORK}/{{zone}}/qa/{{block}}.json",
     params:
         benchmarks=lambda wc: block_benchmarks(wc.zone, wc.block),
+        threshold=INFER["threshold"],
     log:
         f"{WORK}/{{zone}}/logs/qa_block/{{block}}.log",
     benchmark:
