@@ -39,6 +39,7 @@ DEFAULT_LIMITS: dict[str, float] = {
     "max_gate_ratio": 0.25,        # share of windows that passed the classifier gate
     "min_recall": 1.0,             # tower recall against input labels (when present)
     "min_precision": 1.0,          # tower precision against input labels (when present)
+    "min_truth_points": 20,        # labelled clusters with fewer points are not towers (paper: < 20 dropped)
 }
 
 TOWER_CLASS = 15
@@ -550,7 +551,8 @@ def block_report(
             p_mask = cls == TOWER_CLASS
             inter = int(np.count_nonzero(p_mask & t_mask))
             union = int(np.count_nonzero(p_mask | t_mask))
-            true_towers = towers_from_labels(pts["x"], pts["y"], pts["z"], pts.get("hag"), t_mask, min_points=1)
+            true_towers = towers_from_labels(pts["x"], pts["y"], pts["z"], pts.get("hag"), t_mask,
+                                             min_points=int(lim["min_truth_points"]))
             if bounds is not None and len(true_towers):
                 c = true_towers.geometry.centroid
                 inside = (c.x >= bounds[0]) & (c.x < bounds[2]) & (c.y >= bounds[1]) & (c.y < bounds[3])
