@@ -2,7 +2,8 @@
 
 The zone directory is rebuilt in a temporary sibling from hard links (copies
 where the file system refuses links) and swapped in with a rename, so readers
-never see a half-refreshed zone and adding a block only adds links.
+never see a half-refreshed zone and adding a block only adds links. Single files
+(QA pages, JSON summaries) are written the same way with :func:`write_text_atomic`.
 """
 
 from __future__ import annotations
@@ -11,6 +12,19 @@ import os
 import shutil
 from collections.abc import Callable, Mapping
 from pathlib import Path
+
+
+def write_text_atomic(path: str | os.PathLike[str], text: str) -> Path:
+    """Write ``text`` to ``path`` via a fixed-name hidden temporary (``.<name>.part``) and a rename.
+
+    Readers never see a half-written file, and a rerun after a kill replaces a stale temporary.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.part")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+    return path
 
 
 def link_or_copy(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> None:

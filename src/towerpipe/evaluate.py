@@ -143,7 +143,7 @@ def evaluate_windows(model_dir: str | os.PathLike[str], tile_paths: list[str], *
     """
     from towerpipe.dataset import build_windows
     from towerpipe.model import load_bundle
-    from towerpipe.train import classification_metrics, segmentation_metrics
+    from towerpipe.train import classification_metrics, predict_windows, segment_windows_metrics
 
     bundle = load_bundle(model_dir)
     paths = sorted(str(p) for p in tile_paths)
@@ -157,19 +157,9 @@ def evaluate_windows(model_dir: str | os.PathLike[str], tile_paths: list[str], *
     ws = build_windows(paths, cfg)
     idx = ws.indices("test")
     fs = bundle.feature_set
-    prob = np.concatenate([bundle.classify(ws.sampled(idx[s:s + 64], fs, "constrained")[0])
-                           for s in range(0, len(idx), 64)]) if len(idx) else np.zeros(0, np.float32)
     thr = float((recorded.get("train") or {}).get("threshold", 0.5))
-    clf = classification_metrics(prob, ws.label[idx], thr)
-    preds, labs = [], []
-    pos = idx[ws.label[idx] == 1]
-    for i in pos:
-        f, lab = ws.window_points(int(i), fs)
-        preds.append(bundle.segment(f) >= thr)
-        labs.append(lab)
-    seg = segmentation_metrics(np.concatenate(preds) if preds else np.zeros(0, bool),
-                               np.concatenate(labs) if labs else np.zeros(0, bool))
-    seg["windows"] = int(len(pos))
+    clf = classification_metrics(predict_windows(bundle.classifier, ws, idx, fs), ws.label[idx], thr)
+    seg = segment_windows_metrics(bundle.segmenter, ws, idx, fs, thr, bundle.chunk)
     return {"model": bundle.name, "version": bundle.version, "tiles": paths, "windows": int(len(idx)),
             "towers": int(ws.meta["towers"]), "classifier": clf, "segmenter": seg}
 

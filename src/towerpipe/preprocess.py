@@ -37,6 +37,7 @@ import rasterio
 from rasterio.fill import fillnodata
 
 from towerpipe import tiling
+from towerpipe.assemble import write_text_atomic
 from towerpipe.columnfile import read_meta
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.lasio import BLOCK_COLUMNS, color_info, iter_block, read_header
@@ -144,14 +145,25 @@ def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
             meta["header_bounds"] = list(read_header(path).bounds)
         except TowerpipeError:
             pass
-        out_dir = Path(out_dir)
-        tmp = out_dir.with_name(out_dir.name + ".part")
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir(parents=True)
+        tmp = _staging_dir(out_dir)
         (tmp / CACHE_META).write_text(json.dumps(meta, indent=1))
-        shutil.rmtree(out_dir, ignore_errors=True)
-        os.replace(tmp, out_dir)
+        _publish_dir(tmp, out_dir)
         return meta
+
+
+def _staging_dir(out_dir: str | os.PathLike[str]) -> Path:
+    """An empty ``<out_dir>.part`` sibling to write a cache into (a stale one is removed)."""
+    out_dir = Path(out_dir)
+    tmp = out_dir.with_name(out_dir.name + ".part")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    return tmp
+
+
+def _publish_dir(tmp: Path, out_dir: str | os.PathLike[str]) -> None:
+    """Replace ``out_dir`` by the finished staging directory ``tmp``."""
+    shutil.rmtree(out_dir, ignore_errors=True)
+    os.replace(tmp, out_dir)
 
 
 def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, block: str,
@@ -165,10 +177,7 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
         raise InputError(path, f"its CRS ({_crs_name(crs_wkt)}) differs from the rest of zone {zone!r} "
                                f"({_crs_name(zone_crs)}); reproject it or put it in a zone of its own")
     n = header.point_count
-    out_dir = Path(out_dir)
-    tmp = out_dir.with_name(out_dir.name + ".part")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
+    tmp = _staging_dir(out_dir)
     dtypes = {"x": "f8", "y": "f8", "z": "f8", "classification": "u1", "return_number": "u1",
               "number_of_returns": "u1"}
     cols = {c: np.lib.format.open_memmap(tmp / f"{c}.npy", mode="w+", dtype=dtypes.get(c, "u2"), shape=(n,))
@@ -221,8 +230,7 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
         log.warning("%s: only %d class-2 points (%.1f %%); ground will be classified with PDAL %s",
                     path, n_ground, 100 * ground_fraction, ground_source)
     (tmp / CACHE_META).write_text(json.dumps(meta, indent=1))
-    shutil.rmtree(out_dir, ignore_errors=True)
-    os.replace(tmp, out_dir)
+    _publish_dir(tmp, out_dir)
     return meta
 
 
@@ -598,9 +606,5 @@ def summarize_block(cache_dir: str | os.PathLike[str], tile_paths: list[str],
         "timings": {"split": m["timings"]["split"],
                     "tiles": sum(t["timings"].get("total", 0.0) for t in tiles.values())},
     }
-    out = Path(out_json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".part")
-    tmp.write_text(json.dumps(summary, indent=1))
-    os.replace(tmp, out)
+    write_text_atomic(out_json, json.dumps(summary, indent=1))
     return summary

@@ -28,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from towerpipe.towers import match_towers, towers_from_labels
+from towerpipe.assemble import write_text_atomic
+from towerpipe.towers import f1_score, match_towers, towers_from_labels
 
 #: Limits that flag a block or a tower for a human look; override via ``limits=``.
 DEFAULT_LIMITS: dict[str, float] = {
@@ -103,15 +104,6 @@ def _jsonable(obj: Any) -> Any:
     if isinstance(obj, Path):
         return str(obj)
     return obj
-
-
-def _atomic_write(path: str | os.PathLike[str], text: str) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.part")  # fixed name: a rerun after a kill replaces it
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-    return path
 
 
 def _png(fig: Any) -> str:
@@ -361,11 +353,12 @@ def _with_neighbour_towers(m: dict[str, Any], truth: Any, neighbour_towers: Sequ
                           geometry=shapely.from_wkt([t["footprint_wkt"] for t in neighbour_towers]), crs=truth.crs)
     left = truth[truth["tower_id"].astype(str).isin(m["unmatched_truth"])]
     extra = match_towers(nb, left, max_dist=5.0)["matches"] if len(left) else []
+    found = {x["truth"] for x in extra}
     tp_recall = m["tp"] + len(extra)
     m = dict(m, fn=len(truth) - tp_recall, recall=tp_recall / len(truth),
-             matches=[*m["matches"], *({**x, "owner": "neighbour"} for x in extra)])
-    p, r = m["precision"], m["recall"]
-    m["f1"] = (2 * p * r / (p + r) if p + r > 0 else 0.0) if p is not None else None
+             matches=[*m["matches"], *({**x, "owner": "neighbour"} for x in extra)],
+             unmatched_truth=[t for t in m["unmatched_truth"] if t not in found])
+    m["f1"] = f1_score(m["precision"], m["recall"])
     return m
 
 
@@ -616,8 +609,8 @@ def block_report(
         "limits": lim,
     }
     doc = _jsonable(doc)
-    _atomic_write(out_json, json.dumps(doc, indent=1))
-    _atomic_write(out_html, _block_html(doc, map_png, figures))
+    write_text_atomic(out_json, json.dumps(doc, indent=1))
+    write_text_atomic(out_html, _block_html(doc, map_png, figures))
     return doc
 
 
@@ -818,8 +811,8 @@ def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.
     doc = _jsonable({"zone": zone, "blocks": blocks, "totals": totals,
                      "generated_at": datetime.now(timezone.utc).replace(microsecond=0).isoformat()})
     if out_json is not None:
-        _atomic_write(out_json, json.dumps(doc, indent=1))
-    _atomic_write(out_html, _index_html(doc))
+        write_text_atomic(out_json, json.dumps(doc, indent=1))
+    write_text_atomic(out_html, _index_html(doc))
     return doc
 
 

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from towerpipe import __version__
-from towerpipe.assemble import assemble_directory
+from towerpipe.assemble import assemble_directory, write_text_atomic
 from towerpipe.columnfile import read_meta
 from towerpipe.modelcard import config_hash
 
@@ -64,15 +64,9 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
     meta = run_metadata(model_meta=model_meta, config=run_cfg, zone=zone, block=block)
     write_towers_gpkg(out_gpkg, gdf, crs_wkt=crs_wkt, metadata=meta)
     if out_neighbours is not None:
-        _write_json_atomic(out_neighbours, {"block": block, "towers_owned_by_neighbours": neighbours})
+        write_text_atomic(out_neighbours, json.dumps({"block": block, "towers_owned_by_neighbours": neighbours},
+                                                     indent=1))
     return {"towers": len(gdf), "towers_owned_by_neighbours": len(neighbours)}
-
-
-def _write_json_atomic(path: str | os.PathLike[str], obj: Any) -> None:
-    path = Path(path)
-    tmp = path.with_name(path.name + ".part")
-    tmp.write_text(json.dumps(obj, indent=1))
-    os.replace(tmp, path)
 
 
 def _block_dtm(dtm_paths: Sequence[str], out: Path) -> Path | None:

@@ -456,6 +456,13 @@ def _ids(gdf: gpd.GeoDataFrame) -> list[str]:
     return [str(i) for i in gdf.index]
 
 
+def f1_score(precision: float | None, recall: float | None) -> float | None:
+    """Harmonic mean of precision and recall; None when either is undefined, 0 when both are 0."""
+    if precision is None or recall is None:
+        return None
+    return 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
+
+
 def match_towers(pred: gpd.GeoDataFrame, truth: gpd.GeoDataFrame, max_dist: float = 5.0) -> dict[str, Any]:
     """Match predicted towers to true towers one-to-one.
 
@@ -499,13 +506,10 @@ def match_towers(pred: gpd.GeoDataFrame, truth: gpd.GeoDataFrame, max_dist: floa
     fp, fn = len(pid) - tp, len(tid) - tp
     precision = tp / len(pid) if pid else None
     recall = tp / len(tid) if tid else None
-    f1 = (2 * precision * recall / (precision + recall)
-          if precision is not None and recall is not None and precision + recall > 0 else
-          (0.0 if precision is not None and recall is not None else None))
     mp = {m["pred"] for m in matches}
     mt = {m["truth"] for m in matches}
     return {
-        "precision": precision, "recall": recall, "f1": f1, "tp": tp, "fp": fp, "fn": fn,
+        "precision": precision, "recall": recall, "f1": f1_score(precision, recall), "tp": tp, "fp": fp, "fn": fn,
         "matches": matches,
         "unmatched_pred": [i for i in pid if i not in mp],
         "unmatched_truth": [i for i in tid if i not in mt],

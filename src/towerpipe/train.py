@@ -39,8 +39,8 @@ from towerpipe.dataset import DEFAULT_DATASET_CONFIG, KINDS, WindowSet, load_or_
 from towerpipe.errors import ConfigError
 from towerpipe.features import FEATURE_SETS, NORM_RADIUS, normalisation_spec
 from towerpipe.losses import class_balanced_weights, feature_transform_regulariser, weighted_nll
-from towerpipe.model import (BUNDLE_VERSION, PointNetClassifier, PointNetSegmenter, count_parameters,
-                             save_bundle, segment_points)
+from towerpipe.model import (BUNDLE_VERSION, DEFAULT_CHUNK, FoldedPointNet, PointNetClassifier, PointNetSegmenter,
+                             count_parameters, save_bundle, segment_points)
 from towerpipe.resources import peak_rss_mb
 
 log = logging.getLogger(__name__)
@@ -221,11 +221,30 @@ def _eval_loss(model: torch.nn.Module, ws: WindowSet, idx: np.ndarray, w: torch.
 @torch.inference_mode()
 def predict_windows(model: PointNetClassifier, ws: WindowSet, idx: np.ndarray, feature_set: str,
                     sampling: str = "constrained") -> np.ndarray:
-    """Tower probability of the sampled windows ``idx``."""
-    model.eval()
-    out = [model(torch.from_numpy(ws.sampled(idx[s:s + 64], feature_set, sampling)[0]))[0][:, 1].exp().numpy()
+    """Tower probability of the sampled windows ``idx`` (eval-mode statistics, as at inference)."""
+    folded = FoldedPointNet(model)
+    out = [folded.classify(torch.from_numpy(ws.sampled(idx[s:s + 64], feature_set, sampling)[0])).numpy()
            for s in range(0, len(idx), 64)]
     return np.concatenate(out) if out else np.zeros(0, np.float32)
+
+
+def segment_windows_metrics(model: PointNetSegmenter, ws: WindowSet, idx: np.ndarray, feature_set: str,
+                            threshold: float = 0.5, chunk: int = DEFAULT_CHUNK) -> dict[str, float]:
+    """IoU tower / background / mIoU on *all* points of the positive windows among ``idx``.
+
+    Each window goes through :func:`towerpipe.model.segment_points`, as at inference.
+    """
+    folded = FoldedPointNet(model)
+    pos = idx[ws.label[idx] == 1]
+    preds, labs = [], []
+    for i in pos:
+        f, lab = ws.window_points(int(i), feature_set)
+        preds.append(segment_points(folded, f, chunk) >= threshold)
+        labs.append(lab)
+    out = segmentation_metrics(np.concatenate(preds) if preds else np.zeros(0, bool),
+                               np.concatenate(labs) if labs else np.zeros(0, bool))
+    out["windows"] = int(len(pos))
+    return out
 
 
 def _subset(idx: np.ndarray, n: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -299,16 +318,8 @@ def train_segmenter(windows: WindowSet, config: Mapping[str, Any] | None = None
     model, history, info = _fit(model, windows, train_idx, pick("val"), weights, cfg, True, "segmenter")
     metrics: dict[str, Any] = dict(info, train_point_counts=[int(c) for c in counts])
     for split in ("val", "test"):
-        idx = windows.indices(split)
-        idx = idx[windows.label[idx] == 1]
-        preds, labs = [], []
-        for i in idx:
-            f, lab_i = windows.window_points(int(i), cfg["feature_set"])
-            preds.append(segment_points(model, f, int(cfg["eval_chunk"])) >= float(cfg["threshold"]))
-            labs.append(lab_i)
-        metrics[split] = segmentation_metrics(np.concatenate(preds) if preds else np.zeros(0, bool),
-                                              np.concatenate(labs) if labs else np.zeros(0, bool))
-        metrics[split]["windows"] = int(len(idx))
+        metrics[split] = segment_windows_metrics(model, windows, windows.indices(split), cfg["feature_set"],
+                                                 float(cfg["threshold"]), int(cfg["eval_chunk"]))
     metrics["peak_rss_mb"] = peak_rss_mb()
     return model, history, metrics
 
