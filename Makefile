@@ -34,9 +34,12 @@ bench: setup
 	$(BIN)/python -m towerpipe.bench preprocess
 	$(BIN)/python -m towerpipe.bench e2e
 
-MODELS := towerpipe-full-v1 towerpipe-geometry-v1
+# The release of each shipped model: towerpipe.model.MODEL_RELEASES. full-v2 continues from
+# full-v1 (training.models in config/config.yaml); the recipe of geometry-v2 is defined the
+# same way but not trained yet, so geometry-v1 stays the shipped geometry model.
+MODELS := towerpipe-full-v2
 
-# Retrain the shipped models on the synthetic training zones (CPU: <= 45 min for both).
+# Retrain the shipped v2 model on the synthetic training zones (CPU: about 26 min).
 train: setup
 	$(BIN)/snakemake --cores $(CORES) $(foreach m,$(MODELS),results/models/$(m)/)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from towerpipe.dataset import KINDS, SPLITS, build_windows, load_windows, split_blocks, tower_instances
+from towerpipe.dataset import KINDS, SPLITS, build_windows, load_windows, split_blocks, tall_objects, tower_instances
 from towerpipe.errors import ConfigError
 from towerpipe.tilefile import Tile, empty_arrays, save_tile
 
@@ -78,6 +78,44 @@ def test_tower_instances_link_and_min_points():
     assert sorted(len(x) for x in comps) == [25, 30]
 
 
+def test_tall_objects_group_cells_and_sort_by_height():
+    rng = np.random.default_rng(2)
+    tree = np.c_[rng.normal(0, 1.5, (60, 2))]                      # a crown, 12-16 m
+    mast = np.c_[rng.normal(0, 0.3, (40, 2))] + [40, 0]            # a mast, up to 45 m
+    wire = np.c_[np.linspace(-30, 30, 200), np.full(200, 25.0)]    # one long object
+    xy = np.vstack([tree, mast, wire])
+    hag = np.r_[rng.uniform(12, 16, 60), np.linspace(10, 45, 40), np.full(200, 20.0)]
+    objs = tall_objects(xy, hag, 2.0)
+    assert len(objs) == 3
+    assert [round(h) for _, h in objs] == [45, 20, round(hag[:60].max())]
+    np.testing.assert_allclose(objs[0][0], mast[np.argmax(hag[60:100])])
+    assert tall_objects(np.zeros((0, 2)), np.zeros(0), 2.0) == []
+
+
+def test_tallest_object_gets_a_negative_window(tmp_path):
+    """A 45 m mast among 10-18 m trees always gets a tall negative window (not left to chance)."""
+    p = tmp_path / "b0" / "b0_0.npz"
+    tile = make_tile(p, "b0", (0.0, 0.0), [(30, 30)], seed=5)
+    a = dict(tile.arrays)
+    k = 300
+    rng = np.random.default_rng(0)
+    extra = {name: np.repeat(v[:1], k) for name, v in a.items()}
+    extra["x"], extra["y"] = 80 + rng.normal(0, 0.4, k), 80 + rng.normal(0, 0.4, k)
+    extra["hag"] = rng.uniform(0, 45, k)
+    extra["z"] = 100 + extra["hag"]
+    extra["classification"] = np.full(k, 1, a["classification"].dtype)
+    merged = {name: np.concatenate([v, extra[name].astype(v.dtype)]) for name, v in a.items()}
+    merged["point_index"] = np.arange(len(merged["x"]))
+    from towerpipe.tilefile import Tile, save_tile
+    save_tile(p, Tile(merged, tile.meta))
+    for seed in range(3):
+        ws = build_windows([str(p)], {"n_points": 128, "seed": seed, "tall_negatives_per_tile": 2,
+                                      "split": {"val": [], "test": []}})
+        c = ws.center[ws.kind == KINDS["tall_negative"]]
+        assert len(c) >= 1 and np.min(np.abs(c - [80, 80]).max(axis=1)) <= 5.0 + 1.5
+        assert ws.meta["tall_objects"] >= 2
+
+
 def test_build_windows_counts_and_labels(tmp_path):
     paths = make_tiles(tmp_path, 5)
     ws = build_windows(paths, {"n_points": 256, "seed": 3})
@@ -127,3 +165,12 @@ def test_split_blocks_rules():
     assert s == split_blocks({f"b{i}": i < 5 for i in range(9)}, 0.2, 0.2, seed=1)
     with pytest.raises(ConfigError, match="3 blocks"):
         split_blocks({"a": True, "b": True}, 0.2, 0.2, seed=0)
+
+
+def test_pinned_split_is_used_and_checked(tmp_path):
+    paths = make_tiles(tmp_path, 4)
+    ws = build_windows(paths, {"n_points": 64, "seed": 0, "split": {"val": ["b1"], "test": ["b3"]}})
+    assert ws.meta["split"] == {"b0": "train", "b1": "val", "b2": "train", "b3": "test"}
+    # YAML reads an unquoted 400000_4600800 as a number: a name that matches no block is an error
+    with pytest.raises(ConfigError, match="quote block names"):
+        build_windows(paths, {"n_points": 64, "split": {"val": [4000004600800], "test": ["b3"]}})

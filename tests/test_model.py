@@ -120,4 +120,4 @@ def test_default_model_path(monkeypatch, tmp_path):
     assert p.name == "towerpipe-geometry-v1" and p.parent.name == "models"
     assert (p.parent.parent / "pyproject.toml").is_file()
     monkeypatch.setenv("TOWERPIPE_MODELS", str(tmp_path))
-    assert default_model_path() == tmp_path / "towerpipe-full-v1"
+    assert default_model_path() == tmp_path / "towerpipe-full-v2"

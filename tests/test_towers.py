@@ -161,6 +161,21 @@ def test_filters_and_threshold():
     assert len(gdf) == 3
 
 
+def test_towers_without_a_confident_core_are_dropped():
+    """A cluster whose probabilities hover above the point threshold is not a tower; one with a
+    confident core is, even when most of its points are uncertain."""
+    xyz, hag = scene()
+    first = xyz[:, 0] < X0 + 120
+    rng = np.random.default_rng(3)
+    prob = rng.uniform(0.5, 0.85, len(xyz))
+    core = ~first & (rng.random(len(xyz)) < 0.15)
+    prob[core] = 0.99
+    pair = pred_pair(xyz, hag, prob, ["b1"])
+    kept = extract_towers([pair], "b1", BOUNDS, zone="z1", min_core_prob=0.9)
+    assert len(kept) == 1 and kept.iloc[0]["centroid_x"] > X0 + 120
+    assert len(extract_towers([pair], "b1", BOUNDS, zone="z1")) == 2
+
+
 def test_wire_chain_is_split_into_towers():
     a, ha = synthetic_tower(X0 + 50, Y0 + 50, seed=1)
     b, hb = synthetic_tower(X0 + 110, Y0 + 50, seed=2)

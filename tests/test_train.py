@@ -45,7 +45,7 @@ def test_tiny_classifier_learns(windows):
 
 def test_train_bundle_round_trip(windows, tmp_path):
     _, path = windows
-    out = train_bundle([path], tmp_path / "towerpipe-full-v1", "full",
+    out = train_bundle([path], tmp_path / "towerpipe-full-v2", "full",
                        dict(TINY, epochs=3, segmenter={"epochs": 4}))
     names = {p.name for p in out.iterdir()}
     assert {"classifier.pt", "segmenter.pt", "model_card.json", "MODEL_CARD.md", "classifier_curves.png",
@@ -65,6 +65,28 @@ def test_train_bundle_round_trip(windows, tmp_path):
     assert p.shape == (4,) and np.all((p >= 0) & (p <= 1))
     f, _ = ws.window_points(int(np.flatnonzero(ws.label == 1)[0]), "full")
     assert b.segment(f).shape == (len(f),)
+
+
+def test_warm_start_continues_from_a_bundle(windows, tmp_path, random_model_factory):
+    import torch
+
+    from towerpipe.errors import ConfigError
+    from towerpipe.train import _initial, train_config
+
+    _, path = windows
+    init = random_model_factory("full")
+    cfg = train_config(dict(TINY, init_from=str(init), feature_set="full"))
+    start = load_bundle(init)
+    for kind in ("classifier", "segmenter"):
+        net = _initial(kind, cfg, 7)
+        for (k, a), b in zip(net.state_dict().items(), getattr(start, kind).state_dict().values()):
+            assert torch.equal(a, b), k
+    out = train_bundle([path], tmp_path / "warm", "full", dict(TINY, epochs=1, init_from=str(init),
+                                                               segmenter={"epochs": 1}))
+    rec = json.loads((out / "model_card.json").read_text())["init_from"]
+    assert rec["name"] == "towerpipe-random-full" and set(rec["files_sha256"]) == {"classifier.pt", "segmenter.pt"}
+    with pytest.raises(ConfigError, match="geometry"):
+        _initial("classifier", train_config(dict(TINY, init_from=str(init), feature_set="geometry")), 3)
 
 
 def test_ablation_table(windows, tmp_path):

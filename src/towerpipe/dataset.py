@@ -9,8 +9,14 @@ For each tile (``towerpipe.tilefile``) only the ``model_input`` points are used:
   copy with the centre shifted by up to ``shift_m`` in x and y (the paper's
   augmentation, doubling the positives);
 * a *hard negative* per positive: the same window with every tower point removed;
-* negatives: random centres in the tile core, and centres on tall (HAG >=
-  ``tall_hag_m``) non-tower points; a candidate holding a tower is rejected.
+* negatives: random centres in the tile core, and tall negatives. Half of the tall
+  budget goes to the tallest *objects* of the tile (:func:`tall_objects`: connected
+  groups of tall, HAG >= ``tall_hag_m``, non-tower points), two windows each as for a
+  positive: centred on its highest point and shifted by up to ``shift_m``. These are
+  cranes, masts, turbines, chimneys, the tallest trees: the rare things a classifier
+  confuses with pylons. The rest is centred on tall points drawn at random,
+  at least half a window apart (mostly trees and wires: what the height pre-filter
+  sends to the classifier). A candidate holding a tower is rejected.
 
 A window is positive when it holds at least ``min_tower_points`` tower points. The
 split is *by block* (the block of the tile whose core holds the window centre), so no
@@ -57,6 +63,7 @@ DEFAULT_DATASET_CONFIG: dict[str, Any] = {
     "random_negatives_per_tile": 6,
     "tall_negatives_per_tile": 3,
     "tall_hag_m": 10.0,
+    "tall_object_cell_m": 2.0,
     "min_window_points": 16,
     "val_fraction": 0.15,
     "test_fraction": 0.15,
@@ -104,6 +111,38 @@ def tower_instances(xyz: np.ndarray, link: float, min_points: int) -> list[np.nd
     _, lab = connected_components(graph, directed=False)
     comps = [np.flatnonzero(lab == c) for c in np.unique(lab)]
     return sorted([c for c in comps if c.size >= min_points], key=lambda c: int(c[0]))
+
+
+def tall_objects(xy: np.ndarray, hag: np.ndarray, cell: float) -> list[tuple[np.ndarray, float]]:
+    """Tall objects: 8-connected groups of occupied ``cell`` squares of tall points.
+
+    Parameters
+    ----------
+    xy
+        ``(m, 2)`` coordinates of the tall non-tower points.
+    hag
+        ``(m,)`` their heights above ground.
+    cell
+        Grid cell (m); points in touching cells belong to one object.
+
+    Returns
+    -------
+    list of (numpy.ndarray, float)
+        ``(xy of the object's highest point, its HAG)``, tallest object first.
+    """
+    from scipy import ndimage
+
+    if len(xy) == 0:
+        return []
+    ij = np.floor((xy - xy.min(axis=0)) / cell).astype(np.int64)
+    grid = np.zeros(tuple(ij.max(axis=0) + 1), dtype=bool)
+    grid[ij[:, 0], ij[:, 1]] = True
+    labels, n = ndimage.label(grid, structure=np.ones((3, 3), bool))
+    obj = labels[ij[:, 0], ij[:, 1]] - 1
+    order = np.lexsort((-hag, obj))                       # per object, highest point first
+    first = order[np.r_[True, obj[order][1:] != obj[order][:-1]]]
+    first = first[np.argsort(-hag[first], kind="stable")]
+    return [(xy[i].copy(), float(hag[i])) for i in first]
 
 
 def split_blocks(has_towers: Mapping[str, bool], val_fraction: float, test_fraction: float,
@@ -251,7 +290,7 @@ def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator) -
     half = float(cfg["window_size"]) / 2.0
     xmin, ymin, xmax, ymax = [float(v) for v in meta["core_bounds"]]
     out: dict[str, list[Any]] = {k: [] for k in ("center", "feat", "plabel", "cs", "rs", "label", "kind")}
-    counts = {"towers": 0, "towers_dropped": 0}
+    counts = {"towers": 0, "towers_dropped": 0, "tall_objects": 0}
     if len(arr["x"]) == 0:
         return {"out": out, "counts": counts, "block": meta.get("block", Path(path).parent.name), "meta": meta}
     xy = np.column_stack([arr["x"], arr["y"]])
@@ -308,12 +347,27 @@ def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator) -
         add(np.array([rng.uniform(xmin, xmax), rng.uniform(ymin, ymax)]), "random_negative")
     tall = np.flatnonzero((arr["hag"] >= float(cfg["tall_hag_m"])) & ~is_tower & (xy[:, 0] >= xmin)
                           & (xy[:, 0] < xmax) & (xy[:, 1] >= ymin) & (xy[:, 1] < ymax))
+    objects = tall_objects(xy[tall], arr["hag"][tall], float(cfg["tall_object_cell_m"]))
+    counts["tall_objects"] = len(objects)
     n_tall = int(cfg["tall_negatives_per_tile"])
-    if tall.size:
-        for j in rng.permutation(tall)[: n_tall * 5]:
-            if sum(1 for k in out["kind"] if k == KINDS["tall_negative"]) >= n_tall:
-                break
-            add(xy[j].copy(), "tall_negative")
+    shift = float(cfg["shift_m"]) / 2.0
+    chosen: list[np.ndarray] = []
+
+    def add_tall(centre: np.ndarray) -> None:
+        if add(centre, "tall_negative"):
+            chosen.append(centre)
+
+    for top, _ in objects[: 3 * n_tall]:                   # the tallest objects of the tile
+        if len(chosen) >= (n_tall + 1) // 2:
+            break
+        # centred on the top and shifted, like a positive (rejected where it holds a tower)
+        for centre in (top, top + rng.uniform(-2 * shift, 2 * shift, size=2)):
+            add_tall(centre)
+    for j in rng.permutation(tall)[: n_tall * 20]:         # then tall points, one window per 20 m
+        if len(chosen) >= n_tall:
+            break
+        if not chosen or np.min(np.abs(np.asarray(chosen) - xy[j]).max(axis=1)) >= half:
+            add_tall(xy[j].copy())
     return {"out": out, "counts": counts, "block": meta.get("block", Path(path).parent.name), "meta": meta}
 
 
@@ -350,6 +404,10 @@ def build_windows(tile_paths: Iterable[str | os.PathLike[str]], config: Mapping[
         has_towers[r["block"]] |= any(r["out"]["label"])
     if cfg["split"]:
         sp = cfg["split"]
+        unknown = sorted(str(b) for k in ("val", "test") for b in sp.get(k, []) if str(b) not in blocks)
+        if unknown or set(sp) - {"val", "test"}:
+            raise ConfigError(f"dataset split: blocks {unknown} are not among the tiles' blocks {blocks} (or keys "
+                              f"other than val/test); quote block names in YAML (400000_4600800 is a number there)")
         assign = {b: "test" if b in sp.get("test", []) else "val" if b in sp.get("val", []) else "train"
                   for b in blocks}
     else:
@@ -376,6 +434,7 @@ def build_windows(tile_paths: Iterable[str | os.PathLike[str]], config: Mapping[
               "has_nir": all(bool(r["meta"].get("has_nir", False)) for r in per_tile),
               "towers": int(sum(r["counts"]["towers"] for r in per_tile)),
               "towers_dropped_small": int(sum(r["counts"]["towers_dropped"] for r in per_tile)),
+              "tall_objects": int(sum(r["counts"]["tall_objects"] for r in per_tile)),
               "features": ALL_FEATURES})
     ws.meta["summary"] = summarise(ws)
     if out_path is not None:

@@ -12,7 +12,7 @@ Window level (the paper's metrics, issue #4): :func:`evaluate_windows` builds wi
 from a held-out zone's labelled tiles exactly as for training (same dataset
 configuration as the model's card) and reports the classifier's F1 and the segmenter's
 IoU tower / IoU background / mIoU on all points of the positive windows.
-``towerpipe evaluate-windows --model models/towerpipe-full-v1 --tiles 'work/holdout/tiles/*/*.npz'``
+``towerpipe evaluate-windows --model models/towerpipe-full-v2 --tiles 'work/holdout/tiles/*/*.npz'``
 """
 
 from __future__ import annotations
@@ -40,6 +40,48 @@ def point_confusion(input_block: str | os.PathLike[str], classified_block: str |
     if truth.shape != pred.shape:
         raise InputError(classified_block, f"holds {pred.size} points, its input {truth.size}")
     return {"tp": int((truth & pred).sum()), "fp": int((~truth & pred).sum()), "fn": int((truth & ~pred).sum())}
+
+
+def false_tower_sources(input_dir: str | os.PathLike[str], results_dir: str | os.PathLike[str],
+                        false_towers: gpd.GeoDataFrame) -> list[dict[str, Any]]:
+    """What the input labels say the points of each false tower are.
+
+    Parameters
+    ----------
+    input_dir, results_dir
+        As in :func:`evaluate_zone`.
+    false_towers
+        Predicted towers that matched no true tower (``towers`` layer rows).
+
+    Returns
+    -------
+    list of dict
+        Per false tower: ``tower_id``, ``height_m``, ``n_points``, ``prob_mean`` and
+        ``input_classes`` (input class -> count of its points labelled 15 by the pipeline
+        inside the footprint, buffered by 0.5 m).
+    """
+    import shapely
+
+    if not len(false_towers):
+        return []
+    polys = [shapely.buffer(g, 0.5) for g in false_towers.geometry]
+    tally: list[dict[int, int]] = [{} for _ in polys]
+    for name, path in find_blocks(input_dir).items():
+        src = laspy.read(path, laz_backend=laz_backend())
+        out = laspy.read(Path(results_dir) / "blocks" / f"{name}.laz", laz_backend=laz_backend())
+        sel = np.flatnonzero(np.asarray(out.classification) == TOWER_CLASS)
+        x, y = np.asarray(src.x)[sel], np.asarray(src.y)[sel]
+        cls = np.asarray(src.classification)[sel]
+        for k, poly in enumerate(polys):
+            inside = shapely.contains_xy(poly, x, y)
+            for c, n in zip(*np.unique(cls[inside], return_counts=True)):
+                tally[k][int(c)] = tally[k].get(int(c), 0) + int(n)
+    rows = []
+    for k, (_, t) in enumerate(false_towers.iterrows()):
+        rows.append({"tower_id": str(t["tower_id"]), "height_m": round(float(t["height_m"]), 1),
+                     "n_points": int(t["n_points"]), "prob_mean": round(float(t["prob_mean"]), 3),
+                     "input_classes": dict(sorted(tally[k].items()))})
+    return rows
 
 
 def evaluate_zone(input_dir: str | os.PathLike[str], results_dir: str | os.PathLike[str], *,
@@ -101,6 +143,8 @@ def evaluate_zone(input_dir: str | os.PathLike[str], results_dir: str | os.PathL
         "unmatched_truth": [str(t) for t in m.get("unmatched_truth", [])],
         "unmatched_pred": [str(t) for t in m.get("unmatched_pred", [])],
     }
+    false = pred[pred["tower_id"].astype(str).isin(res["unmatched_pred"])] if len(pred) else pred
+    res["false_towers"] = false_tower_sources(input_dir, results_dir, false)
     if out_json:
         Path(out_json).write_text(json.dumps(res, indent=1, default=str))
     return res
@@ -198,6 +242,9 @@ def _cli(args: argparse.Namespace) -> int:
     print(f"towers: {res['towers_predicted']} predicted, {res['towers_true']} true; "
           f"precision {res['tower_precision']:.3f} recall {res['tower_recall']:.3f}; "
           f"reported twice {res['towers_reported_twice']}; point IoU (tower) {res['point_iou_tower']:.3f}")
+    for t in res["false_towers"]:
+        print(f"false tower {t['tower_id']}: {t['height_m']} m, {t['n_points']} points, mean probability "
+              f"{t['prob_mean']}; input classes of its points {t['input_classes']}")
     return 0
 
 

@@ -43,6 +43,9 @@ ARCHS: dict[str, dict[str, tuple[int, ...]]] = {
 
 #: Bundle format version (checkpoint layout and card schema).
 BUNDLE_VERSION = 1
+#: Release of the shipped model of each feature set (``models/towerpipe-<set>-v<release>/``):
+#: bumped when it is retrained on other data or with another recipe (its card says how).
+MODEL_RELEASES = {"full": 2, "geometry": 1}
 #: Points per chunk in :meth:`ModelBundle.segment` / :func:`segment_points`.
 DEFAULT_CHUNK = 4096
 #: Environment variable overriding the shipped models directory.
@@ -417,12 +420,12 @@ def models_dir() -> Path:
 
 
 def default_model_path(feature_set: str = "full") -> Path:
-    """Path of the shipped bundle for ``feature_set``: ``models/towerpipe-<set>-v<version>/``."""
+    """Path of the shipped bundle for ``feature_set``: ``models/towerpipe-<set>-v<release>/``."""
     from towerpipe.features import FEATURE_SETS
 
     if feature_set not in FEATURE_SETS:
         raise ModelError(f"unknown feature set {feature_set!r}; use one of {sorted(FEATURE_SETS)}")
-    return models_dir() / f"towerpipe-{feature_set}-v{BUNDLE_VERSION}"
+    return models_dir() / f"towerpipe-{feature_set}-v{MODEL_RELEASES[feature_set]}"
 
 
 def _state(model: nn.Module) -> dict[str, Any]:
@@ -497,7 +500,7 @@ def load_bundle(path: str | os.PathLike[str]) -> ModelBundle:
     p = Path(path)
     if not p.is_dir():
         raise ModelError(f"{p}: model directory not found; train one with `towerpipe train` or set "
-                         f"${MODELS_ENV} to the directory holding towerpipe-<feature_set>-v{BUNDLE_VERSION}/")
+                         f"${MODELS_ENV} to the directory holding towerpipe-<feature_set>-v<release>/")
     card = modelcard.read_card(p)
     n_feat = len(card["features"])
     clf = _load_net(p / "classifier.pt", n_feat, "classifier")

@@ -9,7 +9,10 @@ the points of one block *and its neighbours* with ``prob >= threshold`` into tow
 3. components whose xy footprints are within ``merge_gap`` of each other are merged
    (a tower whose crossarms were separated from its body);
 4. towers with fewer than ``min_points`` points or lower than ``min_height`` (max HAG)
-   are dropped (the paper's towers are >= 10 m high and >= 20 points);
+   are dropped (the paper's towers are >= 10 m high and >= 20 points), and so are
+   towers without a confident core: fewer than 10 % of their points at or above
+   ``min_core_prob`` (a tower's body comes out of the segmenter near 1; the false
+   clusters in trees beside a line hover just above the point threshold);
 5. only towers whose footprint centroid lies in the block's half-open bounds
    ``[xmin, xmax) x [ymin, ymax)`` are kept, so a tower across a tile or block edge
    is built from all its points and reported by exactly one block.
@@ -304,6 +307,7 @@ def extract_towers(
     min_points: int = 20,
     min_height: float = 10.0,
     min_width: float = 1.0,
+    min_core_prob: float = 0.0,
     model_meta: Mapping[str, Any] | None = None,
     source_files: Mapping[str, str] | None = None,
     crs: Any = None,
@@ -331,6 +335,9 @@ def extract_towers(
         Clustering parameters, see :func:`cluster_towers`.
     min_width
         Footprints thinner than this (m) are buffered to this width.
+    min_core_prob
+        A tower whose 90th percentile of point probabilities is below this is dropped
+        (0 keeps every cluster); the LAS keeps its points' probabilities and labels.
     model_meta
         ``{"name": ..., "version": ...}``; default: ``meta["model"]`` of the first
         prediction file.
@@ -375,6 +382,8 @@ def extract_towers(
     xmin, ymin, xmax, ymax = (float(v) for v in block_bounds)
     rows, geoms = [], []
     for g in groups:
+        if min_core_prob > 0 and np.quantile(pts["prob"][g], 0.9) < min_core_prob:
+            continue
         xy = xyz[g, :2]
         foot = _footprint(xy, min_width)
         c = foot.centroid

@@ -13,7 +13,7 @@ not produce tower points (a production addition; the paper trains on positives).
 Entry points take plain paths and dicts::
 
     from towerpipe.train import train_bundle
-    train_bundle(["work/train/tiles/b1/t1.npz", ...], "results/models/towerpipe-full-v1", "full",
+    train_bundle(["work/train/tiles/b1/t1.npz", ...], "results/models/towerpipe-full-v2", "full",
                  {"epochs": 12})
 """
 
@@ -26,6 +26,7 @@ import json
 import logging
 import math
 import os
+import re
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -39,8 +40,8 @@ from towerpipe.dataset import DEFAULT_DATASET_CONFIG, KINDS, WindowSet, load_or_
 from towerpipe.errors import ConfigError
 from towerpipe.features import FEATURE_SETS, NORM_RADIUS, normalisation_spec
 from towerpipe.losses import class_balanced_weights, feature_transform_regulariser, weighted_nll
-from towerpipe.model import (BUNDLE_VERSION, DEFAULT_CHUNK, FoldedPointNet, PointNetClassifier, PointNetSegmenter,
-                             count_parameters, save_bundle, segment_points)
+from towerpipe.model import (BUNDLE_VERSION, DEFAULT_CHUNK, MODEL_RELEASES, FoldedPointNet, PointNetClassifier,
+                             PointNetSegmenter, count_parameters, load_bundle, save_bundle, segment_points)
 from towerpipe.resources import peak_rss_mb
 
 log = logging.getLogger(__name__)
@@ -61,6 +62,7 @@ DEFAULT_TRAIN_CONFIG: dict[str, Any] = {
     "rotate": True,
     "jitter_m": 0.05,
     "seg_negatives_per_positive": 0.5,
+    "init_from": None,
     "max_train_windows": None,
     "time_budget_s": None,
     "threads": 2,
@@ -251,6 +253,29 @@ def _subset(idx: np.ndarray, n: int | None, rng: np.random.Generator) -> np.ndar
     return idx if not n or len(idx) <= n else np.sort(rng.choice(idx, int(n), replace=False))
 
 
+def _initial(kind: str, cfg: Mapping[str, Any], n_features: int) -> torch.nn.Module:
+    """A fresh network, or a copy of the ``kind`` network of bundle ``cfg["init_from"]`` (warm start)."""
+    cls = PointNetClassifier if kind == "classifier" else PointNetSegmenter
+    if not cfg["init_from"]:
+        return cls(n_features, cfg["arch"])
+    bundle = load_bundle(cfg["init_from"])
+    if bundle.feature_set != cfg["feature_set"]:
+        raise ConfigError(f"train: init_from {cfg['init_from']} is a {bundle.feature_set!r} model, this trains "
+                          f"{cfg['feature_set']!r}; start from a bundle of the same feature set or set init_from: null")
+    net = cls(n_features, cfg["arch"])
+    net.load_state_dict(getattr(bundle, kind).state_dict())
+    return net
+
+
+def init_record(init_from: str | os.PathLike[str] | None) -> dict[str, Any] | None:
+    """What a warm-started bundle started from: name, version and weight hashes of ``init_from``."""
+    if not init_from:
+        return None
+    card = json.loads((Path(init_from) / "model_card.json").read_text())
+    return {"path": str(init_from), "name": card.get("name"), "version": card.get("version"),
+            "files_sha256": card.get("files"), "config_hash": card.get("config_hash")}
+
+
 def train_classifier(windows: WindowSet, config: Mapping[str, Any] | None = None
                      ) -> tuple[PointNetClassifier, list[dict[str, float]], dict[str, Any]]:
     """Train the window classifier.
@@ -276,7 +301,7 @@ def train_classifier(windows: WindowSet, config: Mapping[str, Any] | None = None
     counts = np.bincount(windows.label[train_idx], minlength=2)
     weights = class_balanced_weights(counts, float(cfg["beta"]))
     torch.manual_seed(int(cfg["seed"]))
-    model = PointNetClassifier(len(FEATURE_SETS[cfg["feature_set"]]), cfg["arch"])
+    model = _initial("classifier", cfg, len(FEATURE_SETS[cfg["feature_set"]]))
     model, history, info = _fit(model, windows, train_idx, windows.indices("val"), weights, cfg, False, "classifier")
     metrics: dict[str, Any] = dict(info, train_counts=[int(c) for c in counts])
     for split in ("val", "test"):
@@ -314,7 +339,7 @@ def train_segmenter(windows: WindowSet, config: Mapping[str, Any] | None = None
     counts = np.bincount(lab.ravel(), minlength=2)
     weights = class_balanced_weights(counts, float(cfg["beta"]))
     torch.manual_seed(int(cfg["seed"]))
-    model = PointNetSegmenter(len(FEATURE_SETS[cfg["feature_set"]]), cfg["arch"])
+    model = _initial("segmenter", cfg, len(FEATURE_SETS[cfg["feature_set"]]))
     model, history, info = _fit(model, windows, train_idx, pick("val"), weights, cfg, True, "segmenter")
     metrics: dict[str, Any] = dict(info, train_point_counts=[int(c) for c in counts])
     for split in ("val", "test"):
@@ -350,15 +375,20 @@ def save_curves(history: Sequence[Mapping[str, float]], path: str | os.PathLike[
 
 
 def make_card(feature_set: str, windows: WindowSet, config: Mapping[str, Any], clf_metrics: Mapping[str, Any],
-              seg_metrics: Mapping[str, Any], name: str | None = None) -> dict[str, Any]:
-    """The model card of a trained bundle (see :mod:`towerpipe.modelcard`)."""
+              seg_metrics: Mapping[str, Any], name: str | None = None, version: str | None = None
+              ) -> dict[str, Any]:
+    """The model card of a trained bundle (see :mod:`towerpipe.modelcard`).
+
+    ``version`` defaults to the shipped release of ``feature_set``
+    (:data:`towerpipe.model.MODEL_RELEASES`).
+    """
     from towerpipe import modelcard
 
     dcfg = windows.meta.get("config", DEFAULT_DATASET_CONFIG)
     full_config = {"train": dict(config), "dataset": dcfg}
     return {
         "name": name or f"towerpipe-{feature_set}",
-        "version": str(BUNDLE_VERSION),
+        "version": str(version or MODEL_RELEASES[feature_set]),
         "bundle_version": BUNDLE_VERSION,
         "feature_set": feature_set,
         "features": FEATURE_SETS[feature_set],
@@ -373,6 +403,7 @@ def make_card(feature_set: str, windows: WindowSet, config: Mapping[str, Any], c
                           "towers": windows.meta.get("towers"), "summary": windows.meta.get("summary"),
                           "has_rgb": windows.meta.get("has_rgb"), "has_nir": windows.meta.get("has_nir")},
         "metrics": {"classifier": dict(clf_metrics), "segmenter": dict(seg_metrics)},
+        "init_from": init_record(config.get("init_from")),
         "code": modelcard.code_version(),
         "config_hash": modelcard.config_hash(full_config),
         "config": full_config,
@@ -419,7 +450,9 @@ def train_bundle(dataset_paths: Sequence[str | os.PathLike[str]] | str | os.Path
     save_curves(h_clf, out / "classifier_curves.png", f"classifier ({feature_set})")
     save_curves(h_seg, out / "segmenter_curves.png", f"segmenter ({feature_set})")
     (out / "history.json").write_text(json.dumps({"classifier": h_clf, "segmenter": h_seg}, indent=1))
-    card = make_card(feature_set, ws, {**cfg, "per_network": per_net}, m_clf, m_seg)
+    release = re.search(r"-v(\d+)$", out.name)
+    card = make_card(feature_set, ws, {**cfg, "per_network": per_net}, m_clf, m_seg,
+                     version=release.group(1) if release else None)
     save_bundle(out, clf, seg, card)
     log.info("wrote %s: classifier test F1 %.3f, segmenter test mIoU %.3f", out, m_clf["test"]["f1"],
              m_seg["test"]["miou"])

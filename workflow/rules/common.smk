@@ -206,6 +206,12 @@ def model_spec(name):
         raise WorkflowError(f"model {name!r} is not in training.models (known: {known})")
 
 
+def init_bundle_files(name):
+    """Files of the bundle a model is warm-started from (``train: {init_from: DIR}``), as inputs."""
+    d = model_train_config(name).get("init_from")
+    return [os.path.join(d, f) for f in ("classifier.pt", "segmenter.pt", "model_card.json")] if d else []
+
+
 def model_train_config(name, ablation=False):
     base = dict(TRAIN["ablation_config"] if ablation else TRAIN["train"])
     base.update(model_spec(name).get("train", {}))

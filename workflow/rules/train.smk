@@ -4,6 +4,7 @@
 rule train_model:
     input:
         tiles=training_tiles(),
+        init=lambda wc: init_bundle_files(wc.name),
     output:
         bundle=directory(f"{WORK}/models/{{name}}"),
     params:

@@ -116,13 +116,20 @@ class RealTowerLibrary:
     def __init__(self, root: str | Path):
         self.root = Path(root)
         self.items = load_real_towers(self.root)
+        # One family per source (uav, ts40k, utility), drawn with equal chance: the 99
+        # airborne utility poles would otherwise make three real towers in four poles.
+        by_source: dict[str, list[tuple[str, np.ndarray]]] = {}
+        for item in self.items:
+            by_source.setdefault(item[0].split(":")[0], []).append(item)
+        self.families = [by_source[k] for k in sorted(by_source)]
 
     def factory(self, density: float, params: SceneParams, share: float = 1.0):
         """A ``(tower, rng) -> tower`` callable for :func:`towerpipe.synth.scene.build_zone`."""
         def make(t: Tower, rng: np.random.Generator) -> Tower:
             if rng.random() >= share:
                 return t
-            name, shape = self.items[int(rng.integers(len(self.items)))]
+            family = self.families[int(rng.integers(len(self.families)))]
+            name, shape = family[int(rng.integers(len(family)))]
             h = float(np.clip(t.height, 10.0, 50.0))
             s = shape * (h / max(np.ptp(shape[:, 2]), 1e-6))
             if rng.random() < 0.5:

@@ -1,0 +1,43 @@
+"""Zone evaluation helpers: what the false towers of a run are, from the input labels."""
+
+from __future__ import annotations
+
+import geopandas as gpd
+import laspy
+import numpy as np
+import shapely
+
+from towerpipe.evaluate import false_tower_sources
+
+
+def write_block(path, x, y, cls):
+    header = laspy.LasHeader(version="1.4", point_format=6)
+    header.offsets = [float(np.min(x)), float(np.min(y)), 0.0]
+    header.scales = [0.01, 0.01, 0.01]
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x, y, np.zeros(len(x))
+    las.classification = cls
+    path.parent.mkdir(parents=True, exist_ok=True)
+    las.write(path)
+
+
+def test_false_tower_sources_tally_input_classes(tmp_path):
+    rng = np.random.default_rng(0)
+    # a crane (input class 1) and a tree (class 5) both called towers, plus a true tower
+    crane = rng.normal(0, 0.8, (40, 2)) + [10, 10]
+    tree = rng.normal(0, 0.8, (25, 2)) + [60, 60]
+    tower = rng.normal(0, 0.8, (30, 2)) + [30, 70]
+    ground = rng.uniform(0, 100, (200, 2))
+    xy = np.vstack([crane, tree, tower, ground])
+    truth = np.r_[np.full(40, 1), np.full(25, 5), np.full(30, 15), np.full(200, 2)].astype(np.uint8)
+    pred = np.r_[np.full(40, 15), np.r_[np.full(20, 15), np.full(5, 5)], np.full(30, 15), np.full(200, 2)]
+    write_block(tmp_path / "in" / "b.laz", xy[:, 0], xy[:, 1], truth)
+    write_block(tmp_path / "res" / "blocks" / "b.laz", xy[:, 0], xy[:, 1], pred.astype(np.uint8))
+    false = gpd.GeoDataFrame(
+        {"tower_id": ["T_crane", "T_tree"], "height_m": [41.0, 18.0], "n_points": [40, 20], "prob_mean": [0.9, 0.6]},
+        geometry=[shapely.box(7, 7, 13, 13), shapely.box(57, 57, 63, 63)], crs="EPSG:25831")
+    rows = false_tower_sources(tmp_path / "in", tmp_path / "res", false)
+    assert [r["tower_id"] for r in rows] == ["T_crane", "T_tree"]
+    assert rows[0]["input_classes"] == {1: int(shapely.contains_xy(shapely.box(6.5, 6.5, 13.5, 13.5), *crane.T).sum())}
+    assert set(rows[1]["input_classes"]) == {5} and rows[1]["input_classes"][5] <= 20
+    assert false_tower_sources(tmp_path / "in", tmp_path / "res", false.iloc[:0]) == []
