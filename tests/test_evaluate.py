@@ -7,7 +7,7 @@ import laspy
 import numpy as np
 import shapely
 
-from towerpipe.evaluate import false_tower_sources
+from towerpipe.evaluate import false_tower_sources, zone_points
 
 
 def write_block(path, x, y, cls):
@@ -36,8 +36,10 @@ def test_false_tower_sources_tally_input_classes(tmp_path):
     false = gpd.GeoDataFrame(
         {"tower_id": ["T_crane", "T_tree"], "height_m": [41.0, 18.0], "n_points": [40, 20], "prob_mean": [0.9, 0.6]},
         geometry=[shapely.box(7, 7, 13, 13), shapely.box(57, 57, 63, 63)], crs="EPSG:25831")
-    rows = false_tower_sources(tmp_path / "in", tmp_path / "res", false)
+    per_block, labelled = zone_points(tmp_path / "in", tmp_path / "res")
+    assert per_block == {"b": {"tp": 30, "fp": 60, "fn": 0}}
+    rows = false_tower_sources(false, labelled)
     assert [r["tower_id"] for r in rows] == ["T_crane", "T_tree"]
     assert rows[0]["input_classes"] == {1: int(shapely.contains_xy(shapely.box(6.5, 6.5, 13.5, 13.5), *crane.T).sum())}
     assert set(rows[1]["input_classes"]) == {5} and rows[1]["input_classes"][5] <= 20
-    assert false_tower_sources(tmp_path / "in", tmp_path / "res", false.iloc[:0]) == []
+    assert false_tower_sources(false.iloc[:0], labelled) == []

@@ -33,25 +33,61 @@ from towerpipe.lasio import find_blocks, laz_backend
 TOWER_CLASS = 15
 
 
-def point_confusion(input_block: str | os.PathLike[str], classified_block: str | os.PathLike[str]) -> dict[str, int]:
-    """Tower point counts: true positives, false positives, false negatives of one block."""
-    truth = np.asarray(laspy.read(input_block, laz_backend=laz_backend()).classification) == TOWER_CLASS
-    pred = np.asarray(laspy.read(classified_block, laz_backend=laz_backend()).classification) == TOWER_CLASS
-    if truth.shape != pred.shape:
-        raise InputError(classified_block, f"holds {pred.size} points, its input {truth.size}")
+def _read_pair(input_block: str | os.PathLike[str], classified_block: str | os.PathLike[str]
+               ) -> tuple[laspy.LasData, np.ndarray]:
+    """An input block and the classification of its classified copy, each decoded once."""
+    src = laspy.read(input_block, laz_backend=laz_backend())
+    pred = np.asarray(laspy.read(classified_block, laz_backend=laz_backend()).classification)
+    if pred.size != len(src.points):
+        raise InputError(classified_block, f"holds {pred.size} points, its input {len(src.points)}")
+    return src, pred
+
+
+def _confusion(truth_class: np.ndarray, pred_class: np.ndarray) -> dict[str, int]:
+    truth, pred = truth_class == TOWER_CLASS, pred_class == TOWER_CLASS
     return {"tp": int((truth & pred).sum()), "fp": int((~truth & pred).sum()), "fn": int((truth & ~pred).sum())}
 
 
-def false_tower_sources(input_dir: str | os.PathLike[str], results_dir: str | os.PathLike[str],
-                        false_towers: gpd.GeoDataFrame) -> list[dict[str, Any]]:
+def point_confusion(input_block: str | os.PathLike[str], classified_block: str | os.PathLike[str]) -> dict[str, int]:
+    """Tower point counts: true positives, false positives, false negatives of one block."""
+    src, pred = _read_pair(input_block, classified_block)
+    return _confusion(np.asarray(src.classification), pred)
+
+
+def zone_points(input_dir: str | os.PathLike[str], results_dir: str | os.PathLike[str]
+                ) -> tuple[dict[str, dict[str, int]], dict[str, np.ndarray]]:
+    """Per-block tower point confusion, and the points the pipeline labelled 15, in one pass.
+
+    Returns
+    -------
+    tuple
+        ``(per_block, labelled)``: block name -> :func:`point_confusion` counts; and
+        ``x``, ``y`` and input ``classification`` of every point labelled 15 in
+        ``results_dir/blocks`` (for :func:`false_tower_sources`).
+    """
+    per_block: dict[str, dict[str, int]] = {}
+    parts: dict[str, list[np.ndarray]] = {"x": [], "y": [], "classification": []}
+    for name, path in find_blocks(input_dir).items():
+        src, pred = _read_pair(path, Path(results_dir) / "blocks" / f"{name}.laz")
+        truth = np.asarray(src.classification)
+        per_block[name] = _confusion(truth, pred)
+        sel = np.flatnonzero(pred == TOWER_CLASS)
+        parts["x"].append(np.asarray(src.x)[sel])
+        parts["y"].append(np.asarray(src.y)[sel])
+        parts["classification"].append(truth[sel])
+    labelled = {k: np.concatenate(v) if v else np.empty(0) for k, v in parts.items()}
+    return per_block, labelled
+
+
+def false_tower_sources(false_towers: gpd.GeoDataFrame, labelled: dict[str, np.ndarray]) -> list[dict[str, Any]]:
     """What the input labels say the points of each false tower are.
 
     Parameters
     ----------
-    input_dir, results_dir
-        As in :func:`evaluate_zone`.
     false_towers
         Predicted towers that matched no true tower (``towers`` layer rows).
+    labelled
+        The points labelled 15 by the pipeline (second item of :func:`zone_points`).
 
     Returns
     -------
@@ -62,25 +98,13 @@ def false_tower_sources(input_dir: str | os.PathLike[str], results_dir: str | os
     """
     import shapely
 
-    if not len(false_towers):
-        return []
-    polys = [shapely.buffer(g, 0.5) for g in false_towers.geometry]
-    tally: list[dict[int, int]] = [{} for _ in polys]
-    for name, path in find_blocks(input_dir).items():
-        src = laspy.read(path, laz_backend=laz_backend())
-        out = laspy.read(Path(results_dir) / "blocks" / f"{name}.laz", laz_backend=laz_backend())
-        sel = np.flatnonzero(np.asarray(out.classification) == TOWER_CLASS)
-        x, y = np.asarray(src.x)[sel], np.asarray(src.y)[sel]
-        cls = np.asarray(src.classification)[sel]
-        for k, poly in enumerate(polys):
-            inside = shapely.contains_xy(poly, x, y)
-            for c, n in zip(*np.unique(cls[inside], return_counts=True)):
-                tally[k][int(c)] = tally[k].get(int(c), 0) + int(n)
     rows = []
-    for k, (_, t) in enumerate(false_towers.iterrows()):
+    for _, t in false_towers.iterrows():
+        inside = shapely.contains_xy(shapely.buffer(t.geometry, 0.5), labelled["x"], labelled["y"])
+        cls, n = np.unique(labelled["classification"][inside], return_counts=True)
         rows.append({"tower_id": str(t["tower_id"]), "height_m": round(float(t["height_m"]), 1),
                      "n_points": int(t["n_points"]), "prob_mean": round(float(t["prob_mean"]), 3),
-                     "input_classes": dict(sorted(tally[k].items()))})
+                     "input_classes": {int(c): int(k) for c, k in zip(cls, n)}})
     return rows
 
 
@@ -126,13 +150,8 @@ def evaluate_zone(input_dir: str | os.PathLike[str], results_dir: str | os.PathL
     for geom, c in zip(pred.geometry, pred.geometry.centroid):
         hit = truth.geometry.intersects(geom) | (truth.geometry.centroid.distance(c) <= max_dist)
         claimed += hit.to_numpy().astype(int)
-    tp = fp = fn = 0
-    per_block = {}
-    for name, path in find_blocks(input_dir).items():
-        out = results_dir / "blocks" / f"{name}.laz"
-        c = point_confusion(path, out)
-        per_block[name] = c
-        tp, fp, fn = tp + c["tp"], fp + c["fp"], fn + c["fn"]
+    per_block, labelled = zone_points(input_dir, results_dir)
+    tp, fp, fn = (sum(c[k] for c in per_block.values()) for k in ("tp", "fp", "fn"))
     iou = tp / (tp + fp + fn) if (tp + fp + fn) else float("nan")
     res = {
         "towers_true": int(len(truth)), "towers_predicted": int(len(pred)),
@@ -144,7 +163,7 @@ def evaluate_zone(input_dir: str | os.PathLike[str], results_dir: str | os.PathL
         "unmatched_pred": [str(t) for t in m.get("unmatched_pred", [])],
     }
     false = pred[pred["tower_id"].astype(str).isin(res["unmatched_pred"])] if len(pred) else pred
-    res["false_towers"] = false_tower_sources(input_dir, results_dir, false)
+    res["false_towers"] = false_tower_sources(false, labelled)
     if out_json:
         Path(out_json).write_text(json.dumps(res, indent=1, default=str))
     return res

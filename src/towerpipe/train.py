@@ -271,7 +271,9 @@ def init_record(init_from: str | os.PathLike[str] | None) -> dict[str, Any] | No
     """What a warm-started bundle started from: name, version and weight hashes of ``init_from``."""
     if not init_from:
         return None
-    card = json.loads((Path(init_from) / "model_card.json").read_text())
+    from towerpipe import modelcard
+
+    card = modelcard.read_card(init_from)
     return {"path": str(init_from), "name": card.get("name"), "version": card.get("version"),
             "files_sha256": card.get("files"), "config_hash": card.get("config_hash")}
 
