@@ -256,3 +256,56 @@ def test_merge_several_extra_byte_blocks_described_in_output(tmp_path):
     merge_block(src, [], out)
     names = list(laspy.open(out).header.point_format.extra_dimension_names)
     assert names == ["Deviation", "confidence", PROB_DIMENSION]
+
+
+@pytest.mark.parametrize("version,pf", [("1.2", 3), ("1.4", 8)])
+def test_merge_from_split_records_equals_merge_from_laz(tmp_path, version, pf):
+    """The split's copy of the point records gives the same file as decoding the LAZ again."""
+    from towerpipe.lasio import RECORDS_FILE
+    from towerpipe.preprocess import split_block
+
+    n = 12_000
+    src = make_las(tmp_path / "b.laz", version=version, point_format=pf, n=n, extra=True)
+    split_block(src, tmp_path / "cache", block="b", crs="EPSG:25831")
+    rng = np.random.default_rng(3)
+    idx = rng.choice(n, 2000, replace=False)
+    pred = write_pred(tmp_path / "t.npz", "b", idx, rng.random(2000).astype(np.float32))
+    a, b = tmp_path / "a.laz", tmp_path / "b_out.laz"
+    merge_block(src, [pred], a, chunk_size=5_000)
+    merge_block(src, [pred], b, chunk_size=5_000, records=tmp_path / "cache" / RECORDS_FILE)
+    assert a.read_bytes() == b.read_bytes()
+
+
+def test_merge_refuses_stale_records(tmp_path):
+    src = make_las(tmp_path / "b.laz", version="1.4", point_format=6, n=1000)
+    np.save(tmp_path / "records.npy", np.zeros((999, 30), np.uint8))
+    with pytest.raises(InputError, match="split_block"):
+        merge_block(src, [], tmp_path / "o.laz", records=tmp_path / "records.npy")
+    assert not (tmp_path / "o.laz").exists()
+
+
+def test_merge_with_tower_points_classifies_only_reported_towers(tmp_path):
+    """Classification 15 on exactly the points of reported towers; TowerProbability as predicted."""
+    from towerpipe.towers import save_members
+
+    n = 5000
+    src = make_las(tmp_path / "b.laz", version="1.4", point_format=6, n=n)
+    rng = np.random.default_rng(2)
+    idx = rng.choice(n, 800, replace=False)
+    p = np.full(800, 0.95, np.float32)
+    pred = write_pred(tmp_path / "t.npz", "b", idx, p)
+    tower = idx[:300]                     # the reported tower; the other 500 points were dropped
+    save_members(tmp_path / "own.points.npz", {"T_z_1_1": (np.array(["b"] * 300, dtype=object), tower)})
+    # a neighbour's tower file naming other blocks only
+    save_members(tmp_path / "nb.points.npz", {"T_z_2_2": (np.array(["c"] * 5, dtype=object), np.arange(5))})
+    out = tmp_path / "o.laz"
+    stats = merge_block(src, [pred], out, tower_points=[tmp_path / "own.points.npz", tmp_path / "nb.points.npz"])
+    las = laspy.read(out)
+    cls_in = np.asarray(laspy.read(src).classification)
+    expected = np.where(cls_in == 15, 1, cls_in)
+    expected[tower] = 15
+    np.testing.assert_array_equal(np.asarray(las.classification), expected)
+    prob = np.zeros(n, np.float32)
+    prob[idx] = p
+    np.testing.assert_array_equal(np.asarray(las[PROB_DIMENSION]), prob)
+    assert stats["tower_points"] == 300 and stats["points_above_threshold"] == 800

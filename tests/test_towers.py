@@ -7,11 +7,14 @@ import pytest
 import shapely
 
 from towerpipe.predfile import save_pred
+from towerpipe.errors import InputError
 from towerpipe.towers import (
     TOWER_COLUMNS,
     cluster_towers,
     extract_towers,
     match_towers,
+    member_mask,
+    save_members,
     tower_id,
     towers_from_labels,
 )
@@ -260,3 +263,70 @@ def test_towers_from_labels_and_evaluation():
     r = match_towers(pred, truth)
     assert (r["precision"], r["recall"]) == (1.0, 1.0)
     assert max(m["distance_m"] for m in r["matches"]) < 0.5
+
+
+def test_floating_cluster_is_not_a_tower():
+    """A piece of conductor predicted as tower (its lowest point high above ground) is dropped."""
+    xyz, hag = synthetic_tower(X0 + 50, Y0 + 50, seed=1)
+    s = np.linspace(0, 1, 60)
+    piece = np.column_stack([X0 + 150 + 12 * s, np.full_like(s, Y0 + 50), 124 + 4 * s])
+    allxyz = np.concatenate([xyz, piece])
+    allhag = np.concatenate([hag, (piece[:, 2] - 100).astype(np.float32)])
+    pair = pred_pair(allxyz, allhag, 0.95, ["b1"])
+    assert len(extract_towers([pair], "b1", BOUNDS, zone="z1", max_base_ratio=1.0)) == 2
+    kept = extract_towers([pair], "b1", BOUNDS, zone="z1", max_base_ratio=0.7)
+    assert len(kept) == 1 and abs(kept.iloc[0]["centroid_x"] - (X0 + 50)) < 1
+
+
+def test_tall_tower_without_conductors_is_dropped_and_support_recorded():
+    """With a context, towers >= wire_min_height need a wire pointing at their base."""
+    xyz, hag = scene()  # towers 30 m (x0 + 50) and 42 m (x0 + 200)
+    pair = pred_pair(xyz, hag, 0.95, ["b1"])
+    rng = np.random.default_rng(0)
+    s = np.sort(rng.random(600))
+    # conductors of the first tower only, running north from it for 300 m
+    wires = np.concatenate([np.column_stack([np.full(600, X0 + 50 + a), Y0 + 50 + 300 * s, 124 - 5 * np.sin(np.pi * s)])
+                            for a in (-7.0, 0.0, 7.0)])
+    ctx_arrays = {"x": wires[:, 0], "y": wires[:, 1], "z": wires[:, 2], "hag": (wires[:, 2] - 100)}
+
+    def context(cx, cy):
+        return ctx_arrays, (X0 - 40, Y0 - 40, X0 + 540, Y0 + 540)
+
+    everything = extract_towers([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.0)
+    assert len(everything) == 2
+    sup = everything.sort_values("centroid_x")["wire_support"].to_numpy()
+    assert sup[0] == 1.0 and sup[1] == 0.0
+    kept = extract_towers([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.5)
+    assert len(kept) == 1 and abs(kept.iloc[0]["centroid_x"] - (X0 + 50)) < 1
+    # exempt below wire_min_height, and no context means unknown support (NaN), never a drop
+    assert len(extract_towers([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.5,
+                              wire_min_height=50.0)) == 2
+    plain = extract_towers([pair], "b1", BOUNDS, zone="z1", min_wire_support=0.5)
+    assert len(plain) == 2 and plain["wire_support"].isna().all()
+
+
+def test_members_round_trip_selects_each_blocks_points(tmp_path):
+    """The points of reported towers, from any block, go back to their own block's mask."""
+    xyz, hag = synthetic_tower(X0 + 499, Y0 + 50, seed=4)  # straddles x = x0 + 500
+    east = xyz[:, 0] >= X0 + 500
+    pair = pred_pair(xyz, hag, 0.9, ["b1", "b2"], block_id=east.astype(np.int32))
+    members: dict = {}
+    members2: dict = {}
+    gdf = extract_towers([pair], "b1", (X0, Y0, X0 + 500, Y0 + 500), zone="z1", members=members)
+    gdf2 = extract_towers([pair], "b2", (X0 + 500, Y0, X0 + 1000, Y0 + 500), zone="z1", members=members2)
+    assert len(gdf) + len(gdf2) == 1  # reported once
+    # but both blocks know its points: each classifies its own part
+    tid = (gdf if len(gdf) else gdf2)["tower_id"].iloc[0]
+    assert list(members) == list(members2) == [tid]
+    path = tmp_path / "m.points.npz"
+    save_members(path, members)
+    n = len(xyz)
+    m1, m2 = member_mask([path], "b1", n), member_mask([path], "b2", n)
+    idx = np.arange(n)
+    np.testing.assert_array_equal(np.flatnonzero(m1), idx[~east])
+    np.testing.assert_array_equal(np.flatnonzero(m2), idx[east])
+    assert not member_mask([path], "b3", n).any()
+    with pytest.raises(InputError, match="towers_block"):
+        member_mask([path], "b1", 10)
+    save_members(tmp_path / "empty.npz", {})
+    assert not member_mask([tmp_path / "empty.npz"], "b1", n).any()

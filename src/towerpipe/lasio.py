@@ -21,6 +21,10 @@ from towerpipe.errors import InputError
 
 LAS_SUFFIXES = (".las", ".laz")
 
+#: File of a block cache holding the block's point records as decoded (``(points, record
+#: size)`` uint8): the merge copies them instead of decoding the LAZ a second time.
+RECORDS_FILE = "records.npy"
+
 #: Columns every block provides after :func:`read_block` (absent ones are zeros).
 BLOCK_COLUMNS = (
     "x", "y", "z", "intensity", "red", "green", "blue", "nir",
@@ -152,8 +156,14 @@ def _chunk_columns(points: laspy.ScaleAwarePointRecord, dims: set[str]) -> dict[
 
 
 def iter_block(path: str | os.PathLike[str], *, crs: str | None = None, zone: str | None = None,
-               chunk_size: int = 2_000_000):
+               chunk_size: int = 2_000_000, records: bool = False):
     """Check a block and decode it chunk by chunk.
+
+    Parameters
+    ----------
+    records
+        Also yield each chunk's raw point records (key ``"records"``: ``(m, record
+        size)`` uint8, the bytes of the file's point records as decoded).
 
     Yields
     ------
@@ -181,6 +191,9 @@ def iter_block(path: str | os.PathLike[str], *, crs: str | None = None, zone: st
                 if len(points) == 0:
                     break
                 cols = _chunk_columns(points, dims)
+                if records:
+                    raw = points.array
+                    cols["records"] = raw.view(np.uint8).reshape(len(raw), raw.dtype.itemsize)
                 if not (np.isfinite(cols["x"]).all() and np.isfinite(cols["y"]).all()
                         and np.isfinite(cols["z"]).all()):
                     raise InputError(path, "non-finite coordinates")

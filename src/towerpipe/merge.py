@@ -4,8 +4,9 @@
 6–8) chunk by chunk and writes a LAZ holding **every input point in input order**
 with every input byte preserved, except:
 
-* ``Classification``: 15 (transmission tower) where the predicted tower
-  probability is ``>= threshold``; an input class 15 that is not predicted becomes
+* ``Classification``: 15 (transmission tower) on the points of the reported towers
+  (the tower-points files of :mod:`towerpipe.towers`; without them, where the tower
+  probability is ``>= threshold``); an input class 15 that is not predicted becomes
   1 (unclassified); every other class is kept. In formats 0–5 the class is the low
   5 bits of the classification byte (the synthetic / key-point / withheld flags in
   the high bits are kept); in formats 6–10 it is the whole byte.
@@ -27,6 +28,7 @@ Input labels are never used for prediction: they only decide the 15 → 1 rule.
 from __future__ import annotations
 
 import copy
+import logging
 import os
 import time
 from pathlib import Path
@@ -40,6 +42,8 @@ from laspy.vlrs.known import ExtraBytesVlr
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.predfile import load_pred
 from towerpipe.resources import peak_rss_mb
+
+log = logging.getLogger(__name__)
 
 __all__ = ["TOWER_CLASS", "OTHER_CLASS", "PROB_DIMENSION", "merge_block", "block_probabilities", "relabel"]
 
@@ -122,13 +126,16 @@ def _assign_max(prob: np.ndarray, idx: np.ndarray, p: np.ndarray) -> None:
     prob[idx] = np.maximum(prob[idx], p)
 
 
-def relabel(classification: np.ndarray, prob: np.ndarray, threshold: float) -> np.ndarray:
+def relabel(classification: np.ndarray, prob: np.ndarray, threshold: float, *,
+            tower: np.ndarray | None = None) -> np.ndarray:
     """New ASPRS classes from input classes and tower probabilities.
 
-    ``prob >= threshold`` → 15; input 15 otherwise → 1; everything else unchanged.
-    Works on plain class values (not the packed 1.2 byte).
+    ``prob >= threshold`` → 15 (or, when given, the points of reported towers
+    ``tower``); input 15 otherwise → 1; everything else unchanged. Works on plain class
+    values (not the packed 1.2 byte).
     """
-    tower = prob >= threshold
+    if tower is None:
+        tower = prob >= threshold
     out = np.where(classification == TOWER_CLASS, OTHER_CLASS, classification).astype(classification.dtype)
     out[tower] = TOWER_CLASS
     return out
@@ -205,6 +212,28 @@ def _set_prob_stats(header: laspy.LasHeader, prob: np.ndarray) -> None:
                 struct._raw_max()[:1] = hi
 
 
+def _raw_chunks(reader: laspy.LasReader, records: str | os.PathLike[str] | None, n: int, in_size: int,
+                chunk_size: int) -> Iterable[np.ndarray]:
+    """``(m, record size)`` uint8 chunks of the block's point records, in file order."""
+    if records is not None and not os.path.exists(records):
+        log.info("%s not found: decoding the block's LAZ again", records)
+        records = None
+    if records is None:
+        for chunk in reader.chunk_iterator(chunk_size):
+            raw = chunk.array
+            yield raw.view(np.uint8).reshape(len(raw), raw.dtype.itemsize)
+        return
+    try:
+        rec = np.load(records, mmap_mode="r")
+    except (OSError, ValueError) as exc:
+        raise InputError(records, f"unreadable point records ({exc}); rerun the split_block job") from exc
+    if rec.dtype != np.uint8 or rec.ndim != 2 or rec.shape[0] != n or rec.shape[1] < in_size:
+        raise InputError(records, f"holds {rec.shape} {rec.dtype} records, the block {n} of {in_size} bytes; "
+                                  "the cache is stale: rerun the split_block job")
+    for start in range(0, n, chunk_size):
+        yield rec[start:start + chunk_size]
+
+
 def merge_block(
     block_path: str | os.PathLike[str],
     pred_paths: Sequence[str | os.PathLike[str]],
@@ -214,6 +243,8 @@ def merge_block(
     crs: Any = None,
     block: str | None = None,
     chunk_size: int = _CHUNK,
+    records: str | os.PathLike[str] | None = None,
+    tower_points: Sequence[str | os.PathLike[str]] | None = None,
 ) -> dict[str, Any]:
     """Write ``out_path`` (LAZ): the block with tower classes and ``TowerProbability``.
 
@@ -234,11 +265,24 @@ def merge_block(
         Block name in the prediction files (default: their common ``meta["block"]``).
     chunk_size
         Points per streamed chunk (memory is O(chunk) plus 4 bytes per point).
+    records
+        Optional ``.npy`` of the block's raw point records as decoded by the split
+        (:data:`towerpipe.lasio.RECORDS_FILE`, memory-mapped): the records are
+        copied from it instead of decoding the LAZ a second time. It must hold exactly
+        the header's point count and record size. A path that does not exist (a cache
+        split by an older version) means decoding the LAZ, as without it.
+    tower_points
+        Tower-points files (:func:`towerpipe.towers.save_members`; the pipeline passes
+        the block's own, which holds every accepted tower with points in the block,
+        whichever block reports it): when given, Classification 15 goes to exactly the
+        points of those towers (a cluster the tower rules dropped is not classified),
+        and ``threshold`` only decides ``points_above_threshold``. ``None``: every point
+        at or above ``threshold`` is 15.
 
     Returns
     -------
     dict
-        ``points``, ``tower_points``, ``relabelled_15_to_1``, ``input_tower_points``,
+        ``points``, ``tower_points``, ``points_above_threshold``, ``relabelled_15_to_1``, ``input_tower_points``,
         ``points_with_prob``, ``pred_files``, ``pred_points``, ``block``, ``threshold``,
         ``timings`` (s), ``mpts_per_s``, ``peak_rss_mb``.
     """
@@ -264,6 +308,12 @@ def merge_block(
                                              "(use LAS 1.2 formats 0-3 or LAS 1.4 formats 6-8)")
             n = int(header.point_count)
             prob, info = block_probabilities(pred_paths, n, block=block, block_path=block_path)
+            if tower_points is not None:
+                from towerpipe.towers import member_mask
+
+                tower_mask = member_mask(tower_points, str(block if block is not None else info["block"]), n)
+            else:
+                tower_mask = None
             timings["load_predictions"] = time.perf_counter() - t0
 
             out_header = _output_header(header, crs, block_path)
@@ -275,38 +325,39 @@ def merge_block(
             cls_field = "classification" if pf_id >= 6 else "raw_classification"
             evlrs = header.evlrs
 
-            n_tower = n_relab = n_in15 = 0
+            n_tower = n_relab = n_in15 = n_above = 0
             out_path.parent.mkdir(parents=True, exist_ok=True)
             t_read = t_write = t_proc = 0.0
             with laspy.open(tmp, mode="w", header=out_header, do_compress=True,
                             laz_backend=backends or None) as writer:
                 start = 0
-                it = reader.chunk_iterator(int(chunk_size))
+                it = _raw_chunks(reader, records, n, in_size, int(chunk_size))
                 while True:
                     ta = time.perf_counter()
-                    chunk = next(it, None)
+                    raw_in = next(it, None)
                     tb = time.perf_counter()
                     t_read += tb - ta
-                    if chunk is None or len(chunk) == 0:
+                    if raw_in is None or len(raw_in) == 0:
                         break
-                    m = len(chunk)
-                    raw_in = chunk.array
+                    m = len(raw_in)
                     out = np.empty(m, dtype=out_dtype)
                     ob = out.view(np.uint8).reshape(m, out_dtype.itemsize)
-                    ob[:, :in_size] = raw_in.view(np.uint8).reshape(m, raw_in.dtype.itemsize)[:, :in_size]
+                    ob[:, :in_size] = raw_in[:, :in_size]
                     p = prob[start:start + m]
+                    tm = None if tower_mask is None else tower_mask[start:start + m]
                     ob[:, prob_off:prob_off + 4] = p.view(np.uint8).reshape(m, 4)
                     raw_cls = out[cls_field].copy()
                     if pf_id >= 6:
                         cls = raw_cls
-                        new = relabel(cls, p, threshold)
+                        new = relabel(cls, p, threshold, tower=tm)
                         out[cls_field] = new
                     else:
                         cls = raw_cls & 0x1F
-                        new = relabel(cls, p, threshold)
+                        new = relabel(cls, p, threshold, tower=tm)
                         out[cls_field] = (raw_cls & 0xE0) | new
                     n_in15 += int((cls == TOWER_CLASS).sum())
                     n_tower += int((new == TOWER_CLASS).sum())
+                    n_above += int((p >= threshold).sum())
                     n_relab += int(((cls == TOWER_CLASS) & (new == OTHER_CLASS)).sum())
                     tc = time.perf_counter()
                     t_proc += tc - tb
@@ -336,6 +387,7 @@ def merge_block(
         info,
         points=n,
         tower_points=n_tower,
+        points_above_threshold=n_above,
         input_tower_points=n_in15,
         relabelled_15_to_1=n_relab,
         points_with_prob=int(np.count_nonzero(prob)),

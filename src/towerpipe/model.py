@@ -30,6 +30,10 @@ import torch
 from torch import nn
 
 from towerpipe.errors import ModelError
+# the shipped-model registry lives in the torch-free modelcard (the Snakefile resolves models
+# without importing torch); re-exported here
+from towerpipe.modelcard import (BUNDLE_VERSION, MODEL_RELEASES, MODELS_ENV, default_model_path,  # noqa: F401
+                                 models_dir, repo_root)
 
 #: Architecture widths. ``conv``: shared MLP after the feature transform; ``tnet_conv`` /
 #: ``tnet_fc``: the T-Net point MLP and regressor; ``head``: classifier FC;
@@ -41,15 +45,8 @@ ARCHS: dict[str, dict[str, tuple[int, ...]]] = {
              "tnet_fc": (512, 256), "head": (512, 256), "seg_head": (512, 256, 128)},
 }
 
-#: Bundle format version (checkpoint layout and card schema).
-BUNDLE_VERSION = 1
-#: Release of the shipped model of each feature set (``models/towerpipe-<set>-v<release>/``):
-#: bumped when it is retrained on other data or with another recipe (its card says how).
-MODEL_RELEASES = {"full": 2, "geometry": 1}
 #: Points per chunk in :meth:`ModelBundle.segment` / :func:`segment_points`.
 DEFAULT_CHUNK = 4096
-#: Environment variable overriding the shipped models directory.
-MODELS_ENV = "TOWERPIPE_MODELS"
 
 
 def _mlp(sizes: tuple[int, ...], in_dim: int) -> nn.ModuleList:
@@ -399,33 +396,6 @@ class ModelBundle:
         if feats.ndim != 2:
             raise ModelError(f"segment expects (N, C) features of one window, got shape {feats.shape}")
         return segment_points(self._folded[1], feats, self.chunk)
-
-
-def repo_root() -> Path | None:
-    """The repository root (directory with ``pyproject.toml`` above the package), if any."""
-    here = Path(__file__).resolve()
-    for parent in here.parents:
-        if (parent / "pyproject.toml").is_file() and (parent / "src" / "towerpipe").is_dir():
-            return parent
-    return None
-
-
-def models_dir() -> Path:
-    """Directory of shipped checkpoints: ``$TOWERPIPE_MODELS``, else ``<repo>/models``."""
-    env = os.environ.get(MODELS_ENV)
-    if env:
-        return Path(env)
-    root = repo_root()
-    return (root if root is not None else Path.cwd()) / "models"
-
-
-def default_model_path(feature_set: str = "full") -> Path:
-    """Path of the shipped bundle for ``feature_set``: ``models/towerpipe-<set>-v<release>/``."""
-    from towerpipe.features import FEATURE_SETS
-
-    if feature_set not in FEATURE_SETS:
-        raise ModelError(f"unknown feature set {feature_set!r}; use one of {sorted(FEATURE_SETS)}")
-    return models_dir() / f"towerpipe-{feature_set}-v{MODEL_RELEASES[feature_set]}"
 
 
 def _state(model: nn.Module) -> dict[str, Any]:

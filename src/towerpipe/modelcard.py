@@ -24,6 +24,42 @@ REQUIRED_KEYS: tuple[str, ...] = ("name", "version", "bundle_version", "feature_
                                   "normalisation", "sampling", "training_data", "metrics", "code", "config_hash")
 
 
+#: Bundle format version (checkpoint layout and card schema).
+BUNDLE_VERSION = 1
+#: Release of the shipped model of each feature set (``models/towerpipe-<set>-v<release>/``):
+#: bumped when it is retrained on other data or with another recipe (its card says how).
+MODEL_RELEASES = {"full": 2, "geometry": 1}
+
+#: Environment variable overriding the shipped models directory.
+MODELS_ENV = "TOWERPIPE_MODELS"
+
+def repo_root() -> Path | None:
+    """The repository root (directory with ``pyproject.toml`` above the package), if any."""
+    here = Path(__file__).resolve()
+    for parent in here.parents:
+        if (parent / "pyproject.toml").is_file() and (parent / "src" / "towerpipe").is_dir():
+            return parent
+    return None
+
+
+def models_dir() -> Path:
+    """Directory of shipped checkpoints: ``$TOWERPIPE_MODELS``, else ``<repo>/models``."""
+    env = os.environ.get(MODELS_ENV)
+    if env:
+        return Path(env)
+    root = repo_root()
+    return (root if root is not None else Path.cwd()) / "models"
+
+
+def default_model_path(feature_set: str = "full") -> Path:
+    """Path of the shipped bundle for ``feature_set``: ``models/towerpipe-<set>-v<release>/``."""
+    from towerpipe.features import FEATURE_SETS
+
+    if feature_set not in FEATURE_SETS:
+        raise ModelError(f"unknown feature set {feature_set!r}; use one of {sorted(FEATURE_SETS)}")
+    return models_dir() / f"towerpipe-{feature_set}-v{MODEL_RELEASES[feature_set]}"
+
+
 def sha256(path: str | os.PathLike[str]) -> str:
     """Hex SHA-256 of a file."""
     h = hashlib.sha256()
@@ -61,7 +97,6 @@ def code_version() -> dict[str, Any]:
 def validate_card(card: Mapping[str, Any], path: str | os.PathLike[str] = "model_card.json") -> None:
     """Check a card's keys and consistency; raise :class:`ModelError` naming ``path``."""
     from towerpipe.features import FEATURE_SETS
-    from towerpipe.model import BUNDLE_VERSION
 
     missing = [k for k in REQUIRED_KEYS if k not in card]
     if missing:

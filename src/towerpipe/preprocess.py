@@ -40,7 +40,7 @@ from towerpipe import tiling
 from towerpipe.assemble import write_text_atomic
 from towerpipe.columnfile import read_meta
 from towerpipe.errors import InputError, TowerpipeError
-from towerpipe.lasio import BLOCK_COLUMNS, color_info, iter_block, read_header
+from towerpipe.lasio import BLOCK_COLUMNS, RECORDS_FILE, color_info, iter_block, read_header
 from towerpipe.pdal import run_pipeline
 from towerpipe.resources import peak_rss_mb
 from towerpipe.tilefile import Tile, empty_arrays, save_tile
@@ -116,7 +116,9 @@ def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         The block file (``.las``/``.laz``).
     out_dir
         Cache directory to create: ``{column}.npy`` for each of
-        :data:`towerpipe.lasio.BLOCK_COLUMNS` and ``meta.json``. Written to a
+        :data:`towerpipe.lasio.BLOCK_COLUMNS`, ``records.npy`` (the raw point records,
+        so that the merge copies them without decoding the LAZ a second time) and
+        ``meta.json``. Written to a
         temporary sibling and renamed, so a crash leaves nothing that looks complete.
     block, zone
         Names (for metadata and messages).
@@ -166,12 +168,33 @@ def _publish_dir(tmp: Path, out_dir: str | os.PathLike[str]) -> None:
     os.replace(tmp, out_dir)
 
 
+class _NpyStream:
+    """Write one ``.npy`` array chunk by chunk: the header for the final shape, then the data."""
+
+    def __init__(self, path: Path, dtype: str, shape: tuple[int, ...]):
+        self.path, self.dtype, self.shape = path, np.dtype(dtype), shape
+        self.fh = open(path, "wb")
+        np.lib.format.write_array_header_1_0(self.fh, {"descr": np.lib.format.dtype_to_descr(self.dtype),
+                                                      "fortran_order": False, "shape": shape})
+        self.rows = 0
+
+    def write(self, a: np.ndarray) -> None:
+        a = np.ascontiguousarray(a, dtype=self.dtype)
+        if a.shape[1:] != self.shape[1:] or self.rows + len(a) > self.shape[0]:
+            raise TowerpipeError(f"{self.path}: chunk {a.shape} does not fit the array {self.shape}")
+        self.fh.write(a.data)
+        self.rows += len(a)
+
+    def close(self) -> None:
+        self.fh.close()
+
+
 def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, block: str,
                  zone: str | None, crs: str | None, zone_crs: str | None,
                  config: PreprocessConfig | None) -> dict[str, Any]:
     cfg = config or PreprocessConfig()
     t0 = time.perf_counter()
-    it = iter_block(path, crs=crs, zone=zone)
+    it = iter_block(path, crs=crs, zone=zone, records=True)
     header, crs_wkt = next(it)
     if zone_crs and not crs and not _same_crs(crs_wkt, zone_crs):
         raise InputError(path, f"its CRS ({_crs_name(crs_wkt)}) differs from the rest of zone {zone!r} "
@@ -180,25 +203,31 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
     tmp = _staging_dir(out_dir)
     dtypes = {"x": "f8", "y": "f8", "z": "f8", "classification": "u1", "return_number": "u1",
               "number_of_returns": "u1"}
-    cols = {c: np.lib.format.open_memmap(tmp / f"{c}.npy", mode="w+", dtype=dtypes.get(c, "u2"), shape=(n,))
-            for c in BLOCK_COLUMNS}
+    # streamed into .npy files (header first, then each chunk appended): the cache never
+    # sits in this process's memory, so the job's RSS stays at a few chunks at any density
+    cols = {c: _NpyStream(tmp / f"{c}.npy", dtypes.get(c, "u2"), (n,)) for c in BLOCK_COLUMNS}
+    records: _NpyStream | None = None  # the raw point records, for the merge (no second decode)
     maxima = dict.fromkeys(("red", "green", "blue", "nir"), 0)
     mins, maxs = np.full(2, np.inf), np.full(2, -np.inf)
     class_counts = np.zeros(256, np.int64)
     i = 0
-    for chunk in it:
-        m = len(chunk["x"])
-        for c in BLOCK_COLUMNS:
-            cols[c][i:i + m] = chunk[c]
-        for c in maxima:
-            maxima[c] = max(maxima[c], int(chunk[c].max()))
-        mins = np.minimum(mins, [chunk["x"].min(), chunk["y"].min()])
-        maxs = np.maximum(maxs, [chunk["x"].max(), chunk["y"].max()])
-        class_counts += np.bincount(chunk["classification"], minlength=256)
-        i += m
-    for arr in cols.values():
-        arr.flush()
-    del cols
+    try:
+        for chunk in it:
+            m = len(chunk["x"])
+            for c in BLOCK_COLUMNS:
+                cols[c].write(chunk[c])
+            if records is None:
+                records = _NpyStream(tmp / RECORDS_FILE, "u1", (n, chunk["records"].shape[1]))
+            records.write(chunk["records"])
+            for c in maxima:
+                maxima[c] = max(maxima[c], int(chunk[c].max()))
+            mins = np.minimum(mins, [chunk["x"].min(), chunk["y"].min()])
+            maxs = np.maximum(maxs, [chunk["x"].max(), chunk["y"].max()])
+            class_counts += np.bincount(chunk["classification"], minlength=256)
+            i += m
+    finally:
+        for stream in [*cols.values(), *([] if records is None else [records])]:
+            stream.close()
     t_read = time.perf_counter() - t0
     has_rgb, has_nir, color_bits = color_info(header.dimensions, maxima)
     n_ground = int(class_counts[GROUND_CLASS])

@@ -296,7 +296,12 @@ def _plot_density(x: np.ndarray, y: np.ndarray, bounds: Sequence[float]) -> tupl
     cell = max(2.0, max(xmax - xmin, ymax - ymin) / 120)
     nx = max(1, int(math.ceil((xmax - xmin) / cell)))
     ny = max(1, int(math.ceil((ymax - ymin) / cell)))
-    h, _, _ = np.histogram2d(x, y, bins=[nx, ny], range=[[xmin, xmin + nx * cell], [ymin, ymin + ny * cell]])
+    # points per cell by integer binning (np.histogram2d is ~10x slower on millions of points)
+    ix = np.clip(((np.asarray(x) - xmin) * (1.0 / cell)).astype(np.int32), 0, nx - 1)
+    iy = np.clip(((np.asarray(y) - ymin) * (1.0 / cell)).astype(np.int32), 0, ny - 1)
+    ix *= ny
+    ix += iy
+    h = np.bincount(ix, minlength=nx * ny).reshape(nx, ny).astype(np.float64)
     dens = h.T[::-1] / (cell * cell)
     filled = dens[dens > 0]
     stats = {
@@ -327,11 +332,13 @@ def _plot_hag(hag: np.ndarray, tower: np.ndarray | None) -> str:
     tower = tower[ok] if tower is not None and len(tower) == len(hag) else None
     hag = hag[ok]
     hi = max(10.0, float(np.percentile(hag, 99.9))) if hag.size else 10.0
-    bins = np.linspace(min(-2.0, float(hag.min()) if hag.size else -2.0), hi, 80)
-    ax.hist(np.clip(hag, bins[0], bins[-1]), bins=bins, color="#829ab1", label="all points")
+    rng = (min(-2.0, float(hag.min()) if hag.size else -2.0), hi)
+    # equal-width bins given as (count, range): numpy's fast path, no per-point search
+    counts, edges = np.histogram(np.clip(hag, *rng), bins=79, range=rng)
+    ax.stairs(counts, edges, fill=True, color="#829ab1", label="all points")
     if tower is not None and tower.any():
-        ax.hist(np.clip(hag[tower], bins[0], bins[-1]), bins=bins, color="#e12d39", alpha=0.8,
-                label="classified tower (15)")
+        ax.stairs(np.histogram(np.clip(hag[tower], *rng), bins=79, range=rng)[0], edges, fill=True,
+                  color="#e12d39", alpha=0.8, label="classified tower (15)")
     for b in (3.0, 8.0):
         ax.axvline(b, color="#616e7c", lw=0.8, ls=":")
     ax.set_yscale("log")
@@ -530,7 +537,8 @@ def block_report(
             flag("tower", f"tower {i} ({r.tower_id}): {t}")
         tower_rows.append({"n": i, "tower_id": r.tower_id, "x": r.centroid_x, "y": r.centroid_y,
                            "height_m": r.height_m, "base_z": r.base_z, "n_points": int(r.n_points),
-                           "prob_mean": r.prob_mean, "prob_max": r.prob_max, "blocks": r.blocks,
+                           "prob_mean": r.prob_mean, "prob_max": r.prob_max,
+                           "wire_support": getattr(r, "wire_support", float("nan")), "blocks": r.blocks,
                            "edge_distance_m": r.edge_distance_m, "flags": tflags})
 
     # ---- accuracy against input labels
@@ -665,12 +673,14 @@ def _block_html(d: Mapping[str, Any], map_png: str | None, figures: list[str]) -
         for t in d["towers"]:
             rows.append([str(t["n"]), f"<code>{_esc(t['tower_id'])}</code>", _fmt(t["x"]), _fmt(t["y"]),
                          _fmt(t["height_m"]), _fmt(t["base_z"]), _fmt(t["n_points"]), _fmt(t["prob_mean"], 2),
-                         _fmt(t["prob_max"], 2), _esc(t["blocks"]), _fmt(t["edge_distance_m"]),
+                         _fmt(t["prob_max"], 2), _fmt(t.get("wire_support"), 2), _esc(t["blocks"]),
+                         _fmt(t["edge_distance_m"]),
                          " ".join(f"<span class='flag'>{_esc(f)}</span>" for f in t["flags"]) or "<span class='ok'>ok</span>"])
             classes.append("look" if t["flags"] else "")
         parts.append(_table(["#", "tower id", "x (m)", "y (m)", "height (m)", "base z (m)", "points",
-                             "mean prob", "max prob", "blocks", "edge dist (m)", "check"], rows,
-                            [True, False, True, True, True, True, True, True, True, False, True, False], classes))
+                             "mean prob", "max prob", "wire support", "blocks", "edge dist (m)", "check"], rows,
+                            [True, False, True, True, True, True, True, True, True, True, False, True, False],
+                            classes))
     else:
         parts.append("<p class='muted'>No towers in this block.</p>")
 

@@ -30,7 +30,7 @@ def resolve_model(spec: str) -> Path:
 
     ``"full"`` / ``"geometry"`` name the shipped models; anything else is a path.
     """
-    from towerpipe.model import default_model_path
+    from towerpipe.modelcard import default_model_path
 
     if spec in ("full", "geometry"):
         return default_model_path(spec)
@@ -44,23 +44,35 @@ def _json(path: str | os.PathLike[str]) -> dict[str, Any]:
 def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Sequence[str],
                 out_gpkg: str | os.PathLike[str], *, towers_cfg: Mapping[str, Any],
                 source_files: Mapping[str, str], run_cfg: Mapping[str, Any],
-                out_neighbours: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+                out_neighbours: str | os.PathLike[str] | None = None, threshold: float = 0.5,
+                tile_files: Sequence[str] = (), out_members: str | os.PathLike[str] | None = None
+                ) -> dict[str, Any]:
     """Towers owned by ``block`` (from its and its neighbours' predictions) → GeoPackage.
 
     ``out_neighbours`` (JSON) receives the towers with points in the block that a
     neighbour owns (see :func:`towerpipe.towers.extract_towers`), for the block's QA.
+    ``tile_files`` (the block's and its neighbours' tiles) give the conductor support of
+    each tower (:class:`towerpipe.wires.TileContext`); ``out_members`` receives the points
+    of every accepted tower with points in the block, owned or not
+    (:func:`towerpipe.towers.save_members`): the merge classifies them 15.
     """
     from towerpipe.gpkg import run_metadata, write_towers_gpkg
     from towerpipe.predfile import load_pred
-    from towerpipe.towers import extract_towers
+    from towerpipe.towers import extract_towers, save_members
+    from towerpipe.wires import TileContext
 
     loaded = [load_pred(p) for p in preds]
     own = [p for p in loaded if p.meta.get("block") == block] or loaded
     model_meta = own[0].meta.get("model") if own else None
     crs_wkt = own[0].meta.get("crs_wkt") if own else None
     neighbours: list[dict[str, Any]] = []
+    members: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     gdf = extract_towers(loaded, block, block_bounds, zone=zone, model_meta=model_meta,
-                         source_files=source_files, crs=crs_wkt, neighbours=neighbours, **dict(towers_cfg))
+                         source_files=source_files, crs=crs_wkt, neighbours=neighbours, threshold=threshold,
+                         context=TileContext(tile_files) if tile_files else None, members=members,
+                         **dict(towers_cfg))
+    if out_members is not None:
+        save_members(out_members, members)
     meta = run_metadata(model_meta=model_meta, config=run_cfg, zone=zone, block=block)
     write_towers_gpkg(out_gpkg, gdf, crs_wkt=crs_wkt, metadata=meta)
     if out_neighbours is not None:
@@ -98,19 +110,22 @@ def _block_dtm(dtm_paths: Sequence[str], out: Path) -> Path | None:
 
 
 def classified_points(cache_dir: str | os.PathLike[str], pred_files: Sequence[str], block: str,
-                      threshold: float) -> dict[str, np.ndarray]:
+                      threshold: float, member_files: Sequence[str] | None = None) -> dict[str, np.ndarray]:
     """The block's points as the merge step classifies them, from the decoded cache.
 
     ``x, y, z`` (memory-mapped), the output ``classification`` and ``prob``: the same
-    :func:`towerpipe.merge.block_probabilities` and :func:`towerpipe.merge.relabel` the
+    :func:`towerpipe.merge.block_probabilities`, tower-points files
+    (:func:`towerpipe.towers.member_mask`) and :func:`towerpipe.merge.relabel` the
     merge step applies, so the QA does not decode the written LAZ a second time.
     """
     from towerpipe.merge import block_probabilities, relabel
+    from towerpipe.towers import member_mask
 
     cache = Path(cache_dir)
     cols = {c: np.load(cache / f"{c}.npy", mmap_mode="r") for c in ("x", "y", "z", "classification")}
     prob, _ = block_probabilities(pred_files, len(cols["x"]), block=block, block_path=str(cache))
-    cols["classification"] = relabel(np.asarray(cols["classification"]), prob, threshold)
+    tower = None if member_files is None else member_mask(member_files, block, len(cols["x"]))
+    cols["classification"] = relabel(np.asarray(cols["classification"]), prob, threshold, tower=tower)
     cols["prob"] = prob
     return cols
 
@@ -118,7 +133,7 @@ def classified_points(cache_dir: str | os.PathLike[str], pred_files: Sequence[st
 def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_files: Sequence[str],
             pred_files: Sequence[str], towers_gpkg: str, dtm_files: Sequence[str],
             benchmarks: Mapping[str, Sequence[str]], out_html: str, out_json: str, threshold: float = 0.5,
-            neighbours_json: str | None = None) -> dict[str, Any]:
+            neighbours_json: str | None = None, member_files: Sequence[str] | None = None) -> dict[str, Any]:
     """The block's QA page: preprocessing summary, gate counts, towers, labels if any."""
     from towerpipe.qa import block_report, read_benchmark
 
@@ -138,7 +153,7 @@ def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_fi
         return block_report(
             out_html, out_json, block_name=block, zone=zone, block_bounds=summary["bounds"], stats=summary,
             tile_metas=[read_meta(p) for p in tile_files], pred_metas=[read_meta(p) for p in pred_files],
-            towers=towers_gpkg, classified=classified_points(cache_dir, pred_files, block, threshold),
+            towers=towers_gpkg, classified=classified_points(cache_dir, pred_files, block, threshold, member_files),
             raster=str(raster) if raster else None, truth=truth,
             timings=timings, warnings=summary.get("warnings", []),
             neighbour_towers=_json(neighbours_json)["towers_owned_by_neighbours"] if neighbours_json else None,

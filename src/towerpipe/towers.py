@@ -15,7 +15,14 @@ the points of one block *and its neighbours* with ``prob >= threshold`` into tow
    clusters in trees beside a line hover just above the point threshold);
 5. only towers whose footprint centroid lies in the block's half-open bounds
    ``[xmin, xmax) x [ymin, ymax)`` are kept, so a tower across a tile or block edge
-   is built from all its points and reported by exactly one block.
+   is built from all its points and reported by exactly one block;
+6. clusters floating above the ground (lowest point above ``max_base_ratio`` of
+   their height) are dropped: pieces of conductor or crossarm;
+7. with a ``context`` (the tile points around a tower), each tower gets its
+   conductor support (:func:`towerpipe.wires.wire_support`: the share of the 80-160 m
+   ring reached by a wire pointing at its base), and towers at least ``wire_min_height``
+   high with a support below ``min_wire_support`` are dropped: a transmission tower
+   carries conductors to the next tower, a crane or a mast does not.
 
 The tower id ``T_<zone>_<round(cx)>_<round(cy)>`` depends only on the tower's
 points, never on file or processing order. :func:`match_towers` compares towers
@@ -26,7 +33,7 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from datetime import datetime, timezone
 from typing import Any
 
@@ -58,6 +65,7 @@ TOWER_COLUMNS: dict[str, str] = {
     "n_points": "int64",
     "prob_mean": "float64",
     "prob_max": "float64",
+    "wire_support": "float64",
     "source_files": "str",
     "model_name": "str",
     "model_version": "str",
@@ -313,6 +321,11 @@ def extract_towers(
     crs: Any = None,
     processed_at: str | None = None,
     neighbours: list[dict[str, Any]] | None = None,
+    context: Callable[[float, float], tuple[Mapping[str, np.ndarray], Sequence[float]] | None] | None = None,
+    min_wire_support: float = 0.0,
+    wire_min_height: float = 20.0,
+    max_base_ratio: float = 1.0,
+    members: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> gpd.GeoDataFrame:
     """Towers owned by one block, built from the predictions of the block and its neighbours.
 
@@ -354,6 +367,23 @@ def extract_towers(
         a neighbour (its centroid lies there) is appended to it as ``{"tower_id",
         "footprint_wkt", "blocks"}``; the block's QA uses them so that a labelled edge
         tower reported by the neighbour is not counted as missed.
+    context
+        ``context(cx, cy)`` gives the points around a tower centre, ``({"x", "y", "z",
+        "hag"} arrays, covered extent)``, or ``None``; then ``wire_support`` is
+        computed (:func:`towerpipe.wires.wire_support`). Without it the column is NaN.
+    min_wire_support, wire_min_height
+        Towers with a max HAG of at least ``wire_min_height`` (m) and a wire support
+        below ``min_wire_support`` are dropped (0 keeps every tower; an unknown, NaN,
+        support never drops one).
+    max_base_ratio
+        Towers whose lowest point is higher than this share of their height above
+        ground are dropped (1 keeps all): a tower stands on the ground, a floating
+        cluster is a piece of conductor or crossarm.
+    members
+        When a dict is given, ``members[tower_id] = (block names, point indices)`` of
+        the points of every accepted tower with points in this block, owned or not (a
+        neighbour's tower across the edge passes the same rules on the same points and
+        tiles there), for the classified block: its class-15 points.
 
     Returns
     -------
@@ -384,22 +414,45 @@ def extract_towers(
     for g in groups:
         if min_core_prob > 0 and np.quantile(pts["prob"][g], 0.9) < min_core_prob:
             continue
+        g_hag = pts["hag"][g]
+        if g_hag.min() > max_base_ratio * g_hag.max():
+            continue  # floating: a piece of conductor or crossarm, not a tower standing on the ground
         xy = xyz[g, :2]
         foot = _footprint(xy, min_width)
         c = foot.centroid
         touched = sorted(set(pts["block"][g].tolist()))
-        if not _in_bounds(np.array([c.x]), np.array([c.y]), block_bounds)[0]:
-            if neighbours is not None and str(block_name) in touched:
-                neighbours.append({"tower_id": tower_id(zone, c.x, c.y), "footprint_wkt": foot.wkt,
-                                   "blocks": ",".join(touched)})
+        owned = bool(_in_bounds(np.array([c.x]), np.array([c.y]), block_bounds)[0])
+        if not owned and str(block_name) not in touched:
+            continue  # a neighbour's tower that does not reach this block
+        hag = pts["hag"][g].astype(np.float64)
+        prob = pts["prob"][g].astype(np.float64)
+        support = float("nan")
+        ctx = context(float(c.x), float(c.y)) if context is not None else None
+        if ctx is not None:
+            from towerpipe.wires import wire_support
+
+            # measured from the tower's base (median xy of its lowest third): a crane's
+            # footprint centroid lies out along its jib, its base is the mast
+            low = hag <= hag.min() + (hag.max() - hag.min()) / 3.0
+            bx, by = np.median(xy[low], axis=0)
+            arr, extent = ctx
+            support = wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], float(bx), float(by), extent=extent)
+            if hag.max() >= wire_min_height and support < min_wire_support:
+                continue
+        tid = tower_id(zone, c.x, c.y)
+        if members is not None:
+            members[tid] = (pts["block"][g], pts["point_index"][g])
+        if not owned:
+            # reported by the neighbour that holds its centroid (the same rules on the same
+            # points and tiles decide there); listed for this block's QA
+            if neighbours is not None:
+                neighbours.append({"tower_id": tid, "footprint_wkt": foot.wkt, "blocks": ",".join(touched)})
             continue
         rect = shapely.oriented_envelope(foot)
         ring = np.asarray(rect.exterior.coords) if isinstance(rect, shapely.Polygon) else np.zeros((2, 2))
         sides = np.hypot(*np.diff(ring[:3], axis=0).T) if len(ring) >= 3 else np.zeros(2)
-        hag = pts["hag"][g].astype(np.float64)
-        prob = pts["prob"][g].astype(np.float64)
         rows.append({
-            "tower_id": tower_id(zone, c.x, c.y),
+            "tower_id": tid,
             "zone": str(zone),
             "block": str(block_name),
             "blocks": ",".join(touched),
@@ -415,6 +468,7 @@ def extract_towers(
             "n_points": int(len(g)),
             "prob_mean": float(prob.mean()),
             "prob_max": float(prob.max()),
+            "wire_support": support,
             "source_files": ";".join(sources[b] for b in touched if b in sources),
             "model_name": str(model_meta.get("name", "")),
             "model_version": str(model_meta.get("version", "")),
@@ -426,6 +480,62 @@ def extract_towers(
     gdf = gpd.GeoDataFrame(rows, geometry=geoms, crs=crs)
     gdf = gdf.astype({k: t for k, t in TOWER_COLUMNS.items() if t != "str"})
     return gdf.sort_values("tower_id", kind="stable").reset_index(drop=True)
+
+
+# --------------------------------------------------------------------------- tower points
+#: Arrays of a tower-points file: the points (in any block) of the accepted towers that have
+#: points in one block, ``block_id`` indexing ``meta["blocks"]`` and ``tower`` indexing
+#: ``meta["towers"]``.
+MEMBER_ARRAYS: dict[str, np.dtype] = {"block_id": np.dtype("i4"), "point_index": np.dtype("i8"),
+                                      "tower": np.dtype("i4")}
+
+
+def save_members(path: str | os.PathLike[str], members: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> None:
+    """Write the points of reported towers (``extract_towers(..., members=...)``) atomically."""
+    from towerpipe.columnfile import save_columns
+
+    ids = sorted(members)
+    names = sorted({str(b) for bl, _ in members.values() for b in np.asarray(bl).tolist()})
+    code = {b: i for i, b in enumerate(names)}
+    parts = {k: [] for k in MEMBER_ARRAYS}
+    for t, tid in enumerate(ids):
+        bl, idx = members[tid]
+        parts["block_id"].append(np.array([code[str(b)] for b in np.asarray(bl).tolist()], dtype=np.int32))
+        parts["point_index"].append(np.asarray(idx, dtype=np.int64))
+        parts["tower"].append(np.full(len(idx), t, dtype=np.int32))
+    arrays = {k: (np.concatenate(v) if v else np.empty(0, d)).astype(d) for (k, d), v in
+              zip(MEMBER_ARRAYS.items(), parts.values())}
+    save_columns(path, arrays, {"blocks": names, "towers": ids})
+
+
+def member_mask(paths: Sequence[str | os.PathLike[str]], block: str, n_points: int) -> np.ndarray:
+    """``(n_points,)`` bool: the points of ``block`` that belong to a reported tower.
+
+    Parameters
+    ----------
+    paths
+        Tower-points files (:func:`save_members`), e.g. the block's own (every accepted
+        tower with points in the block, whichever block reports it).
+    block
+        The block's name.
+    n_points
+        Points in the block file.
+    """
+    from towerpipe.columnfile import load_columns, validate_columns
+
+    mask = np.zeros(int(n_points), dtype=bool)
+    for p in paths:
+        arrays, meta = load_columns(p, list(MEMBER_ARRAYS), "tower-points", "rerun the towers_block job")
+        validate_columns(arrays, MEMBER_ARRAYS, p, "tower-points", "rerun the towers_block job")
+        names = list(meta.get("blocks") or [])
+        if block not in names:
+            continue
+        idx = arrays["point_index"][arrays["block_id"] == names.index(block)]
+        if len(idx) and (idx.min() < 0 or idx.max() >= n_points):
+            raise InputError(p, f"point_index out of range for block {block!r} ({n_points} points); the file is "
+                                "stale: rerun the towers_block job")
+        mask[idx] = True
+    return mask
 
 
 # --------------------------------------------------------------------------- truth / evaluation

@@ -9,7 +9,9 @@ rule infer_tile:
         pred=f"{WORK}/{{zone}}/pred/{{block}}/{{tile}}.npz",
     params:
         model=lambda wc, input: os.path.dirname(input.model[0]),
-        inference=INFER,
+        # the point threshold applies after the windows (towers, merge): changing it
+        # does not rerun the inference
+        inference={k: v for k, v in INFER.items() if k != "threshold"},
     log:
         f"{WORK}/{{zone}}/logs/infer_tile/{{block}}/{{tile}}.log",
     benchmark:
@@ -34,6 +36,10 @@ rule merge_block:
         block=lambda wc: block_path(wc.zone, wc.block),
         preds=lambda wc: block_preds(wc.zone, wc.block),
         summary=f"{WORK}/{{zone}}/prep/{{block}}.json",
+        # the split's copy of the point records: the merge does not decode the LAZ again
+        cache=lambda wc: cache_dir(wc.zone, wc.block),
+        # the points of the towers reported with points in this block: class 15
+        members=f"{WORK}/{{zone}}/towers/{{block}}.points.npz",
     output:
         laz=f"{WORK}/{{zone}}/out/{{block}}.laz",
     params:

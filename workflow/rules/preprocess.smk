@@ -47,6 +47,9 @@ rule preprocess_tile:
             260,
         ),
         runtime=30,
+    # all tiles before any inference: the longer inference jobs then fill both cores to the
+    # end instead of one core idling while a late tile is preprocessed
+    priority: 10
     script:
         "../scripts/preprocess_tile.py"
 

@@ -8,13 +8,22 @@ rule towers_block:
             p for n in block_neighbours(wc.zone, wc.block) for p in block_preds(wc.zone, n)
         ],
         summary=f"{WORK}/{{zone}}/prep/{{block}}.json",
+        # the points around each tower (this block's and its neighbours' tiles, for the
+        # towers across an edge): its conductor support (towers.min_wire_support)
+        tiles=lambda wc: [
+            tile_file(wc.zone, b, t)
+            for b in [wc.block, *block_neighbours(wc.zone, wc.block)]
+            for t in tiles(wc.zone, b)
+        ],
     output:
         gpkg=f"{WORK}/{{zone}}/towers/{{block}}.gpkg",
         neighbours=f"{WORK}/{{zone}}/towers/{{block}}.neighbours.json",
+        members=f"{WORK}/{{zone}}/towers/{{block}}.points.npz",
     params:
         bounds=lambda wc: bounds(wc.zone).get(wc.block),
         source_files=lambda wc: blocks(wc.zone),
         towers=TOWERS,
+        threshold=INFER["threshold"],
         run=run_params(),
     log:
         f"{WORK}/{{zone}}/logs/towers_block/{{block}}.log",
@@ -24,7 +33,12 @@ rule towers_block:
         "../envs/towerpipe.yaml"
     threads: 1
     resources:
-        mem_mb=1000,
+        mem_mb=lambda wc: mem_mb_for_points(
+            block_points(wc.zone, wc.block)
+            * min(1.0, ((PREP["tile_size"] + 2 * PREP["buffer"]) ** 2) / 1e6),
+            40,
+            base_mb=600,
+        ),
         runtime=10,
     script:
         "../scripts/towers_block.py"
@@ -39,6 +53,7 @@ rule qa_block:
         preds=lambda wc: block_preds(wc.zone, wc.block),
         towers=f"{WORK}/{{zone}}/towers/{{block}}.gpkg",
         neighbours=f"{WORK}/{{zone}}/towers/{{block}}.neighbours.json",
+        members=f"{WORK}/{{zone}}/towers/{{block}}.points.npz",
         # not read (the QA classifies from the cache as the merge does); it orders the
         # QA after the merge, whose time and memory the page reports
         classified=f"{WORK}/{{zone}}/out/{{block}}.laz",

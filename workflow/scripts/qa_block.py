@@ -6,4 +6,5 @@ run_step(snakemake, lambda: qa_step(
     snakemake.wildcards.zone, snakemake.wildcards.block, summary_json=i.summary, cache_dir=i.cache,
     tile_files=i.tiles, pred_files=i.preds, towers_gpkg=i.towers, threshold=snakemake.params.threshold,
     dtm_files=i.dtms, benchmarks=snakemake.params.benchmarks, out_html=snakemake.output.html,
-    out_json=snakemake.output.json, neighbours_json=i.neighbours))
+    out_json=snakemake.output.json, neighbours_json=i.neighbours,
+    member_files=[i.members]))

@@ -5,4 +5,6 @@ run_step(snakemake, lambda: towers_step(
     snakemake.wildcards.zone, snakemake.wildcards.block, snakemake.params.bounds,
     list(snakemake.input.preds) + list(snakemake.input.neighbour_preds), snakemake.output.gpkg,
     towers_cfg=snakemake.params.towers, source_files=snakemake.params.source_files,
-    run_cfg=snakemake.params.run, out_neighbours=snakemake.output.neighbours))
+    run_cfg=snakemake.params.run, out_neighbours=snakemake.output.neighbours,
+    threshold=snakemake.params.threshold, tile_files=list(snakemake.input.tiles),
+    out_members=snakemake.output.members))

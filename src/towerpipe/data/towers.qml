@@ -60,12 +60,13 @@
     <alias field="n_points" index="14" name="Points"/>
     <alias field="prob_mean" index="15" name="Mean probability"/>
     <alias field="prob_max" index="16" name="Max probability"/>
-    <alias field="source_files" index="17" name="Source files"/>
-    <alias field="model_name" index="18" name="Model"/>
-    <alias field="model_version" index="19" name="Model version"/>
-    <alias field="processed_at" index="20" name="Processed at (UTC)"/>
+    <alias field="wire_support" index="17" name="Conductor support (0-1)"/>
+    <alias field="source_files" index="18" name="Source files"/>
+    <alias field="model_name" index="19" name="Model"/>
+    <alias field="model_version" index="20" name="Model version"/>
+    <alias field="processed_at" index="21" name="Processed at (UTC)"/>
   </aliases>
-  <mapTip enabled="1">&lt;b>[% "tower_id" %]&lt;/b>&lt;br>height [% format_number("height_m", 1) %] m, base [% format_number("base_z", 1) %] m&lt;br>[% "n_points" %] points, mean probability [% format_number("prob_mean", 2) %]&lt;br>block [% "block" %] ([% "blocks" %])</mapTip>
+  <mapTip enabled="1">&lt;b>[% "tower_id" %]&lt;/b>&lt;br>height [% format_number("height_m", 1) %] m, base [% format_number("base_z", 1) %] m&lt;br>[% "n_points" %] points, mean probability [% format_number("prob_mean", 2) %], conductor support [% format_number("wire_support", 2) %]&lt;br>block [% "block" %] ([% "blocks" %])</mapTip>
   <previewExpression>"tower_id"</previewExpression>
   <layerGeometryType>2</layerGeometryType>
 </qgis>

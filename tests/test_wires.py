@@ -1,0 +1,109 @@
+"""Tests of towerpipe.wires: conductor support of tower candidates."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from towerpipe.wires import TileContext, wire_points, wire_support
+
+X0, Y0 = 400_000.0, 4_600_000.0
+
+
+def conductor(x0: float, y0: float, x1: float, y1: float, z0: float, *, sag: float = 6.0, step: float = 0.7,
+              rng: np.random.Generator) -> np.ndarray:
+    """Points along one sagging conductor (about one return per ``step`` m)."""
+    n = int(np.hypot(x1 - x0, y1 - y0) / step)
+    s = np.sort(rng.random(n))
+    z = z0 - sag * 4 * s * (1 - s)
+    return np.column_stack([x0 + s * (x1 - x0), y0 + s * (y1 - y0), z]) + rng.normal(0, 0.03, (n, 3))
+
+
+def line_through(cx: float, cy: float, angle: float, *, arms=(-6.0, 0.0, 6.0), z0: float = 25.0,
+                 length: float = 300.0, rng: np.random.Generator) -> np.ndarray:
+    """Three conductors through (cx, cy) (crossarm offsets ``arms``), both ways."""
+    d = np.array([np.cos(angle), np.sin(angle)])
+    n = np.array([-d[1], d[0]])
+    parts = []
+    for a in arms:
+        p0 = np.array([cx, cy]) + a * n - length * d
+        p1 = np.array([cx, cy]) + a * n + length * d
+        parts.append(conductor(*p0, *p1, z0, rng=rng))
+    return np.concatenate(parts)
+
+
+def canopy(cx: float, cy: float, r: float, n: int, rng: np.random.Generator) -> np.ndarray:
+    """A forest: dense points from 3 to 20 m over a disc."""
+    a, d = rng.uniform(0, 2 * np.pi, n), r * np.sqrt(rng.random(n))
+    return np.column_stack([cx + d * np.cos(a), cy + d * np.sin(a), rng.uniform(3, 20, n)])
+
+
+def support(pts: np.ndarray, cx: float, cy: float, **kw) -> float:
+    return wire_support(pts[:, 0], pts[:, 1], pts[:, 2], pts[:, 2], cx, cy, **kw)  # flat ground: z is HAG
+
+
+def test_wire_points_find_conductors_not_crowns():
+    rng = np.random.default_rng(0)
+    wires = line_through(X0, Y0, 0.3, rng=rng)
+    trees = canopy(X0 + 500, Y0, 40.0, 40_000, rng)
+    pts = np.concatenate([wires, trees])
+    mask, direction = wire_points(pts[:, 0], pts[:, 1], pts[:, 2])
+    assert mask[: len(wires)].mean() > 0.8
+    assert mask[len(wires):].mean() < 0.01
+    d = direction[: len(wires)][mask[: len(wires)]]
+    assert np.median(np.abs(d @ np.array([np.cos(0.3), np.sin(0.3)]))) > 0.99
+
+
+def test_stacked_conductors_are_wires():
+    """Conductors one above the other (a vertical circuit) are several metres apart."""
+    rng = np.random.default_rng(1)
+    pts = np.concatenate([conductor(X0 - 300, Y0, X0 + 300, Y0, z, rng=rng) for z in (20.0, 24.0, 28.0)])
+    mask, _ = wire_points(pts[:, 0], pts[:, 1], pts[:, 2])
+    assert mask.mean() > 0.8
+
+
+def test_tower_on_a_line_is_supported_crane_and_passer_by_are_not():
+    rng = np.random.default_rng(2)
+    wires = line_through(X0, Y0, 0.7, rng=rng)
+    trees = canopy(X0 + 60, Y0 - 120, 60.0, 120_000, rng)  # 10 pts/m², as a forest
+    pts = np.concatenate([wires, trees])
+    assert support(pts, X0, Y0) == 1.0
+    # beside the line: 35 m from its axis, so the outer conductor passes 29 m away
+    n = np.array([-np.sin(0.7), np.cos(0.7)])
+    assert support(pts, X0 + 35 * n[0], Y0 + 35 * n[1]) <= 0.25
+    # a crane: a 60 m jib at its top and nothing beyond
+    jib = conductor(X0 + 1000, Y0, X0 + 1060, Y0, 40.0, sag=0.0, step=0.3, rng=rng)
+    assert support(np.concatenate([pts, jib]), X0 + 1000, Y0) == 0.0
+
+
+def test_terminal_tower_needs_one_side_only():
+    rng = np.random.default_rng(3)
+    pts = np.concatenate([conductor(X0, Y0 + a, X0 + 300, Y0 + a, 25.0, rng=rng) for a in (-5.0, 0.0, 5.0)])
+    assert support(pts, X0, Y0) == 1.0
+
+
+def test_no_data_in_the_ring_is_unknown_and_partial_data_is_scored_on_what_is_there():
+    rng = np.random.default_rng(4)
+    pts = line_through(X0, Y0, 0.0, rng=rng, length=500.0)
+    assert np.isnan(support(pts, X0, Y0, extent=(X0 - 60, Y0 - 60, X0 + 60, Y0 + 60)))
+    # data only east of x0 + 50: the line runs east, so the eastern sector is complete
+    east = pts[pts[:, 0] > X0 + 50]
+    assert support(east, X0, Y0, extent=(X0 + 50, Y0 - 300, X0 + 400, Y0 + 300)) == 1.0
+
+
+def test_tile_context_picks_the_tile_holding_the_centre(tmp_path):
+    from towerpipe.tilefile import Tile, empty_arrays, save_tile
+
+    paths = []
+    for k, x0 in enumerate((X0, X0 + 500)):
+        a = empty_arrays(3)
+        a["x"][:] = x0 + np.array([10.0, 20.0, 30.0])
+        a["y"][:] = Y0 + 5
+        a["model_input"][:] = [True, True, False]
+        path = tmp_path / f"t{k}.npz"
+        save_tile(path, Tile(a, {"core_bounds": [x0, Y0, x0 + 500, Y0 + 500], "buffer": 40.0}))
+        paths.append(str(path))
+    ctx = TileContext(paths)
+    arrays, extent = ctx(X0 + 600, Y0 + 10)
+    np.testing.assert_array_equal(arrays["x"], X0 + 500 + np.array([10.0, 20.0]))
+    assert extent == (X0 + 460, Y0 - 40, X0 + 1040, Y0 + 540)
+    assert ctx(X0 - 1, Y0) is None
