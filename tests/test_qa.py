@@ -116,6 +116,7 @@ def test_block_flags(tmp_path):
     pts["prob"][pts["classification"] == 15] = 0.55
     gdf = towers_of(pts)
     assert len(gdf) == 1
+    gdf["wire_support"] = 0.25  # a low tower kept without conductors (exempt from the rule)
     tiles, preds = metas(ground_source="smrf", passed=20)
     doc = block_report(tmp_path / "b.html", tmp_path / "b.json", block_name="b", block_bounds=BOUNDS,
                        tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts)
@@ -123,6 +124,7 @@ def test_block_flags(tmp_path):
     assert {"ground_classified", "low_density", "many_windows_gated", "tower"} <= codes
     reasons = " ".join(f["reason"] for f in doc["flags"])
     assert "from block edge" in reasons and "low mean probability" in reasons
+    assert "no conductors found (support 0.25)" in reasons
     assert doc["towers"][0]["flags"] and "1 needs a look" in doc["summary"]
 
 

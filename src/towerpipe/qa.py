@@ -37,6 +37,7 @@ DEFAULT_LIMITS: dict[str, float] = {
     "min_ground_ratio": 0.05,      # share of points classified ground
     "edge_margin_m": 5.0,          # tower centroid closer than this to the block edge
     "min_tower_prob": 0.6,         # mean probability of a tower's points
+    "min_wire_support": 0.5,       # conductor support of a tower (a low tower is kept without it)
     "max_gate_ratio": 0.25,        # share of windows that passed the classifier gate
     "min_recall": 1.0,             # tower recall against input labels (when present)
     "min_precision": 1.0,          # tower precision against input labels (when present)
@@ -533,6 +534,9 @@ def block_report(
             tflags.append(f"{r.edge_distance_m:.1f} m from block edge")
         if r.prob_mean < lim["min_tower_prob"]:
             tflags.append(f"low mean probability {r.prob_mean:.2f}")
+        support = float(getattr(r, "wire_support", float("nan")))
+        if math.isfinite(support) and support < lim["min_wire_support"]:
+            tflags.append(f"no conductors found (support {support:.2f}): a pole, or not a tower?")
         for t in tflags:
             flag("tower", f"tower {i} ({r.tower_id}): {t}")
         tower_rows.append({"n": i, "tower_id": r.tower_id, "x": r.centroid_x, "y": r.centroid_y,
