@@ -330,3 +330,18 @@ def test_members_round_trip_selects_each_blocks_points(tmp_path):
         member_mask([path], "b1", 10)
     save_members(tmp_path / "empty.npz", {})
     assert not member_mask([tmp_path / "empty.npz"], "b1", n).any()
+
+
+def test_point_threshold_trims_a_towers_points_not_the_tower():
+    """Clustered at `threshold`; n_points and members keep the points at `point_threshold`."""
+    xyz, hag = synthetic_tower(X0 + 50, Y0 + 50, seed=6)
+    prob = np.where(np.arange(len(xyz)) % 4 == 0, 0.55, 0.95)
+    pair = pred_pair(xyz, hag, prob, ["b1"])
+    members: dict = {}
+    gdf = extract_towers([pair], "b1", BOUNDS, zone="z1", point_threshold=0.6, members=members)
+    assert len(gdf) == 1
+    kept = int((prob >= 0.6).sum())
+    assert gdf.iloc[0]["n_points"] == kept and len(members[gdf.iloc[0]["tower_id"]][1]) == kept
+    full = extract_towers([pair], "b1", BOUNDS, zone="z1")
+    assert full.iloc[0]["n_points"] == len(xyz)
+    assert full.iloc[0]["footprint_area_m2"] == pytest.approx(gdf.iloc[0]["footprint_area_m2"])

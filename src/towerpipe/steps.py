@@ -44,7 +44,7 @@ def _json(path: str | os.PathLike[str]) -> dict[str, Any]:
 def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Sequence[str],
                 out_gpkg: str | os.PathLike[str], *, towers_cfg: Mapping[str, Any],
                 source_files: Mapping[str, str], run_cfg: Mapping[str, Any],
-                out_neighbours: str | os.PathLike[str] | None = None, threshold: float = 0.5,
+                out_neighbours: str | os.PathLike[str] | None = None, point_threshold: float | None = None,
                 tile_files: Sequence[str] = (), out_members: str | os.PathLike[str] | None = None
                 ) -> dict[str, Any]:
     """Towers owned by ``block`` (from its and its neighbours' predictions) → GeoPackage.
@@ -68,7 +68,7 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
     neighbours: list[dict[str, Any]] = []
     members: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     gdf = extract_towers(loaded, block, block_bounds, zone=zone, model_meta=model_meta,
-                         source_files=source_files, crs=crs_wkt, neighbours=neighbours, threshold=threshold,
+                         source_files=source_files, crs=crs_wkt, neighbours=neighbours, point_threshold=point_threshold,
                          context=TileContext(tile_files) if tile_files else None, members=members,
                          **dict(towers_cfg))
     if out_members is not None:

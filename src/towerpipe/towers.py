@@ -325,6 +325,7 @@ def extract_towers(
     min_wire_support: float = 0.0,
     wire_min_height: float = 20.0,
     max_base_ratio: float = 1.0,
+    point_threshold: float | None = None,
     members: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> gpd.GeoDataFrame:
     """Towers owned by one block, built from the predictions of the block and its neighbours.
@@ -379,6 +380,13 @@ def extract_towers(
         Towers whose lowest point is higher than this share of their height above
         ground are dropped (1 keeps all): a tower stands on the ground, a floating
         cluster is a piece of conductor or crossarm.
+    point_threshold
+        The points of a tower are its cluster's points at or above this probability
+        (``n_points`` and ``members``); ``None``: all of them. Towers are found on the
+        points at or above ``threshold`` (the segmenter's decision, 0.5); a higher
+        ``point_threshold`` trims the uncertain edge of each tower (crowns next to it)
+        without splitting off the pieces of conductor that a higher clustering
+        threshold leaves as false towers.
     members
         When a dict is given, ``members[tower_id] = (block names, point indices)`` of
         the points of every accepted tower with points in this block, owned or not (a
@@ -440,8 +448,9 @@ def extract_towers(
             if hag.max() >= wire_min_height and support < min_wire_support:
                 continue
         tid = tower_id(zone, c.x, c.y)
+        g_pts = g if point_threshold is None else g[pts["prob"][g] >= point_threshold]
         if members is not None:
-            members[tid] = (pts["block"][g], pts["point_index"][g])
+            members[tid] = (pts["block"][g_pts], pts["point_index"][g_pts])
         if not owned:
             # reported by the neighbour that holds its centroid (the same rules on the same
             # points and tiles decide there); listed for this block's QA
@@ -465,7 +474,7 @@ def extract_towers(
             "footprint_width_m": float(np.min(sides)),
             "footprint_length_m": float(np.max(sides)),
             "edge_distance_m": float(min(c.x - xmin, xmax - c.x, c.y - ymin, ymax - c.y)),
-            "n_points": int(len(g)),
+            "n_points": int(len(g_pts)),
             "prob_mean": float(prob.mean()),
             "prob_max": float(prob.max()),
             "wire_support": support,

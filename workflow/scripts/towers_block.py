@@ -6,5 +6,5 @@ run_step(snakemake, lambda: towers_step(
     list(snakemake.input.preds) + list(snakemake.input.neighbour_preds), snakemake.output.gpkg,
     towers_cfg=snakemake.params.towers, source_files=snakemake.params.source_files,
     run_cfg=snakemake.params.run, out_neighbours=snakemake.output.neighbours,
-    threshold=snakemake.params.threshold, tile_files=list(snakemake.input.tiles),
+    point_threshold=snakemake.params.threshold, tile_files=list(snakemake.input.tiles),
     out_members=snakemake.output.members))
