@@ -89,9 +89,12 @@ def wire_points(x: np.ndarray, y: np.ndarray, z: np.ndarray, *, radius: float = 
     p = np.c_[x, y, z]
     p -= p.mean(axis=0)
     near = cKDTree(p[cand]).sparse_distance_matrix(cKDTree(p), line_radius, output_type="coo_matrix")
-    adj = sparse.csr_matrix((np.ones(near.nnz), (near.row, near.col)), shape=(len(cand), n))
-    adj[np.arange(len(cand)), cand] = 1.0  # the point itself (distance 0 is not stored)
     m = len(cand)
+    # the point itself is added: a distance of 0 is not stored in the sparse result
+    rows, cols = np.r_[near.row, np.arange(m)], np.r_[near.col, cand]
+    adj = sparse.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(m, n))
+    adj.sum_duplicates()
+    adj.data[:] = 1.0  # a point listed twice counts once
     k = np.asarray(adj.sum(axis=1)).ravel()
     mean = (adj @ p) / k[:, None]
     second = np.stack([adj @ (p[:, i] * p[:, j]) for i in range(3) for j in range(3)], axis=1).reshape(m, 3, 3)
