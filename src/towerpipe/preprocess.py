@@ -210,10 +210,8 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
     maxima = dict.fromkeys(("red", "green", "blue", "nir"), 0)
     mins, maxs = np.full(2, np.inf), np.full(2, -np.inf)
     class_counts = np.zeros(256, np.int64)
-    i = 0
     try:
         for chunk in it:
-            m = len(chunk["x"])
             for c in BLOCK_COLUMNS:
                 cols[c].write(chunk[c])
             if records is None:
@@ -224,7 +222,6 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
             mins = np.minimum(mins, [chunk["x"].min(), chunk["y"].min()])
             maxs = np.maximum(maxs, [chunk["x"].max(), chunk["y"].max()])
             class_counts += np.bincount(chunk["classification"], minlength=256)
-            i += m
     finally:
         for stream in [*cols.values(), *([] if records is None else [records])]:
             stream.close()

@@ -542,7 +542,7 @@ def block_report(
         tower_rows.append({"n": i, "tower_id": r.tower_id, "x": r.centroid_x, "y": r.centroid_y,
                            "height_m": r.height_m, "base_z": r.base_z, "n_points": int(r.n_points),
                            "prob_mean": r.prob_mean, "prob_max": r.prob_max,
-                           "wire_support": getattr(r, "wire_support", float("nan")), "blocks": r.blocks,
+                           "wire_support": support, "blocks": r.blocks,
                            "edge_distance_m": r.edge_distance_m, "flags": tflags})
 
     # ---- accuracy against input labels

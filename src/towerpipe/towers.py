@@ -422,8 +422,8 @@ def extract_towers(
     for g in groups:
         if min_core_prob > 0 and np.quantile(pts["prob"][g], 0.9) < min_core_prob:
             continue
-        g_hag = pts["hag"][g]
-        if g_hag.min() > max_base_ratio * g_hag.max():
+        hag = pts["hag"][g].astype(np.float64)
+        if hag.min() > max_base_ratio * hag.max():
             continue  # floating: a piece of conductor or crossarm, not a tower standing on the ground
         xy = xyz[g, :2]
         foot = _footprint(xy, min_width)
@@ -432,7 +432,6 @@ def extract_towers(
         owned = bool(_in_bounds(np.array([c.x]), np.array([c.y]), block_bounds)[0])
         if not owned and str(block_name) not in touched:
             continue  # a neighbour's tower that does not reach this block
-        hag = pts["hag"][g].astype(np.float64)
         prob = pts["prob"][g].astype(np.float64)
         support = float("nan")
         ctx = context(float(c.x), float(c.y)) if context is not None else None
