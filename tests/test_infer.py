@@ -13,7 +13,7 @@ import pytest
 
 from towerpipe import features
 from towerpipe.errors import ConfigError, ModelError
-from towerpipe.infer import check_model_compatibility, infer_tile, predict_tile
+from towerpipe.infer import TTA_CHOICES, check_model_compatibility, infer_tile, predict_tile, segment_views
 from towerpipe.predfile import PRED_META_KEYS, load_pred
 from towerpipe.tilefile import Tile, empty_arrays, save_tile
 
@@ -165,6 +165,49 @@ def test_gate_threshold_zero_segments_every_window():
 
 
 # ----------------------------------------------------------------------------- combine, ownership
+
+def test_segment_views_are_exact_turns_and_mirrors():
+    """Each view is the window turned (and mirrored) about its centre: a segmenter that only
+    looks at the distance from the centre scores every view the same; one that looks at the
+    x position averages over x -> -x, y, -y, (and x again) for 2, 4, 8 views."""
+
+    class Radial(FakeBundle):
+        def segment(self, feats):
+            return np.hypot(feats[:, 0], feats[:, 1]).astype(np.float32)
+
+    class East(FakeBundle):
+        def segment(self, feats):
+            return feats[:, 0].copy()
+
+    rng = np.random.default_rng(0)
+    f = rng.uniform(-1, 1, (50, 6)).astype(np.float32)
+    x, y = f[:, 0], f[:, 1]
+    for views in TTA_CHOICES:
+        single, mean = segment_views(Radial(), f, views)
+        np.testing.assert_allclose(mean, np.hypot(x, y), rtol=1e-6)
+        np.testing.assert_array_equal(single, np.hypot(x, y).astype(np.float32))
+    single, mean = segment_views(East(), f, 1)
+    assert mean is single
+    np.testing.assert_allclose(segment_views(East(), f, 2)[1], 0.0, atol=1e-7)  # x and -x
+    np.testing.assert_allclose(segment_views(East(), f, 4)[1], 0.0, atol=1e-7)  # x, -x, -y, y
+    np.testing.assert_array_equal(segment_views(East(), f, 8)[0], x)
+    np.testing.assert_allclose(f[:, :2], np.stack([x, y], 1))  # the input is not modified
+    with pytest.raises(ConfigError, match="tta"):
+        segment_views(East(), f, 3)
+
+
+def test_views_keep_the_single_view_and_average_the_others():
+    tile = make_tile()
+    one, _ = predict_tile(tile, FakeBundle())
+    two, st = predict_tile(tile, FakeBundle(), tta=2)
+    assert st["tta"] == 2
+    np.testing.assert_array_equal(one["point_index"], two["point_index"])
+    np.testing.assert_array_equal(one["prob_single"], two["prob_single"])
+    np.testing.assert_array_equal(one["prob"], one["prob_single"])
+    # fake_segment is 0.6 + x on tall points: x and -x average to at most 0.6
+    assert (two["prob_single"] > 0.7).any()
+    assert (two["prob"] <= 0.6 + 1e-6).all()
+
 
 @pytest.mark.parametrize("combine", ["max", "mean"])
 def test_combine_rule_matches_reference(combine):

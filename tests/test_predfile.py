@@ -26,6 +26,7 @@ def _arrays(n=5, seed=0):
         "x": rng.uniform(4e5, 4.1e5, n), "y": rng.uniform(4.6e6, 4.7e6, n), "z": rng.uniform(0, 300, n),
         "hag": rng.uniform(0, 50, n).astype(np.float32),
         "prob": rng.random(n),  # float64: cast to float32
+        "prob_single": rng.random(n),
     }
 
 
@@ -39,7 +40,7 @@ def test_roundtrip_dtypes_and_meta(tmp_path):
         assert pred[name].dtype == dtype
         np.testing.assert_array_equal(pred[name], arrays[name].astype(dtype))
     assert pred.meta["windows_total"] == 7 and pred.meta["timings"] == {"total": 1.5}
-    assert pred.meta["format_version"] == 1
+    assert pred.meta["format_version"] == 2
     assert not list(path.parent.glob("*.part"))
     # uncompressed npz: arrays stored (zip "stored" method)
     import zipfile
@@ -53,6 +54,24 @@ def test_for_block_selects_rows(tmp_path):
     rows = pred.for_block("b1")
     np.testing.assert_array_equal(rows["point_index"], pred["point_index"][[0, 1, 3]])
     assert len(pred.for_block("nope")["prob"]) == 0
+
+
+def test_one_view_prediction_gets_prob_single(tmp_path):
+    """A prediction without ``prob_single`` is one view: its ``prob`` is the single view."""
+    arrays = _arrays()
+    del arrays["prob_single"]
+    save_pred(tmp_path / "p.npz", arrays, _meta())
+    pred = load_pred(tmp_path / "p.npz")
+    np.testing.assert_array_equal(pred["prob_single"], pred["prob"])
+
+
+def test_stale_prediction_without_prob_single_names_the_fix(tmp_path):
+    from towerpipe.columnfile import save_columns
+
+    arrays = {k: np.asarray(v).astype(PRED_ARRAYS[k]) for k, v in _arrays().items() if k != "prob_single"}
+    save_columns(tmp_path / "old.npz", arrays, dict(_meta(), format_version=1))
+    with pytest.raises(InputError, match="prob_single.*rerun the inference|rerun the inference.*prob_single"):
+        load_pred(tmp_path / "old.npz")
 
 
 def test_empty_prediction_file(tmp_path):

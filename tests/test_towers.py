@@ -345,3 +345,25 @@ def test_point_threshold_trims_a_towers_points_not_the_tower():
     full = extract_towers([pair], "b1", BOUNDS, zone="z1")
     assert full.iloc[0]["n_points"] == len(xyz)
     assert full.iloc[0]["footprint_area_m2"] == pytest.approx(gdf.iloc[0]["footprint_area_m2"])
+
+
+def test_towers_found_on_the_single_view_points_chosen_on_the_view_mean():
+    """A tower the views disagree on (mean below the cluster threshold) is still found and
+    tested on ``prob_single``; its class-15 points are those whose view mean reaches
+    ``point_threshold``, and ``prob_mean`` is of the single view."""
+    xyz, hag = synthetic_tower(X0 + 50, Y0 + 50, seed=7)
+    arrays, meta = pred_pair(xyz, hag, 0.45, ["b1"])  # view mean: every point below 0.5
+    crown = np.arange(len(xyz)) % 3 == 0
+    arrays["prob"][~crown] = 0.45
+    arrays["prob"][crown] = 0.2
+    arrays["prob_single"] = np.full(len(xyz), 0.97, np.float32)
+    members: dict = {}
+    gdf = extract_towers([(arrays, meta)], "b1", BOUNDS, zone="z1", threshold=0.5, point_threshold=0.4,
+                         min_core_prob=0.9, members=members)
+    assert len(gdf) == 1
+    row = gdf.iloc[0]
+    assert row["n_points"] == int((~crown).sum()) and len(members[row["tower_id"]][1]) == row["n_points"]
+    assert row["prob_mean"] == pytest.approx(0.97)
+    # found on the view mean instead, there would be no tower at all
+    mean_only = dict(arrays, prob_single=arrays["prob"])
+    assert len(extract_towers([(mean_only, meta)], "b1", BOUNDS, zone="z1", threshold=0.5)) == 0

@@ -11,8 +11,13 @@ array             dtype     meaning
 ``point_index``   int64     index of the point in its source block file
 ``x, y, z``       float64   absolute coordinates
 ``hag``           float32   height above ground (m)
-``prob``          float32   combined tower probability (overlapping windows
-                            combined per point)
+``prob``          float32   tower probability, averaged over the views of each
+                            window (``inference.tta``), overlapping windows
+                            combined per point: ``TowerProbability``; the points
+                            of a tower are those at or above ``inference.threshold``
+``prob_single``   float32   the same from the window as it is (one view): towers
+                            are found and tested on it (:mod:`towerpipe.towers`);
+                            equal to ``prob`` with one view
 ================  ========  ====================================================
 
 ``meta`` is a JSON-able dict: ``zone``, ``block``, ``tile``, ``blocks``,
@@ -43,6 +48,7 @@ PRED_ARRAYS: dict[str, np.dtype] = {
     "z": np.dtype("f8"),
     "hag": np.dtype("f4"),
     "prob": np.dtype("f4"),
+    "prob_single": np.dtype("f4"),
 }
 
 #: Keys every prediction file's ``meta`` carries.
@@ -65,7 +71,7 @@ PRED_META_KEYS: tuple[str, ...] = (
     "peak_rss_mb",
 )
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: prob_single
 
 
 @dataclass
@@ -125,12 +131,15 @@ def save_pred(
     path
         Destination ``.npz``.
     arrays
-        Arrays named as in :data:`PRED_ARRAYS` (cast to the contract dtypes).
+        Arrays named as in :data:`PRED_ARRAYS` (cast to the contract dtypes); without
+        ``prob_single``, the prediction is one view and ``prob`` is used for it.
     meta
         JSON-able metadata with at least :data:`PRED_META_KEYS`.
     """
     path = Path(path)
     cast = {}
+    if "prob_single" not in arrays and "prob" in arrays:
+        arrays = {**arrays, "prob_single": arrays["prob"]}
     for name, dtype in PRED_ARRAYS.items():
         if name not in arrays:
             raise InputError(path, f"prediction array {name!r} missing")

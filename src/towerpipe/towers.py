@@ -1,7 +1,11 @@
 """Towers as objects: cluster predicted tower points into one record per tower.
 
-The segmenter gives every point a tower probability. :func:`extract_towers` turns
-the points of one block *and its neighbours* with ``prob >= threshold`` into towers:
+The segmenter gives every point a tower probability, from the window as it is
+(``prob_single``) and averaged over several views of it (``prob``, see
+:func:`towerpipe.infer.segment_views`). :func:`extract_towers` turns the points of one
+block *and its neighbours* with ``prob_single >= threshold`` into towers (a tower the
+segmenter is unsure of in some views is still found), and a tower's points are those of
+its cluster with ``prob >= point_threshold`` (a crown painted in one view is left out):
 
 1. connected components of a 3-D ``cKDTree`` graph (points closer than ``linkage``);
 2. a component wider than ``max_extent`` (a chain of falsely predicted wire points
@@ -90,38 +94,42 @@ def _as_pred(item: Any) -> tuple[Mapping[str, np.ndarray], Mapping[str, Any]]:
 
 
 def gather_points(preds: Sequence[Any], threshold: float = 0.5) -> dict[str, np.ndarray]:
-    """Concatenate the points with ``prob >= threshold`` of several prediction files.
+    """Concatenate the points with ``prob_single >= threshold`` of several prediction files.
 
     Parameters
     ----------
     preds
         Prediction file paths, :class:`towerpipe.predfile.PredFile` objects or
         ``(arrays, meta)`` pairs; ``meta["blocks"]`` names the ``block_id`` values.
+        Arrays without ``prob_single`` are one view (``prob`` is used for it).
     threshold
-        Minimum tower probability.
+        Minimum single-view tower probability.
 
     Returns
     -------
     dict
-        ``x, y, z`` (float64), ``hag, prob`` (float32), ``point_index`` (int64) and
+        ``x, y, z`` (float64), ``hag, prob, prob_single`` (float32), ``point_index`` (int64) and
         ``block`` (block names, object array). A point given twice (same block and
         ``point_index``) is kept once.
     """
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("x", "y", "z", "hag", "prob", "point_index", "block")}
+    cols = ("x", "y", "z", "hag", "prob", "prob_single", "point_index")
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in (*cols, "block")}
     for item in preds:
         arrays, meta = _as_pred(item)
         missing = [k for k in _PRED_NAMES if k not in arrays]
         if missing:
             raise InputError(str(meta.get("tile", "<pred>")), f"prediction arrays lack {missing}")
-        sel = np.asarray(arrays["prob"]) >= threshold
+        single = np.asarray(arrays["prob_single"] if "prob_single" in arrays else arrays["prob"])
+        sel = single >= threshold
         names = list(meta.get("blocks") or [meta.get("block", "")])
         bid = np.asarray(arrays["block_id"])[sel]
         if bid.size and (bid.min() < 0 or bid.max() >= len(names)):
             raise InputError(str(meta.get("tile", "<pred>")), "block_id outside meta['blocks']")
         parts["block"].append(np.asarray(names, dtype=object)[bid] if bid.size else np.empty(0, dtype=object))
-        for k in ("x", "y", "z", "hag", "prob", "point_index"):
-            parts[k].append(np.asarray(arrays[k])[sel])
-    dtypes = {"x": "f8", "y": "f8", "z": "f8", "hag": "f4", "prob": "f4", "point_index": "i8", "block": object}
+        for k in cols:
+            parts[k].append((single if k == "prob_single" else np.asarray(arrays[k]))[sel])
+    dtypes = {"x": "f8", "y": "f8", "z": "f8", "hag": "f4", "prob": "f4", "prob_single": "f4", "point_index": "i8",
+              "block": object}
     out = {k: (np.concatenate(v).astype(dtypes[k]) if v else np.empty(0, dtype=dtypes[k])) for k, v in parts.items()}
     if len(out["x"]):
         # deterministic order and de-duplication: sort by (block, point_index)
@@ -344,14 +352,15 @@ def extract_towers(
     zone
         Zone name, part of the tower id.
     threshold
-        Minimum tower probability of a point.
+        Minimum single-view tower probability (``prob_single``) of a point.
     linkage, merge_gap, max_extent, min_points, min_height
         Clustering parameters, see :func:`cluster_towers`.
     min_width
         Footprints thinner than this (m) are buffered to this width.
     min_core_prob
-        A tower whose 90th percentile of point probabilities is below this is dropped
-        (0 keeps every cluster); the LAS keeps its points' probabilities and labels.
+        A tower whose 90th percentile of single-view point probabilities is below this
+        is dropped (0 keeps every cluster); the LAS keeps its points' probabilities.
+        ``prob_mean`` and ``prob_max`` of a tower are of the same probabilities.
     model_meta
         ``{"name": ..., "version": ...}``; default: ``meta["model"]`` of the first
         prediction file.
@@ -381,12 +390,11 @@ def extract_towers(
         ground are dropped (1 keeps all): a tower stands on the ground, a floating
         cluster is a piece of conductor or crossarm.
     point_threshold
-        The points of a tower are its cluster's points at or above this probability
-        (``n_points`` and ``members``); ``None``: all of them. Towers are found on the
-        points at or above ``threshold`` (the segmenter's decision, 0.5); a higher
-        ``point_threshold`` trims the uncertain edge of each tower (crowns next to it)
-        without splitting off the pieces of conductor that a higher clustering
-        threshold leaves as false towers.
+        The points of a tower are its cluster's points whose view-averaged probability
+        (``prob``) is at or above this (``n_points`` and ``members``); ``None``: all of
+        them. This trims the uncertain edge of each tower (crowns next to it) without
+        splitting off the pieces of conductor that a higher clustering threshold leaves
+        as false towers, and without losing a tower the segmenter is unsure of.
     members
         When a dict is given, ``members[tower_id] = (block names, point indices)`` of
         the points of every accepted tower with points in this block, owned or not (a
@@ -420,7 +428,7 @@ def extract_towers(
     xmin, ymin, xmax, ymax = (float(v) for v in block_bounds)
     rows, geoms = [], []
     for g in groups:
-        if min_core_prob > 0 and np.quantile(pts["prob"][g], 0.9) < min_core_prob:
+        if min_core_prob > 0 and np.quantile(pts["prob_single"][g], 0.9) < min_core_prob:
             continue
         hag = pts["hag"][g].astype(np.float64)
         if hag.min() > max_base_ratio * hag.max():
@@ -432,7 +440,7 @@ def extract_towers(
         owned = bool(_in_bounds(np.array([c.x]), np.array([c.y]), block_bounds)[0])
         if not owned and str(block_name) not in touched:
             continue  # a neighbour's tower that does not reach this block
-        prob = pts["prob"][g].astype(np.float64)
+        prob = pts["prob_single"][g].astype(np.float64)
         support = float("nan")
         ctx = context(float(c.x), float(c.y)) if context is not None else None
         if ctx is not None:
