@@ -10,6 +10,11 @@ Windows overlap (``stride < window``); the probabilities of a point from the
 segmented windows that contain it are combined with ``max`` (default) or ``mean``.
 A point that no segmented window contains has probability 0 and is not written.
 
+With ``tta`` > 1 each segmented window also goes through the segmenter turned about its
+centre (:func:`segment_views`); two probabilities are written per point: the window as
+it is (``prob_single``, on which towers are found) and the mean over the views
+(``prob``, which picks a tower's points and becomes ``TowerProbability``).
+
 Only the tile's **core** points are written (each point of a zone lies in exactly one
 tile core); buffer points give context to the windows that reach into them.
 
@@ -24,7 +29,8 @@ Determinism
 Memory
     Classifier inputs are built one batch at a time (``(batch_size, n_points, C)``
     float32); the segmenter takes one window at a time and chunks internally; per
-    point the tile keeps one float32 accumulator and one uint16 count.
+    point the tile keeps one float32 accumulator (two with ``tta`` > 1) and one
+    uint16 count.
 """
 
 from __future__ import annotations
