@@ -10,6 +10,7 @@ import json
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import laspy
 import numpy as np
@@ -86,6 +87,34 @@ def test_shipped_model_reproduces_its_recorded_metrics(zone_run):
     for key in ("tower_precision", "tower_recall", "point_iou_tower"):
         assert res[key] == pytest.approx(ref[key], abs=0.05), key
     assert res["towers_reported_twice"] == 0
+
+
+def test_calibration_sweep_reproduces_the_pipeline(zone_run):
+    """`towerpipe calibrate` builds the towers of the whole zone at once from cached
+    predictions; for the configured candidate its figures are the pipeline's."""
+    from towerpipe.calibrate import sweep
+    from towerpipe.evaluate import evaluate_zone
+    from towerpipe.model import default_model_path
+
+    out, data, cmd = zone_run
+    work = next(a.split("=", 1)[1] for a in cmd if a.startswith("workdir="))
+    cfg = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    inf, tow = cfg["inference"], cfg["towers"]
+    configured = (inf["tta"], tow["threshold"], inf["threshold"], tow["min_core_prob"])
+    rows = sweep({ZONE: data}, [configured, (1, tow["threshold"], 0.6, tow["min_core_prob"])], work=work,
+                 model=str(default_model_path("full")), inference=inf, towers=tow)
+    res = evaluate_zone(data, out)
+    got = rows[0][ZONE]
+    assert got["towers"] == res["towers_predicted"]
+    assert got["precision"] == pytest.approx(res["tower_precision"])
+    assert got["recall"] == pytest.approx(res["tower_recall"])
+    assert (got["tp"], got["fp"], got["fn"]) == tuple(res["points"][k] for k in ("tp", "fp", "fn"))
+    # one view: the predictions are computed (and cached) for it, the same towers are found
+    one = rows[1][ZONE]
+    assert one["towers"] == got["towers"] and one["tp"] + one["fn"] == got["tp"] + got["fn"]
+    assert rows[1]["mean_point_iou"] == pytest.approx(one["point_iou"])
+    assert len(list((Path(work) / ZONE / "calibrate").glob("*/*.npz"))) == 2 * len(
+        list((Path(work) / ZONE / "tiles").glob("*/*.npz")))
 
 
 def test_snakemake_report_holds_the_qa_pages(zone_run, tmp_path):

@@ -20,6 +20,7 @@ COMMAND_MODULES = [
     "towerpipe.synth.cli",
     "towerpipe.train",
     "towerpipe.evaluate",
+    "towerpipe.calibrate",
     "towerpipe.bench",
 ]
 

@@ -1,0 +1,241 @@
+"""Calibrating the inference and tower thresholds on labelled zones.
+
+The thresholds of ``inference`` and ``towers`` (views, point threshold, clustering
+threshold, ``min_core_prob``) are set on calibration zones, never on held-out ones. A
+full pipeline run per candidate costs a minute per zone; most candidates share their
+predictions. :func:`sweep` therefore predicts each tile of a zone once per number of
+views (cached under ``<workdir>/<zone>/calibrate/``), then, per candidate, finds the
+towers of the whole zone at once (:func:`towerpipe.towers.extract_towers` with the
+zone's tiles as conductor context, the other tower rules from the config) and scores
+them against the input labels: tower precision / recall (as ``towerpipe evaluate``) and
+point IoU of class 15.
+
+The zone must have been preprocessed (``snakemake --cores 2 results/<zone>/``). On a
+whole zone the towers are built as the pipeline builds them block by block, so the
+figures of the configured candidate are the pipeline's (tested on the CI zone).
+
+``towerpipe calibrate --zones calib,calib2,calib3 --tta 1,2 --point-threshold 0.4,0.5,0.6``
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from towerpipe.errors import InputError
+
+__all__ = ["Candidate", "score_zone", "sweep", "zone_predictions"]
+
+#: One candidate: (views, towers.threshold, inference.threshold, towers.min_core_prob).
+Candidate = tuple[int, float, float, float]
+
+_UNBOUNDED = (-1e18, -1e18, 1e18, 1e18)
+# the towers config keys that extract_towers takes as they are
+_TOWER_KEYS = ("linkage", "min_points", "min_height", "min_wire_support", "wire_min_height", "max_base_ratio")
+
+
+def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.PathLike[str], tta: int,
+                     inference: Mapping[str, Any]) -> list[str]:
+    """Prediction files of every tile of a zone with ``tta`` views, computed once and cached.
+
+    Parameters
+    ----------
+    work
+        The workdir (``work``); tiles are read from ``<work>/<zone>/tiles/*/*.npz``.
+    zone
+        Zone name.
+    model
+        Model bundle directory.
+    tta
+        Views per segmented window.
+    inference
+        The config's ``inference`` section (window, stride, gate, combine, batch size,
+        min points, min height).
+
+    Returns
+    -------
+    list of str
+        ``<work>/<zone>/calibrate/<model>_tta<k>_<hash>/<block>_<tile>.npz``, one per tile.
+    """
+    from towerpipe.infer import infer_tile
+    from towerpipe.model import load_bundle
+    from towerpipe.modelcard import config_hash
+
+    tiles = sorted(Path(work, zone, "tiles").glob("*/*.npz"))
+    if not tiles:
+        raise InputError(Path(work, zone, "tiles"), f"no tiles of zone {zone!r}; run "
+                         f"`snakemake --cores 2 results/{zone}/` first")
+    keys = ("window", "stride", "gate", "combine", "batch_size", "min_points", "min_height")
+    kw = {k: inference[k] for k in keys if k in inference}
+    out_dir = Path(work, zone, "calibrate", f"{Path(model).name}_tta{tta}_{config_hash(kw)}")
+    bundle = None
+    paths = []
+    for t in tiles:
+        out = out_dir / f"{t.parent.name}_{t.stem}.npz"
+        if not out.exists() or out.stat().st_mtime < t.stat().st_mtime:
+            bundle = bundle or load_bundle(model)
+            infer_tile(t, bundle, out, tta=tta, **kw)
+        paths.append(str(out))
+    return paths
+
+
+def _labels(input_dir: Path) -> dict[str, np.ndarray]:
+    """Block name -> indices of its points labelled 15 in the input."""
+    import laspy
+
+    from towerpipe.evaluate import TOWER_CLASS
+    from towerpipe.lasio import find_blocks, laz_backend
+
+    out = {}
+    for name, path in find_blocks(input_dir).items():
+        with laspy.open(path, laz_backend=laz_backend()) as f:
+            cls = np.asarray(f.read().classification)
+        out[name] = np.flatnonzero(cls == TOWER_CLASS)
+    return out
+
+
+def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: Mapping[str, np.ndarray], *,
+               threshold: float, point_threshold: float, min_core_prob: float, towers: Mapping[str, Any],
+               zone: str = "zone") -> dict[str, Any]:
+    """Towers of a whole zone from its predictions, scored against its labels.
+
+    Parameters
+    ----------
+    preds
+        Prediction files (or loaded predictions) of every tile of the zone.
+    tile_paths
+        The zone's tiles (conductor support context).
+    truth
+        True tower footprints (GeoDataFrame, layer ``towers`` of ``towers_truth.gpkg``).
+    labels
+        Block name -> indices of its class-15 input points.
+    threshold, point_threshold, min_core_prob
+        The candidate (``towers.threshold``, ``inference.threshold``, ``towers.min_core_prob``).
+    towers
+        The config's ``towers`` section: the other rules.
+
+    Returns
+    -------
+    dict
+        ``precision``, ``recall``, ``towers``, ``point_iou``, ``tp``, ``fp``, ``fn``.
+    """
+    from towerpipe.towers import extract_towers, match_towers
+    from towerpipe.wires import TileContext
+
+    members: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    gdf = extract_towers(preds, zone, _UNBOUNDED, zone=zone, threshold=threshold, point_threshold=point_threshold,
+                         min_core_prob=min_core_prob, context=TileContext(list(tile_paths)), members=members,
+                         model_meta={}, crs=truth.crs, **{k: towers[k] for k in _TOWER_KEYS if k in towers})
+    chosen: dict[str, list[np.ndarray]] = {}
+    for blocks, idx in members.values():
+        blocks = np.asarray(blocks).astype(str)
+        for b in np.unique(blocks):
+            chosen.setdefault(str(b), []).append(np.asarray(idx)[blocks == b])
+    tp = fp = fn = 0
+    for name in sorted(set(labels) | set(chosen)):
+        pred = np.unique(np.concatenate(chosen.get(name) or [np.empty(0, np.int64)]))
+        true = labels.get(name, np.empty(0, np.int64))
+        hit = int(np.intersect1d(pred, true, assume_unique=True).size)
+        tp, fp, fn = tp + hit, fp + pred.size - hit, fn + true.size - hit
+    m = match_towers(gdf, truth, max_dist=5.0)
+    return {"precision": m["precision"], "recall": m["recall"], "towers": int(len(gdf)),
+            "point_iou": tp / (tp + fp + fn) if tp + fp + fn else float("nan"), "tp": tp, "fp": fp, "fn": fn}
+
+
+def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Candidate], *, work: str, model: str,
+          inference: Mapping[str, Any], towers: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """Score every candidate on every zone.
+
+    Parameters
+    ----------
+    zones
+        Zone name -> its input directory (labelled blocks and ``towers_truth.gpkg``).
+    candidates
+        ``(views, towers.threshold, inference.threshold, towers.min_core_prob)`` tuples.
+    work, model, inference, towers
+        Workdir, model bundle directory and the config's sections.
+
+    Returns
+    -------
+    list of dict
+        One row per candidate: the candidate, per-zone :func:`score_zone` figures and
+        ``mean_point_iou`` over the zones.
+    """
+    import geopandas as gpd
+
+    data = {}
+    for zone, input_dir in zones.items():
+        truth_path = Path(input_dir) / "towers_truth.gpkg"
+        if not truth_path.exists():
+            raise InputError(truth_path, "calibration needs the zone's true towers (a synthetic zone has them)")
+        data[zone] = (gpd.read_file(truth_path, layer="towers"), _labels(Path(input_dir)),
+                      sorted(str(p) for p in Path(work, zone, "tiles").glob("*/*.npz")))
+    preds: dict[tuple[str, int], list[Any]] = {}
+    rows = []
+    for cand in candidates:
+        tta, thr, pthr, mcp = cand
+        row: dict[str, Any] = {"tta": tta, "threshold": thr, "point_threshold": pthr, "min_core_prob": mcp}
+        for zone, (truth, labels, tiles) in data.items():
+            if (zone, tta) not in preds:
+                from towerpipe.predfile import load_pred
+
+                preds[(zone, tta)] = [load_pred(p) for p in zone_predictions(work, zone, model, tta, inference)]
+            row[zone] = score_zone(preds[(zone, tta)], tiles, truth, labels, threshold=thr, point_threshold=pthr,
+                                   min_core_prob=mcp, towers=towers, zone=zone)
+        row["mean_point_iou"] = float(np.mean([row[z]["point_iou"] for z in data]))
+        rows.append(row)
+    return rows
+
+
+def _floats(text: str) -> list[float]:
+    return [float(v) for v in text.split(",") if v.strip()]
+
+
+def _cli(args: argparse.Namespace) -> int:
+    import yaml
+
+    from towerpipe.steps import resolve_model
+
+    cfg = yaml.safe_load(Path(args.config).read_text())
+    inference, towers = dict(cfg.get("inference") or {}), dict(cfg.get("towers") or {})
+    zones = {}
+    for z in args.zones.split(","):
+        spec = (cfg.get("zones") or {}).get(z)
+        if spec is None:
+            raise InputError(args.config, f"zone {z!r} is not defined there")
+        zones[z] = spec["input"]
+    tta = [int(v) for v in args.tta.split(",")] if args.tta else [int(inference.get("tta", 1))]
+    thr = _floats(args.threshold) if args.threshold else [float(towers.get("threshold", 0.5))]
+    pthr = _floats(args.point_threshold) if args.point_threshold else [float(inference.get("threshold", 0.5))]
+    mcp = _floats(args.min_core_prob) if args.min_core_prob else [float(towers.get("min_core_prob", 0.0))]
+    model = args.model or str(resolve_model(str(inference.get("model", "full"))))
+    rows = sweep(zones, list(itertools.product(tta, thr, pthr, mcp)), work=args.workdir or cfg.get("workdir", "work"),
+                 model=model, inference=inference, towers=towers)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    print("views  threshold  points  min_core | " + " | ".join(f"{z}: P / R / IoU" for z in zones) + " | mean IoU")
+    for r in rows:
+        cells = " | ".join(f"{r[z]['precision']:.3f} / {r[z]['recall']:.3f} / {r[z]['point_iou']:.4f}" for z in zones)
+        print(f"{r['tta']:5d}  {r['threshold']:9.2f}  {r['point_threshold']:6.2f}  {r['min_core_prob']:8.2f} | "
+              f"{cells} | {r['mean_point_iou']:.4f}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("calibrate", help="score views / thresholds on labelled calibration zones (after their run)")
+    p.add_argument("--config", default="config/config.yaml", help="config defining the zones and the other rules")
+    p.add_argument("--zones", required=True, help="comma-separated calibration zones (never held-out ones)")
+    p.add_argument("--tta", help="views to try, e.g. 1,2,4 (default: the config's)")
+    p.add_argument("--threshold", help="towers.threshold values (default: the config's)")
+    p.add_argument("--point-threshold", help="inference.threshold values (default: the config's)")
+    p.add_argument("--min-core-prob", help="towers.min_core_prob values (default: the config's)")
+    p.add_argument("--model", help="model bundle directory (default: the config's inference.model)")
+    p.add_argument("--workdir", help="workdir holding the zones' tiles (default: the config's)")
+    p.add_argument("--json", help="also write the rows here")
+    p.set_defaults(func=_cli)
