@@ -61,11 +61,12 @@ def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.Pa
     Returns
     -------
     list of str
-        ``<work>/<zone>/calibrate/<model>_tta<k>_<hash>/<block>_<tile>.npz``, one per tile.
+        ``<work>/<zone>/calibrate/<model>_tta<k>_<hash>/<block>_<tile>.npz``, one per tile;
+        the hash covers the inference settings and the model's weights.
     """
     from towerpipe.infer import infer_tile
     from towerpipe.model import load_bundle
-    from towerpipe.modelcard import config_hash
+    from towerpipe.modelcard import config_hash, read_card
 
     tiles = sorted(Path(work, zone, "tiles").glob("*/*.npz"))
     if not tiles:
@@ -73,7 +74,9 @@ def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.Pa
                          f"`snakemake --cores 2 results/{zone}/` first")
     keys = ("window", "stride", "gate", "combine", "batch_size", "min_points", "min_height")
     kw = {k: inference[k] for k in keys if k in inference}
-    out_dir = Path(work, zone, "calibrate", f"{Path(model).name}_tta{tta}_{config_hash(kw)}")
+    # the weights' hashes are part of the key: a retrained model never reuses old predictions
+    key = config_hash({"inference": kw, "weights": read_card(model).get("files")})
+    out_dir = Path(work, zone, "calibrate", f"{Path(model).name}_tta{tta}_{key}")
     bundle = None
     paths = []
     for t in tiles:
