@@ -40,6 +40,14 @@ _UNBOUNDED = (-1e18, -1e18, 1e18, 1e18)
 _TOWER_KEYS = ("linkage", "min_points", "min_height", "min_wire_support", "wire_min_height", "max_base_ratio")
 
 
+def _zone_tiles(work: str | os.PathLike[str], zone: str) -> list[Path]:
+    tiles = sorted(Path(work, zone, "tiles").glob("*/*.npz"))
+    if not tiles:
+        raise InputError(Path(work, zone, "tiles"), f"no tiles of zone {zone!r}; run "
+                         f"`snakemake --cores 2 results/{zone}/` first")
+    return tiles
+
+
 def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.PathLike[str], tta: int,
                      inference: Mapping[str, Any]) -> list[str]:
     """Prediction files of every tile of a zone with ``tta`` views, computed once and cached.
@@ -68,10 +76,7 @@ def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.Pa
     from towerpipe.model import load_bundle
     from towerpipe.modelcard import config_hash, read_card
 
-    tiles = sorted(Path(work, zone, "tiles").glob("*/*.npz"))
-    if not tiles:
-        raise InputError(Path(work, zone, "tiles"), f"no tiles of zone {zone!r}; run "
-                         f"`snakemake --cores 2 results/{zone}/` first")
+    tiles = _zone_tiles(work, zone)
     keys = ("window", "stride", "gate", "combine", "batch_size", "min_points", "min_height")
     kw = {k: inference[k] for k in keys if k in inference}
     # the weights' hashes are part of the key: a retrained model never reuses old predictions
@@ -172,13 +177,15 @@ def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Cand
     """
     import geopandas as gpd
 
+    from towerpipe.predfile import load_pred
+
     data = {}
     for zone, input_dir in zones.items():
         truth_path = Path(input_dir) / "towers_truth.gpkg"
         if not truth_path.exists():
             raise InputError(truth_path, "calibration needs the zone's true towers (a synthetic zone has them)")
         data[zone] = (gpd.read_file(truth_path, layer="towers"), _labels(Path(input_dir)),
-                      sorted(str(p) for p in Path(work, zone, "tiles").glob("*/*.npz")))
+                      [str(p) for p in _zone_tiles(work, zone)])
     preds: dict[tuple[str, int], list[Any]] = {}
     rows = []
     for cand in candidates:
@@ -186,8 +193,6 @@ def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Cand
         row: dict[str, Any] = {"tta": tta, "threshold": thr, "point_threshold": pthr, "min_core_prob": mcp}
         for zone, (truth, labels, tiles) in data.items():
             if (zone, tta) not in preds:
-                from towerpipe.predfile import load_pred
-
                 preds[(zone, tta)] = [load_pred(p) for p in zone_predictions(work, zone, model, tta, inference)]
             row[zone] = score_zone(preds[(zone, tta)], tiles, truth, labels, threshold=thr, point_threshold=pthr,
                                    min_core_prob=mcp, towers=towers, zone=zone)

@@ -52,11 +52,17 @@ __all__ = ["TTA_CHOICES", "BundleLike", "check_model_compatibility", "infer_tile
            "window_rng"]
 
 _COMBINE = ("max", "mean")
-#: test-time views of a window's plan: rotations by multiples of 90 degrees, then the
-#: same mirrored (x -> -x). The plan coordinates are the first two feature columns.
-_TTA_VIEWS = ((1, 0, 0, 1), (0, -1, 1, 0), (-1, 0, 0, -1), (0, 1, -1, 0),
+#: test-time views of a window's plan, in the order they are added: the window as it is,
+#: the half turn, the quarter turns, then the mirror images (x -> -x etc.). Each is the
+#: matrix (a, b, c, d): x' = a x + b y, y' = c x + d y, on the first two feature columns.
+_TTA_VIEWS = ((1, 0, 0, 1), (-1, 0, 0, -1), (0, -1, 1, 0), (0, 1, -1, 0),
               (-1, 0, 0, 1), (0, 1, 1, 0), (1, 0, 0, -1), (0, -1, -1, 0))
 TTA_CHOICES = (1, 2, 4, 8)
+
+
+def _check_views(views: int) -> None:
+    if views not in TTA_CHOICES:
+        raise ConfigError(f"inference.tta must be one of {TTA_CHOICES}, got {views!r}")
 # which tile meta flag tells whether a dimension is really present
 _DIM_FLAGS = {"red": "has_rgb", "green": "has_rgb", "blue": "has_rgb", "nir": "has_nir"}
 
@@ -101,17 +107,14 @@ def segment_views(bundle: BundleLike, feats: np.ndarray, views: int = 1) -> tupl
     single, mean
         ``(N,)`` float32 probabilities (the same array when ``views`` is 1).
     """
-    if views not in TTA_CHOICES:
-        raise ConfigError(f"inference.tta must be one of {TTA_CHOICES}, got {views!r}")
+    _check_views(views)
     single = np.asarray(bundle.segment(feats), dtype=np.float32).reshape(-1)
     if views == 1:
         return single, single
-    order = (2, 1, 3, 4, 5, 6, 7)  # after the window as it is: the half turn, the quarter turns, mirrors
     acc = single.copy()
     xy = np.array(feats[:, :2], dtype=np.float32)
     f = np.array(feats, dtype=np.float32)
-    for v in order[: views - 1]:
-        a, b, c, d = _TTA_VIEWS[v]
+    for a, b, c, d in _TTA_VIEWS[1:views]:
         f[:, 0] = a * xy[:, 0] + b * xy[:, 1]
         f[:, 1] = c * xy[:, 0] + d * xy[:, 1]
         acc += np.asarray(bundle.segment(f), dtype=np.float32).reshape(-1)
@@ -207,8 +210,7 @@ def predict_tile(
         raise ConfigError(f"infer.gate must be in [0, 1], got {gate}")
     if batch_size < 1:
         raise ConfigError(f"infer.batch_size must be >= 1, got {batch_size}")
-    if tta not in TTA_CHOICES:
-        raise ConfigError(f"inference.tta must be one of {TTA_CHOICES}, got {tta!r}")
+    _check_views(tta)  # before the classifier pass, not at the first segmented window
     if np.asarray(tile.arrays["model_input"], dtype=bool).any():  # nothing to predict needs no features
         check_model_compatibility(tile.meta, bundle)
     timings: dict[str, float] = {}

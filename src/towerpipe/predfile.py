@@ -119,6 +119,13 @@ def empty_pred_arrays(n: int = 0) -> dict[str, np.ndarray]:
     return {k: np.zeros(n, dtype=d) for k, d in PRED_ARRAYS.items()}
 
 
+def one_view_default(arrays: Mapping[str, np.ndarray]) -> Mapping[str, np.ndarray]:
+    """``arrays`` with ``prob_single``: a prediction without it is one view, ``prob`` itself."""
+    if "prob_single" in arrays or "prob" not in arrays:
+        return arrays
+    return {**arrays, "prob_single": arrays["prob"]}
+
+
 def save_pred(
     path: str | os.PathLike[str],
     arrays: Mapping[str, np.ndarray],
@@ -138,8 +145,7 @@ def save_pred(
     """
     path = Path(path)
     cast = {}
-    if "prob_single" not in arrays and "prob" in arrays:
-        arrays = {**arrays, "prob_single": arrays["prob"]}
+    arrays = one_view_default(arrays)
     for name, dtype in PRED_ARRAYS.items():
         if name not in arrays:
             raise InputError(path, f"prediction array {name!r} missing")

@@ -81,15 +81,16 @@ _PRED_NAMES = ("block_id", "point_index", "x", "y", "z", "hag", "prob")
 
 # --------------------------------------------------------------------------- inputs
 def _as_pred(item: Any) -> tuple[Mapping[str, np.ndarray], Mapping[str, Any]]:
-    """(arrays, meta) of a prediction path, ``PredFile``, or ``(arrays, meta)`` pair."""
-    if isinstance(item, (str, os.PathLike)):
-        from towerpipe.predfile import load_pred
+    """(arrays, meta) of a prediction path, ``PredFile``, or ``(arrays, meta)`` pair
+    (a pair without ``prob_single`` is one view)."""
+    from towerpipe.predfile import load_pred, one_view_default
 
+    if isinstance(item, (str, os.PathLike)):
         item = load_pred(item)
     if hasattr(item, "arrays") and hasattr(item, "meta"):
         return item.arrays, item.meta
     if isinstance(item, tuple) and len(item) == 2:
-        return item[0], item[1]
+        return one_view_default(item[0]), item[1]
     raise TypeError(f"expected a prediction file path, PredFile or (arrays, meta) pair, got {type(item).__name__}")
 
 
@@ -119,15 +120,14 @@ def gather_points(preds: Sequence[Any], threshold: float = 0.5) -> dict[str, np.
         missing = [k for k in _PRED_NAMES if k not in arrays]
         if missing:
             raise InputError(str(meta.get("tile", "<pred>")), f"prediction arrays lack {missing}")
-        single = np.asarray(arrays["prob_single"] if "prob_single" in arrays else arrays["prob"])
-        sel = single >= threshold
+        sel = np.asarray(arrays["prob_single"]) >= threshold
         names = list(meta.get("blocks") or [meta.get("block", "")])
         bid = np.asarray(arrays["block_id"])[sel]
         if bid.size and (bid.min() < 0 or bid.max() >= len(names)):
             raise InputError(str(meta.get("tile", "<pred>")), "block_id outside meta['blocks']")
         parts["block"].append(np.asarray(names, dtype=object)[bid] if bid.size else np.empty(0, dtype=object))
         for k in cols:
-            parts[k].append((single if k == "prob_single" else np.asarray(arrays[k]))[sel])
+            parts[k].append(np.asarray(arrays[k])[sel])
     dtypes = {"x": "f8", "y": "f8", "z": "f8", "hag": "f4", "prob": "f4", "prob_single": "f4", "point_index": "i8",
               "block": object}
     out = {k: (np.concatenate(v).astype(dtypes[k]) if v else np.empty(0, dtype=dtypes[k])) for k, v in parts.items()}
