@@ -34,7 +34,7 @@ def _all_points(truth):
     lases = [_read(b["path"]) for b in truth.blocks]
     cat = {k: np.concatenate([np.asarray(getattr(l, k)) for l in lases])
            for k in ("x", "y", "z", "classification", "red", "nir", "TowerId", "return_number",
-                     "number_of_returns", "point_source_id")}
+                     "number_of_returns", "point_source_id", "intensity", "gps_time")}
     return cat
 
 
@@ -258,3 +258,40 @@ def test_real_backgrounds_keep_crs_and_get_towers(tmp_path):
     p = _all_points(t)
     assert (p["TowerId"] > 0).sum() == t.towers["n_points"].sum() > 0
     assert (p["nir"] > 0).mean() > 0.9          # synthetic NIR where the tile has none
+
+
+@pytest.mark.shared
+@pytest.mark.skipif(not (SHARED_TOWERS.parent / "backgrounds").is_dir(), reason="../shared/data/real/backgrounds not present")
+def test_realshape_zone_families_lines_and_variants(tmp_path):
+    """A benchmark zone: one real family on a real tile, towers on lines carrying conductors, on data;
+    the degraded variants share the geometry and lose only their attributes."""
+    from towerpipe.synth.real import tower_family
+
+    bg = SHARED_TOWERS.parent / "backgrounds"
+    kw = dict(seed=5, real_backgrounds=bg, background_files=["ign_rgbnir_block.laz"], copies=1, lines=True,
+              tower_source="real", real_towers=SHARED_TOWERS, tower_families=["ts40k"], tower_density=(4, 15),
+              tower_variety=True)
+    t = generate_zone(tmp_path / "intact", **kw)
+    assert len(t.blocks) == 1 and len(t.towers) >= 3
+    assert {tower_family(d) for d in t.towers["design"]} == {"ts40k"}
+    assert t.towers["height"].between(10, 60).all()
+    p = _all_points(t)
+    assert (p["TowerId"] > 0).sum() == t.towers["n_points"].sum()
+    # every tower stands on ground the tile has data of, and carries conductors
+    ground = p["classification"] == 2
+    gtree = shapely.STRtree(shapely.points(p["x"][ground][::20], p["y"][ground][::20]))
+    wires = shapely.points(p["x"][p["classification"] == 14], p["y"][p["classification"] == 14])
+    for _, r in t.towers.iterrows():
+        base = shapely.Point(r["x"], r["y"])
+        assert gtree.query(base, predicate="dwithin", distance=6.0).size > 0
+        assert shapely.dwithin(wires, base, 15.0).sum() > 20
+    # towers are coloured mostly by the orthophoto below them, not by a steel signature
+    own = p["classification"] == 15
+    assert abs(np.median(p["red"][own]) - np.median(p["red"][ground])) < 0.25 * 65535
+    bare = generate_zone(tmp_path / "bare", **kw, variant="no_intensity")
+    q = _all_points(bare)
+    np.testing.assert_array_equal(q["x"], p["x"])
+    assert not q["intensity"].any() and not q["return_number"].any() and not q["gps_time"].any()
+    nocol = generate_zone(tmp_path / "nocol", **kw, variant="no_colour")
+    las = laspy.read(nocol.blocks[0]["path"])
+    assert las.header.point_format.id == 6 and "red" not in las.point_format.dimension_names

@@ -1,4 +1,4 @@
-"""Writing synthetic blocks: LAS 1.4, point format 8, LAZ, WKT CRS, ``TowerId``."""
+"""Writing synthetic blocks: LAS 1.4, point format 8 (or 6), LAZ, WKT CRS, ``TowerId``."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ TOWER_ID_DIM = "TowerId"
 
 
 def write_block(path: str | Path, pts: dict[str, np.ndarray], crs: str | pyproj.CRS,
-                bounds: tuple[float, float, float, float] | None = None, parallel: bool = False) -> None:
+                bounds: tuple[float, float, float, float] | None = None, parallel: bool = False,
+                point_format: int = 8) -> None:
     """Write one block as LAZ (or LAS by suffix).
 
     Parameters
@@ -28,8 +29,12 @@ def write_block(path: str | Path, pts: dict[str, np.ndarray], crs: str | pyproj.
         Block bounds; the offsets are its lower-left corner (else the data minimum).
     parallel
         Use the multi-threaded lazrs backend.
+    point_format
+        8 (RGB + NIR) or 6 (no colour: ``red`` ... ``nir`` are not written).
     """
-    header = laspy.LasHeader(version="1.4", point_format=8)
+    if point_format not in (6, 8):
+        raise ValueError(f"point_format must be 6 or 8, got {point_format}")
+    header = laspy.LasHeader(version="1.4", point_format=point_format)
     header.add_extra_dim(laspy.ExtraBytesParams(name=TOWER_ID_DIM, type=np.uint32,
                                                 description="tower instance id, 0 = none"))
     header.scales = np.array([0.01, 0.01, 0.01])
@@ -48,10 +53,11 @@ def write_block(path: str | Path, pts: dict[str, np.ndarray], crs: str | pyproj.
     las.return_number = pts["return_number"]
     las.number_of_returns = pts["number_of_returns"]
     las.intensity = pts["intensity"]
-    las.red = pts["red"]
-    las.green = pts["green"]
-    las.blue = pts["blue"]
-    las.nir = pts["nir"]
+    if point_format == 8:
+        las.red = pts["red"]
+        las.green = pts["green"]
+        las.blue = pts["blue"]
+        las.nir = pts["nir"]
     las.point_source_id = pts["point_source_id"]
     las.scan_angle = np.round(np.asarray(pts["scan_angle"]) / 0.006).astype(np.int16)
     las.gps_time = pts["gps_time"]

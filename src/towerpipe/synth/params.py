@@ -85,6 +85,13 @@ class SceneParams:
     member_beam: float = 0.12                   # effective extra width of thin members (beam)
     wire_width: float = 0.12                    # effective width of a wire seen by the beam
     tower_visibility_min: float = 0.3           # visibility at the base of a tower (occlusion)
+    # how a colourised flight sees a tower, drawn per tower: the share of its points that take
+    # the tower's own colour (the rest take the orthophoto pixel below: ground, grass, shadow),
+    # and a factor on its intensity (reflectance of paint, rust and wet steel varies)
+    tower_own_color: tuple[float, float] = (0.6, 0.6)
+    tower_intensity: tuple[float, float] = (1.0, 1.0)
+    # real tower shapes: relative jitter of their plan scale (each axis) and height
+    real_tower_jitter: float = 0.0
     gps_time: bool = True
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -122,6 +129,16 @@ _PRESETS: dict[str, dict[str, Any]] = {
                  isolated_tall_trees=100.0, roads=25.0, span=(120.0, 220.0),
                  parallel_line_share=0.5),
 }
+
+
+#: Tower variety aimed at real flights (``tower_variety: true`` of a generated zone): every
+#: design, towers coloured mostly by the orthophoto pixel below them, intensity drawn per
+#: tower, real shapes with their proportions varied.
+TOWER_VARIETY: dict[str, Any] = dict(
+    designs=("lattice_waist", "double_circuit", "small_lattice", "monopole",
+             "donau", "einebenen", "tonne", "delta", "portal", "wooden_hframe"),
+    design_weights=(0.12, 0.12, 0.1, 0.08, 0.12, 0.1, 0.1, 0.1, 0.08, 0.08),
+    tower_own_color=(0.0, 0.5), tower_intensity=(0.4, 2.5), real_tower_jitter=0.15)
 
 
 def preset_names() -> list[str]:

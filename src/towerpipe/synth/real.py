@@ -1,5 +1,4 @@
-"""Real shapes and backgrounds: real tower point sets resampled to airborne density,
-and towers inserted into real background tiles.
+"""Real tower shapes: real tower point sets resampled to what an airborne flight sees.
 
 Tower sources (a directory laid out as ``../shared/data/real/towers``):
 ``uav_towers/NNNTower.txt`` (doubled points deduplicated), ``ts40k/*.npy`` (class 15,
@@ -110,12 +109,36 @@ def airborne_resample(xyz: np.ndarray, density: float, rng: np.random.Generator,
     return v[rng.random(len(v)) < p]
 
 
-class RealTowerLibrary:
-    """Real tower shapes that replace synthetic towers of a zone."""
+#: The real tower families (sources) of ``../shared/data/real/towers``, by name prefix.
+FAMILIES = ("ts40k", "uav", "utility")
 
-    def __init__(self, root: str | Path):
+
+def tower_family(design: str) -> str | None:
+    """The real family of a truth ``design`` (``"real:uav:001Tower"`` -> ``"uav"``), else ``None``."""
+    parts = str(design).split(":")
+    return parts[1] if len(parts) > 2 and parts[0] == "real" and parts[1] in FAMILIES else None
+
+
+class RealTowerLibrary:
+    """Real tower shapes that replace synthetic towers of a zone.
+
+    Parameters
+    ----------
+    root
+        Directory laid out as ``../shared/data/real/towers``.
+    families
+        The families (:data:`FAMILIES`) to draw from; ``None``: all.
+    """
+
+    def __init__(self, root: str | Path, families: list[str] | tuple[str, ...] | None = None):
         self.root = Path(root)
-        self.items = load_real_towers(self.root)
+        unknown = sorted(set(families or ()) - set(FAMILIES))
+        if unknown:
+            raise InputError(root, f"unknown real tower families {unknown}; known: {list(FAMILIES)}")
+        self.items = [it for it in load_real_towers(self.root)
+                      if families is None or it[0].split(":")[0] in families]
+        if not self.items:
+            raise InputError(root, f"no real tower of the families {families}")
         # One family per source (uav, ts40k, utility), drawn with equal chance: the 99
         # airborne utility poles would otherwise make three real towers in four poles.
         by_source: dict[str, list[tuple[str, np.ndarray]]] = {}
@@ -123,169 +146,63 @@ class RealTowerLibrary:
             by_source.setdefault(item[0].split(":")[0], []).append(item)
         self.families = [by_source[k] for k in sorted(by_source)]
 
+    def draw(self, rng: np.random.Generator) -> tuple[str, np.ndarray]:
+        """A shape: a family with equal chance, then one of its shapes (name, normalised xyz)."""
+        family = self.families[int(rng.integers(len(self.families)))]
+        return family[int(rng.integers(len(family)))]
+
     def factory(self, density: float, params: SceneParams, share: float = 1.0):
         """A ``(tower, rng) -> tower`` callable for :func:`towerpipe.synth.scene.build_zone`."""
         def make(t: Tower, rng: np.random.Generator) -> Tower:
             if rng.random() >= share:
                 return t
-            family = self.families[int(rng.integers(len(self.families)))]
-            name, shape = family[int(rng.integers(len(family)))]
-            h = float(np.clip(t.height, 10.0, 50.0))
-            s = shape * (h / max(np.ptp(shape[:, 2]), 1e-6))
-            if rng.random() < 0.5:
-                s[:, 0] = -s[:, 0]
-            pts = airborne_resample(s, density, rng, vertical_factor=params.vertical_factor,
-                                    vis_min=params.tower_visibility_min)
-            c, si = np.cos(t.rot), np.sin(t.rot)
-            world = np.c_[t.x + c * pts[:, 0] - si * pts[:, 1], t.y + si * pts[:, 0] + c * pts[:, 1],
-                          t.base_z + pts[:, 2]]
-            base = s[s[:, 2] < 0.1 * h]
+            name, shape = self.draw(rng)
+            h = float(np.clip(t.height, 10.0, 60.0))
+            pts = realise(shape, h, density, rng, params)
+            world = to_world(pts, t.x, t.y, t.base_z, t.rot)
+            base = pts[pts[:, 2] < 0.1 * h]
             bw = float(np.ptp(base[:, 0])) if len(base) else 1.0
             return Tower(t.tower_id, f"real:{name}", t.x, t.y, t.base_z, h, t.rot, Primitives.empty(),
                          t.attach, bw, points=world, line_id=t.line_id)
         return make
 
 
+def realise(shape: np.ndarray, height: float, density: float, rng: np.random.Generator,
+            params: SceneParams) -> np.ndarray:
+    """A real shape as one airborne flight sees it, in its local frame (base centre at 0).
+
+    Scaled to ``height``, mirrored with chance 1/2, its plan stretched by
+    ``params.real_tower_jitter``, then thinned to ``density`` (:func:`airborne_resample`).
+    """
+    s = shape * (height / max(np.ptp(shape[:, 2]), 1e-6))
+    if rng.random() < 0.5:
+        s[:, 0] = -s[:, 0]
+    if params.real_tower_jitter > 0:          # another tower of the same type: proportions vary
+        s[:, :2] *= rng.uniform(1 - params.real_tower_jitter, 1 + params.real_tower_jitter, 2)
+    return airborne_resample(s, density, rng, vertical_factor=params.vertical_factor,
+                             vis_min=params.tower_visibility_min)
+
+
+def to_world(local: np.ndarray, x: float, y: float, base_z: float, rot: float) -> np.ndarray:
+    """Local tower coordinates (x across the line) turned by ``rot`` and moved to the base."""
+    c, si = np.cos(rot), np.sin(rot)
+    return np.c_[x + c * local[:, 0] - si * local[:, 1], y + si * local[:, 0] + c * local[:, 1],
+                 base_z + local[:, 2]]
+
+
+def attachments(local: np.ndarray) -> np.ndarray:
+    """Where the conductors of a real shape hang (local frame): its outermost upper points.
+
+    Returns ``(3, 3)``: the insulator ends below the two outermost points of the upper 40 %
+    across the line (the crossarm tips; near the axis for a pole), and the top (earth wire).
+    """
+    h = float(local[:, 2].max())
+    top = local[local[:, 2] >= 0.6 * h]
+    string = min(2.5, 0.08 * h)
+    ends = [top[int(np.argmin(top[:, 0]))], top[int(np.argmax(top[:, 0]))]]
+    return np.array([[e[0], 0.0, e[2] - string] for e in ends] + [[0.0, 0.0, h]])
+
+
 def finalize_real_towers(zone) -> None:
     """Drop real towers that ended up without points (nothing else to do)."""
     zone.lines.towers = [t for t in zone.lines.towers if t.points is None or len(t.points)]
-
-
-def _ground_fn(las_xyz: np.ndarray, cls: np.ndarray):
-    """Ground elevation function from the real ground points (mean of 6 nearest)."""
-    g = las_xyz[cls == 2]
-    if len(g) < 10:
-        g = las_xyz[las_xyz[:, 2] <= np.quantile(las_xyz[:, 2], 0.1)]
-    tree = cKDTree(g[:, :2])
-
-    def z(x, y):
-        _, i = tree.query(np.c_[np.asarray(x, float), np.asarray(y, float)], k=min(6, len(g)))
-        return g[i, 2].mean(axis=1)
-    return z
-
-
-def generate_real_background_zone(out: Path, *, seed: int, backgrounds: str | Path, tower_source: str,
-                                  real_towers: str | Path | None, params: SceneParams,
-                                  towers_per_tile: tuple[int, int] = (1, 2)):
-    """Insert towers into every real background tile of ``backgrounds``.
-
-    Each tile keeps its points, classes and CRS (EPSG:2154 for the IGN tiles);
-    1-2 towers (synthetic designs or real shapes, resampled to the tile's density)
-    are placed on the real ground away from buildings, coloured as steel; tiles
-    without NIR get a synthetic NIR (high on vegetation classes, ≈ red elsewhere).
-    Output files are named by their lower-left corner; the truth sidecar as usual.
-    """
-    import geopandas as gpd
-
-    from towerpipe.synth import color as col
-    from towerpipe.synth.lasout import write_block
-    from towerpipe.synth.primitives import sample_segments
-    from towerpipe.synth.rng import derive
-    from towerpipe.synth.scene import block_name
-    from towerpipe.synth.towers import DESIGNS, HEIGHTS, place_tower
-    from towerpipe.synth.zone import META_JSON, ZoneTruth, write_truth
-    import json
-
-    files = sorted(Path(backgrounds).glob("*.la[sz]"))
-    if not files:
-        raise InputError(backgrounds, "no *.las / *.laz background tile found")
-    lib = RealTowerLibrary(real_towers) if tower_source != "synthetic" else None
-    out.mkdir(parents=True, exist_ok=True)
-    rows, blocks, next_id, crs_out = [], [], 1, None
-    for fi, f in enumerate(files):
-        rng = derive(seed, "background", f.name)
-        las = laspy.read(f)
-        crs = las.header.parse_crs()
-        crs_out = crs_out or crs
-        xyz = np.c_[las.x, las.y, las.z]
-        cls = np.asarray(las.classification).astype(np.uint8)
-        n0 = len(xyz)
-        xmin, ymin = xyz[:, :2].min(axis=0)
-        xmax, ymax = xyz[:, :2].max(axis=0)
-        density = n0 / max((xmax - xmin) * (ymax - ymin), 1.0)
-        gz = _ground_fn(xyz, cls)
-        bld = xyz[cls == 6, :2]
-        btree = cKDTree(bld) if len(bld) else None
-        new_pts, new_id = [], []
-        for k in range(int(rng.integers(towers_per_tile[0], towers_per_tile[1] + 1))):
-            for _ in range(30):       # find a spot away from buildings and the tile edge
-                x, y = rng.uniform(xmin + 15, xmax - 15), rng.uniform(ymin + 15, ymax - 15)
-                if xmax - xmin < 30 or ymax - ymin < 30:
-                    x, y = (xmin + xmax) / 2, (ymin + ymax) / 2
-                if btree is None or btree.query([x, y])[0] > 12:
-                    break
-            design = str(rng.choice(DESIGNS))
-            h = float(np.clip(rng.uniform(*HEIGHTS[design]), 10, 50))
-            t = place_tower(next_id, design, x, y, rng.uniform(0, np.pi), h, gz, rng)
-            if lib is not None and (tower_source == "real" or rng.random() < 0.5):
-                t = lib.factory(density, params)(t, rng)
-                pts = t.points
-            else:
-                pts, _ = sample_segments(t.prim, density, rng, beam=params.member_beam,
-                                         vertical_factor=params.vertical_factor)
-                zrel = np.clip((pts[:, 2] - t.base_z) / h, 0, 1)
-                vis = params.tower_visibility_min + (1 - params.tower_visibility_min) * zrel ** 0.6
-                pts = pts[rng.random(len(pts)) < vis]
-            inside = (pts[:, 0] >= xmin) & (pts[:, 0] <= xmax) & (pts[:, 1] >= ymin) & (pts[:, 1] <= ymax)
-            pts = pts[inside]
-            if len(pts) < 5:           # fell outside a small tile: not a tower of this tile
-                continue
-            new_pts.append(pts)
-            new_id.append(np.full(len(pts), next_id, np.uint32))
-            fp = t.outline()
-            rows.append({"tower_id": next_id, "design": t.design, "height": round(h, 3),
-                         "base_z": round(t.base_z, 3), "base_width": round(t.base_width, 3), "x": t.x, "y": t.y,
-                         "centroid_x": fp.centroid.x, "centroid_y": fp.centroid.y, "n_points": int(len(pts)),
-                         "block": None, "blocks": None, "line_id": 0, "geometry": fp})
-            next_id += 1
-        add = np.concatenate(new_pts) if new_pts else np.zeros((0, 3))
-        m = len(add)
-        dims = las.point_format.dimension_names
-        def get(name, default):
-            return np.asarray(las[name]) if name in dims else default
-        red = get("red", None)
-        has_rgb = red is not None and np.asarray(red).max() > 0
-        if has_rgb:
-            r8, g8, b8 = (np.asarray(las[c]).astype(np.float32) / 65535 for c in ("red", "green", "blue"))
-            if max(r8.max(), g8.max()) <= 255 / 65535:          # 8-bit colour stored raw
-                r8, g8, b8 = r8 * 257, g8 * 257, b8 * 257
-        else:   # synthetic orthophoto colour from the classes
-            mat = np.select([np.isin(cls, [3, 4, 5]), cls == 6], [col.TREE, col.ROOF], col.GROUND)
-            c = col.colors(mat, np.arange(n0) // 50, np.full(n0, 0.5), rng)
-            r8, g8, b8 = c[:, 0], c[:, 1], c[:, 2]
-        nir = get("nir", None)
-        if nir is None or np.asarray(nir).max() == 0:
-            veg = np.isin(cls, [3, 4, 5])
-            nirf = np.where(veg, np.clip(0.35 + 1.6 * g8, 0, 1), np.clip(r8 * 0.95, 0, 1))
-        else:
-            nirf = np.asarray(nir).astype(np.float32) / 65535
-        steel = col.colors(np.full(m, col.STEEL), np.zeros(m, int), np.zeros(m), rng)
-        name = block_name(np.floor(xmin), np.floor(ymin))
-        sa = get("scan_angle", np.zeros(n0)) * (0.006 if las.point_format.id >= 6 else 1.0)
-        inten = get("intensity", np.zeros(n0, np.uint16))
-        pts = {
-            "x": np.r_[xyz[:, 0], add[:, 0]], "y": np.r_[xyz[:, 1], add[:, 1]], "z": np.r_[xyz[:, 2], add[:, 2]],
-            "classification": np.r_[cls, np.full(m, 15, np.uint8)],
-            "tower_id": np.r_[np.zeros(n0, np.uint32), np.concatenate(new_id) if new_id else []].astype(np.uint32),
-            "return_number": np.r_[get("return_number", np.ones(n0)), np.ones(m)].astype(np.uint8),
-            "number_of_returns": np.r_[get("number_of_returns", np.ones(n0)), np.full(m, 2)].astype(np.uint8),
-            "intensity": np.r_[inten, col.intensity(np.full(m, col.STEEL), np.ones(m), np.full(m, 2), rng)].astype(np.uint16),
-            "red": col.to16(np.r_[r8, steel[:, 0]]), "green": col.to16(np.r_[g8, steel[:, 1]]),
-            "blue": col.to16(np.r_[b8, steel[:, 2]]), "nir": col.to16(np.r_[nirf, steel[:, 3]]),
-            "point_source_id": np.r_[get("point_source_id", np.zeros(n0)), np.zeros(m)].astype(np.uint16),
-            "scan_angle": np.r_[sa, np.zeros(m)].astype(np.float32),
-            "gps_time": np.r_[get("gps_time", np.zeros(n0)), np.zeros(m)].astype(np.float64),
-        }
-        path = out / f"{name}.laz"
-        write_block(path, pts, crs if crs is not None else "EPSG:2154")
-        for r_ in rows:
-            if r_["block"] is None:
-                r_["block"] = r_["blocks"] = name
-        blocks.append({"name": name, "path": str(path), "source": str(f), "n_points": int(n0 + m),
-                       "bounds": [float(xmin), float(ymin), float(xmax), float(ymax)]})
-    gdf = gpd.GeoDataFrame(rows, geometry="geometry", crs=crs_out)
-    write_truth(out, gdf)
-    meta = {"seed": seed, "backgrounds": str(backgrounds), "tower_source": tower_source, "blocks": blocks,
-            "params": params.to_dict(), "spans": []}
-    (out / META_JSON).write_text(json.dumps(meta, indent=1))
-    return ZoneTruth(out, blocks, gdf, np.zeros((0, 2), np.int64), meta)

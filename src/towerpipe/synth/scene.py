@@ -23,7 +23,7 @@ from towerpipe.synth.primitives import Primitives, sample_segments
 from towerpipe.synth.rng import derive
 from towerpipe.synth.sensor import FlightPlan, make_flight_plan, pulses
 from towerpipe.synth.terrain import Terrain, make_terrain
-from towerpipe.synth.towers import Tower
+from towerpipe.synth.towers import WOODEN, Tower
 from towerpipe.synth.vegetation import Trees, make_trees, noise_field, rasterize
 from towerpipe.synth.wires import PowerLines, distance_to_polylines, make_power_lines
 
@@ -237,7 +237,7 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
         "strip": pu["strip"][pi_], "scan_angle": pu["scan_angle"][pi_],
         "gps_time": pu["gps_time"][pi_] + ci * 1e-8,
         "material": np.where(ci == 2, np.where(veg[pi_], col.GROUND, mat_surface), mat_surface),
-        "color_material": mat_surface, "color_variant": top_var[pi_],
+        "color_material": mat_surface, "color_variant": top_var[pi_], "intensity_factor": np.ones(len(pi_)),
     }
     # ground returns under canopy keep the canopy colour; intensity uses their own material
 
@@ -252,7 +252,7 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
         var = np.where(hasroof[c], bsub.roof[np.maximum(bid[c], 0)] if len(bsub) else 0, can.tree[c])
         return mat, var, can.top[c]
 
-    def add(xyz, klass, material, own_share, tid=None, single=False):
+    def add(xyz, klass, material, own_share, tid=None, single=False, intensity_factor=1.0):
         keep = _in(b, xyz[:, 0], xyz[:, 1])
         xyz = xyz[keep]
         k = len(xyz)
@@ -269,7 +269,7 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
             "return_number": rn, "number_of_returns": nr, "strip": strip,
             "scan_angle": ang.astype(np.float32), "gps_time": t,
             "material": np.full(k, material), "color_material": np.where(own, material, smat),
-            "color_variant": np.where(own, 0, svar),
+            "color_variant": np.where(own, 0, svar), "intensity_factor": np.full(k, intensity_factor),
         })
 
     def local_density(prim: Primitives) -> np.ndarray:
@@ -294,7 +294,9 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
             under = (xyz[:, 2] - zone.terrain.z(xyz[:, 0], xyz[:, 1])) < ctop
             vis = vis * np.where(under, p.canopy_transmission, 1.0)
             xyz = xyz[r.random(len(xyz)) < vis]
-        add(xyz, TOWER, col.STEEL, 0.6, tid=np.full(len(xyz), t.tower_id))
+        own, factor = _tower_look(zone, t)
+        add(xyz, TOWER, col.WOOD if t.design in WOODEN else col.STEEL, own, tid=np.full(len(xyz), t.tower_id),
+            intensity_factor=factor)
     for wires, share in ((zone.lines.wires, 0.3), (zone.pole_wires, 0.3)):
         if not len(wires.seg):
             continue
@@ -327,11 +329,23 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
     c = col.colors(out["color_material"], out["color_variant"], green, rng)
     rgbn = col.to16(c)
     out["red"], out["green"], out["blue"], out["nir"] = (rgbn[:, i] for i in range(4))
-    out["intensity"] = col.intensity(out["material"], out["return_number"], out["number_of_returns"], rng)
+    inten = col.intensity(out["material"], out["return_number"], out["number_of_returns"], rng)
+    factor = out.pop("intensity_factor")
+    out["intensity"] = inten if np.all(factor == 1.0) else np.clip(inten * factor, 0, 65535).astype(np.uint16)
     out["point_source_id"] = (out.pop("strip") + 1).astype(np.uint16)
     for k in ("material", "color_material", "color_variant"):
         out.pop(k)
     return out
+
+
+def _tower_look(zone: Zone, t: Tower) -> tuple[float, float]:
+    """``(own colour share, intensity factor)`` of one tower, the same in every block it touches."""
+    lo, hi = zone.params.tower_own_color
+    ilo, ihi = zone.params.tower_intensity
+    if lo == hi and ilo == ihi:
+        return float(lo), float(ilo)
+    r = derive(zone.seed, "tower-look", t.tower_id)
+    return float(r.uniform(lo, hi)), float(np.exp(r.uniform(np.log(ilo), np.log(ihi))))
 
 
 def _green_lookup(zone: Zone, b, x: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -3,7 +3,14 @@ y along the line, z up, base centre at the origin).
 
 Designs: ``lattice_waist`` (waist-type / cat-head lattice, one circuit in a
 horizontal plane), ``double_circuit`` (tall lattice, three arm levels each side),
-``small_lattice`` (10-20 m, one cross-arm), ``monopole`` (tapered tube with arms).
+``small_lattice`` (10-20 m, one cross-arm), ``monopole`` (tapered tube with arms), and
+the European types of :data:`EUROPEAN`: ``donau`` (two arm levels, the lower one longer:
+one conductor each side above, two below), ``einebenen`` (one long arm level carrying
+three conductors each side), ``tonne`` (barrel: three levels, the middle arm longest),
+``delta`` (a triangular head of two inclined members over a beam), ``portal`` (two
+lattice columns under a lattice beam) and ``wooden_hframe`` (two wooden poles, a cross
+beam and X-bracing). Every design carries insulator strings at its conductor
+attachments and an earth wire at its top.
 """
 
 from __future__ import annotations
@@ -15,11 +22,19 @@ import shapely
 
 from towerpipe.synth.primitives import Primitives, patch, segments
 
-DESIGNS = ("lattice_waist", "double_circuit", "small_lattice", "monopole")
+#: The generator's first four designs (the default of :class:`~towerpipe.synth.params.SceneParams`).
+CLASSIC = ("lattice_waist", "double_circuit", "small_lattice", "monopole")
+#: European pylon types and wooden H-frames (training variety aimed at real towers).
+EUROPEAN = ("donau", "einebenen", "tonne", "delta", "portal", "wooden_hframe")
+DESIGNS = CLASSIC + EUROPEAN
 
-#: height range (m) per design, all within 10-50 m
+#: height range (m) per design, all within 10-60 m
 HEIGHTS = {"lattice_waist": (22.0, 40.0), "double_circuit": (30.0, 50.0),
-           "small_lattice": (10.0, 20.0), "monopole": (15.0, 36.0)}
+           "small_lattice": (10.0, 20.0), "monopole": (15.0, 36.0),
+           "donau": (28.0, 55.0), "einebenen": (22.0, 45.0), "tonne": (35.0, 60.0),
+           "delta": (20.0, 40.0), "portal": (12.0, 28.0), "wooden_hframe": (10.0, 20.0)}
+#: designs of wood (coloured and reflecting as wood, not steel)
+WOODEN = ("wooden_hframe",)
 
 _CORNERS = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], float)
 
@@ -208,6 +223,117 @@ def build_design(design: str, height: float, rng: np.random.Generator
         parts.append(patch(0, 0, h, 0.3, 0.3))
         attach.append([0, 0, h])
         return Primitives.concat(parts), np.array(attach, float), d0
+    if design in EUROPEAN:
+        return _european(design, h, rng)
+    raise ValueError(f"unknown tower design {design!r}")
+
+
+def _lattice_with_arms(h: float, rng: np.random.Generator, arms: list[tuple[float, float, int]],
+                       base_ratio: tuple[float, float] = (0.16, 0.26)) -> tuple[Primitives, np.ndarray, float]:
+    """A square lattice body to ``h - 2`` with a peak, and truss arms at given levels.
+
+    ``arms``: ``(height fraction, arm length, conductors per side)``; conductors hang on
+    insulator strings at the tip and evenly inwards along the arm.
+    """
+    base = rng.uniform(*base_ratio) * h
+    top_hw = rng.uniform(0.6, 1.0)
+    z, hw = _levels(0.0, h - 2.0, base / 2, top_hw)
+    segs = _body(z, hw, rng, 0.12)
+    segs.append(np.array([[[cx * top_hw, cy * top_hw, h - 2.0], [0, 0, h]] for cx, cy in _CORNERS]))
+    ins, attach = [], []
+    for frac, length, per_side in arms:
+        za = frac * h
+        hwa = float(np.interp(za, z, hw))
+        string = rng.uniform(2.2, 3.6)
+        for s in (-1, 1):
+            segs.append(_arm(za, hwa, length, s, rng.uniform(1.2, 2.0)))
+            for k in range(per_side):
+                xk = s * (hwa + length * (1.0 - k / per_side) - 0.3)
+                ins.append([[xk, 0, za], [xk, 0, za - string]])
+                attach.append([xk, 0, za - string])
+    attach.append([0, 0, h])
+    prim = Primitives.concat([segments(np.concatenate(segs), 0.12), segments(np.array(ins), 0.25)])
+    return prim, np.array(attach, float), base
+
+
+def _european(design: str, h: float, rng: np.random.Generator) -> tuple[Primitives, np.ndarray, float]:
+    """Members, attachments and base width of the designs of :data:`EUROPEAN`."""
+    if design == "donau":
+        upper = rng.uniform(0.13, 0.17) * h
+        return _lattice_with_arms(h, rng, [(0.84, upper, 1), (0.68, upper * rng.uniform(1.5, 1.9), 2)])
+    if design == "einebenen":
+        return _lattice_with_arms(h, rng, [(0.8, rng.uniform(0.28, 0.36) * h, 3)], base_ratio=(0.18, 0.28))
+    if design == "tonne":
+        arm = rng.uniform(0.09, 0.12) * h
+        return _lattice_with_arms(h, rng, [(0.88, arm, 1), (0.76, arm * rng.uniform(1.25, 1.45), 1),
+                                           (0.64, arm, 1)], base_ratio=(0.14, 0.2))
+    if design == "delta":
+        base = rng.uniform(0.18, 0.26) * h
+        zb = rng.uniform(0.62, 0.7) * h
+        half = rng.uniform(0.17, 0.24) * h
+        z, hw = _levels(0.0, zb, base / 2, rng.uniform(0.6, 0.9))
+        segs = _body(z, hw, rng, 0.12)
+        top = hw[-1]
+        beam = []
+        xs = np.linspace(-half, half, 9)
+        for yy in (-top, top):
+            beam += [[[xs[i], yy, zb], [xs[i + 1], yy, zb]] for i in range(8)]
+            # the delta: two chords from the beam ends to the apex, with diagonals to the beam
+            apex = [0.0, yy, h]
+            beam += [[[-half, yy, zb], apex], [[half, yy, zb], apex]]
+            beam += [[[xv, yy, zb], [xv * 0.5, yy, zb + (h - zb) * (1 - abs(xv) / half) * 0.5 + (h - zb) * 0.25]]
+                     for xv in xs[1:-1:2]]
+        beam += [[[xv, -top, zb], [xv, top, zb]] for xv in xs[::2]]
+        segs.append(np.array(beam))
+        string = rng.uniform(2.4, 3.4)
+        tips = [-half + 0.6, 0.0, half - 0.6]
+        zi = [zb, zb + (h - zb) * 0.45, zb]
+        ins = np.array([[[x, 0, zz], [x, 0, zz - string]] for x, zz in zip(tips, zi)])
+        attach = [[x, 0, zz - string] for x, zz in zip(tips, zi)] + [[0, 0, h]]
+        prim = Primitives.concat([segments(np.concatenate(segs), 0.12), segments(ins, 0.25)])
+        return prim, np.array(attach, float), base
+    if design == "portal":
+        gap = rng.uniform(7.0, 13.0)
+        col = rng.uniform(0.5, 0.8)                        # column half width
+        zb = h - 1.6
+        segs = []
+        for cx in (-gap / 2, gap / 2):
+            z, hw = _levels(0.0, zb, col * 1.3, col)
+            for part in _body(z, hw, rng, 0.1):
+                part = part.copy()
+                part[..., 0] += cx
+                segs.append(part)
+        xs = np.linspace(-gap / 2 - 1.5, gap / 2 + 1.5, 11)
+        beam = []
+        for yy in (-col, col):
+            for zz in (zb, h):
+                beam += [[[xs[i], yy, zz], [xs[i + 1], yy, zz]] for i in range(10)]
+            beam += [[[xv, yy, zb], [xv, yy, h]] for xv in xs]
+            beam += [[[xs[i], yy, zb], [xs[i + 1], yy, h]] for i in range(10)]
+        beam += [[[xv, -col, zb], [xv, col, zb]] for xv in xs[::2]]
+        segs.append(np.array(beam))
+        string = rng.uniform(1.8, 2.8)
+        tips = [-gap / 2 + 0.2, 0.0, gap / 2 - 0.2]
+        ins = np.array([[[x, 0, zb], [x, 0, zb - string]] for x in tips])
+        attach = [[x, 0, zb - string] for x in tips] + [[-gap / 2, 0, h], [gap / 2, 0, h]]
+        prim = Primitives.concat([segments(np.concatenate(segs), 0.1), segments(ins, 0.22)])
+        return prim, np.array(attach, float), gap + 2 * col
+    if design == "wooden_hframe":
+        gap = rng.uniform(3.0, 5.0)
+        d = rng.uniform(0.28, 0.42)
+        zc = h - rng.uniform(1.0, 1.8)
+        half = gap / 2 + rng.uniform(1.2, 2.0)
+        poles = np.array([[[s * gap / 2, 0, 0], [s * gap / 2 * 0.92, 0, h]] for s in (-1, 1)])
+        zx0, zx1 = zc - rng.uniform(2.5, 3.5), zc - 0.3
+        brace = np.array([[[-gap / 2, 0, zx0], [gap / 2, 0, zx1]], [[gap / 2, 0, zx0], [-gap / 2, 0, zx1]]])
+        beam = np.array([[[-half, 0, zc], [half, 0, zc]]])
+        string = rng.uniform(0.8, 1.4)
+        tips = [-half + 0.3, 0.0, half - 0.3]
+        ins = np.array([[[x, 0, zc], [x, 0, zc - string]] for x in tips])
+        attach = [[x, 0, zc - string] for x in tips] + [[0, 0, h]]
+        prim = Primitives.concat([segments(poles, d, tube=True), segments(beam, 0.25, tube=True),
+                                  segments(brace, 0.15), segments(ins, 0.2)])
+        return prim, np.array(attach, float), gap + d
     raise ValueError(f"unknown tower design {design!r}")
 
 

@@ -173,7 +173,7 @@ def make_power_lines(seed: int, bounds, params: SceneParams, terrain_z, *,
         hbase = r.uniform(lo, hi)
         line_towers: list[Tower | None] = []
         for k in range(len(s)):
-            hgt = float(np.clip(hbase * r.uniform(0.88, 1.12), max(10.0, lo), min(50.0, hi)))
+            hgt = float(np.clip(hbase * r.uniform(0.88, 1.12), max(10.0, lo), min(60.0, hi)))
             t = place_tower(0, design, pts[k, 0], pts[k, 1], head[k] - np.pi / 2, hgt, terrain_z,
                             derive(seed, "tower", li, k), line_id=li)
             hull = t.prim.xy_points()

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import geopandas as gpd
@@ -16,39 +15,12 @@ from towerpipe.errors import ConfigError
 from towerpipe.synth.lasout import write_block
 from towerpipe.synth.params import SceneParams, preset as get_preset, with_overrides
 from towerpipe.synth.scene import Zone, block_name, block_points, build_zone
+from towerpipe.synth.truth import META_JSON, TRUTH_COLUMNS, TRUTH_GEOJSON, TRUTH_GPKG, ZoneTruth, write_truth  # noqa: F401
 
 log = logging.getLogger(__name__)
 
-TRUTH_GPKG = "towers_truth.gpkg"
-TRUTH_GEOJSON = "towers_truth.geojson"
-META_JSON = "synth_meta.json"
 TERRAIN_NPZ = "terrain.npz"
 TOWER_SOURCES = ("synthetic", "real", "mixed")
-
-
-@dataclass
-class ZoneTruth:
-    """What :func:`generate_zone` wrote.
-
-    Attributes
-    ----------
-    out_dir
-        The zone directory.
-    blocks
-        One dict per block: ``name``, ``path``, ``bounds``, ``n_points``, ``counts`` (per class).
-    towers
-        The truth table (GeoDataFrame, layer ``towers`` of the sidecar).
-    spans
-        (S, 2) consecutive tower ids joined by wires.
-    meta
-        Everything in ``synth_meta.json``.
-    """
-
-    out_dir: Path
-    blocks: list[dict]
-    towers: gpd.GeoDataFrame
-    spans: np.ndarray
-    meta: dict
 
 
 def generate_zone(out_dir: str | Path, *, seed: int, blocks: int = 4, size: float = 250.0,
@@ -57,7 +29,9 @@ def generate_zone(out_dir: str | Path, *, seed: int, blocks: int = 4, size: floa
                   params: SceneParams | None = None, edge_tower: bool = False,
                   tower_source: str = "synthetic", real_towers: str | Path | None = None,
                   real_backgrounds: str | Path | None = None, parallel: bool = False,
-                  **overrides) -> ZoneTruth:
+                  tower_families: list[str] | None = None, background_files: list[str] | None = None,
+                  copies: int = 1, tower_density: tuple[float, float] | None = None, lines: bool = False,
+                  variant: str = "intact", tower_variety: bool = False, **overrides) -> ZoneTruth:
     """Generate a synthetic airborne zone of adjoining LAZ blocks with truth.
 
     Parameters
@@ -82,10 +56,23 @@ def generate_zone(out_dir: str | Path, *, seed: int, blocks: int = 4, size: floa
         Directory laid out as ``../shared/data/real/towers`` (needed unless synthetic).
     real_backgrounds
         Directory of real background ``*.laz`` tiles; when given, towers are inserted
-        into those tiles instead of a synthetic zone (see :mod:`towerpipe.synth.real`).
+        into those tiles instead of a synthetic zone (see :mod:`towerpipe.synth.background`).
     parallel
         Multi-threaded LAZ compression.
+    tower_families
+        The real tower families drawn from (:data:`towerpipe.synth.real.FAMILIES`; default all).
+    background_files, copies, tower_density, lines, variant
+        Zones on real backgrounds only: the tiles used, copies of each, the towers' own
+        density range (pts/m²), towers along a line with conductors, and the attribute
+        variant (:data:`towerpipe.synth.background.VARIANTS`).
+    tower_variety
+        Apply :data:`towerpipe.synth.params.TOWER_VARIETY` (every design, orthophoto
+        colours, per-tower intensity, varied real shapes) before ``overrides``.
     """
+    if tower_variety:
+        from towerpipe.synth.params import TOWER_VARIETY
+
+        overrides = {**TOWER_VARIETY, **overrides}
     out = Path(out_dir)
     if tower_source not in TOWER_SOURCES:
         raise ConfigError(f"tower_source {tower_source!r} unknown; choose one of {TOWER_SOURCES}")
@@ -94,10 +81,12 @@ def generate_zone(out_dir: str | Path, *, seed: int, blocks: int = 4, size: floa
     if blocks < 1 or size <= 0 or density <= 0:
         raise ConfigError("synth: blocks, size and density must be positive")
     if real_backgrounds is not None:
-        from towerpipe.synth.real import generate_real_background_zone
-        return generate_real_background_zone(out, seed=seed, backgrounds=real_backgrounds,
-                                             tower_source=tower_source, real_towers=real_towers,
-                                             params=params or get_preset(preset, **overrides))
+        from towerpipe.synth.background import generate_background_zone
+        return generate_background_zone(
+            out, seed=seed, backgrounds=real_backgrounds, tower_source=tower_source, real_towers=real_towers,
+            params=params or get_preset(preset, **overrides), tower_families=tower_families,
+            files=background_files, copies=copies, lines=lines, variant=variant,
+            tower_density=tuple(tower_density) if tower_density else None)
     p = params if params is not None else get_preset(preset)
     p = with_overrides(p, **overrides)
     if edge_tower:
@@ -105,7 +94,7 @@ def generate_zone(out_dir: str | Path, *, seed: int, blocks: int = 4, size: floa
     factory = None
     if tower_source != "synthetic":
         from towerpipe.synth.real import RealTowerLibrary
-        lib = RealTowerLibrary(real_towers)
+        lib = RealTowerLibrary(real_towers, tower_families)
         factory = lib.factory(density, p, share=1.0 if tower_source == "real" else 0.5)
     t0 = time.perf_counter()
     zone = build_zone(seed, blocks=blocks, size=size, density=density, origin=origin, params=p,
@@ -154,14 +143,4 @@ def truth_table(zone: Zone, n_points: dict[int, int], crs) -> gpd.GeoDataFrame:
                      "x": t.x, "y": t.y, "centroid_x": c.x, "centroid_y": c.y,
                      "n_points": int(n_points.get(t.tower_id, 0)), "block": home,
                      "blocks": ",".join(blocks), "line_id": t.line_id, "geometry": fp})
-    cols = ["tower_id", "design", "height", "base_z", "base_width", "x", "y", "centroid_x", "centroid_y",
-            "n_points", "block", "blocks", "line_id", "geometry"]
-    return gpd.GeoDataFrame(rows, columns=cols, geometry="geometry", crs=crs)
-
-
-def write_truth(out: Path, towers: gpd.GeoDataFrame) -> None:
-    """Write the GeoPackage (layer ``towers``) and the GeoJSON twin."""
-    for f in (TRUTH_GPKG, TRUTH_GEOJSON):
-        (out / f).unlink(missing_ok=True)
-    towers.to_file(out / TRUTH_GPKG, layer="towers", driver="GPKG", engine="pyogrio")
-    towers.to_file(out / TRUTH_GEOJSON, driver="GeoJSON", engine="pyogrio")
+    return gpd.GeoDataFrame(rows, columns=TRUTH_COLUMNS, geometry="geometry", crs=crs)

@@ -1,0 +1,395 @@
+"""Zones on real background tiles: real airborne blocks with towers and conductors inserted.
+
+Each background tile (IGN LiDAR HD in ``../shared/data/real/backgrounds``) keeps its
+points, classes and CRS. Towers — real shapes of chosen families or synthetic designs —
+stand on its real ground away from buildings, at a density of their own; with ``lines``
+they stand along a straight line across the tile and carry conductors (catenaries from
+each tower to the next and out of the tile on both sides, as a corridor crossing it).
+A tile can be used several times (``copies``), each copy moved 3 km east with towers of
+its own, so that one small background holds enough towers for a benchmark.
+
+Inserted points are coloured as a colourised flight colours them: a share of a tower's
+points (:attr:`~towerpipe.synth.params.SceneParams.tower_own_color`) takes the tower's own
+colour, the rest the colour of the background point below (the orthophoto pixel: ground,
+grass, shadow); intensity is the material's reflectance relative to the tile's ground
+intensity, times a factor drawn per tower; scan angle, GPS time and source id are those
+of the nearest background point. A tile without NIR gets a synthetic NIR (high on
+vegetation, about red elsewhere); one without colour an orthophoto colour from its classes.
+
+``variant`` then degrades the whole zone as public data sets often are:
+``no_intensity`` (intensity, return numbers, scan angle and GPS time all 0),
+``no_nir`` (NIR all 0) or ``no_colour`` (point format 6: no RGB, no NIR).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import geopandas as gpd
+import laspy
+import numpy as np
+import shapely
+from scipy.spatial import cKDTree
+
+from towerpipe.errors import ConfigError, InputError
+from towerpipe.synth import color as col
+from towerpipe.synth.lasout import write_block
+from towerpipe.synth.params import SceneParams
+from towerpipe.synth.primitives import sample_segments, segments
+from towerpipe.synth.real import RealTowerLibrary, attachments, realise, to_world
+from towerpipe.synth.rng import derive
+from towerpipe.synth.towers import DESIGNS, HEIGHTS, WOODEN, place_tower
+from towerpipe.synth.truth import META_JSON, TRUTH_COLUMNS, ZoneTruth, write_truth
+from towerpipe.synth.wires import catenary
+
+log = logging.getLogger(__name__)
+
+#: Ways a zone's attributes are degraded (see the module docstring).
+VARIANTS = ("intact", "no_intensity", "no_nir", "no_colour")
+#: East shift (m) between copies of a background tile.
+COPY_SPACING = 3000.0
+#: Span (m) to a line's next tower, and the gap between parallel lines across a tile.
+LINE_SPAN, LINE_GAP = (250.0, 380.0), (60.0, 95.0)
+#: Towers keep this distance (m) from the tile edge and from buildings.
+EDGE_MARGIN, BUILDING_MARGIN = 15.0, 12.0
+#: A tower stands where the tile has a ground point closer than this (m).
+GROUND_GAP = 2.0
+_GROUND_BASE = 0.35   # reflectance of ground in towerpipe.synth.color (intensity reference)
+
+
+def _ground_fn(xyz: np.ndarray, cls: np.ndarray):
+    """Ground elevation function from the real ground points (mean of 6 nearest)."""
+    g = xyz[cls == 2]
+    if len(g) < 10:
+        g = xyz[xyz[:, 2] <= np.quantile(xyz[:, 2], 0.1)]
+    tree = cKDTree(g[:, :2])
+
+    def z(x, y):
+        _, i = tree.query(np.c_[np.asarray(x, float), np.asarray(y, float)], k=min(6, len(g)))
+        return g[i, 2].mean(axis=1)
+    return z
+
+
+def _tile_files(backgrounds: str | Path, files: list[str] | None) -> list[Path]:
+    root = Path(backgrounds)
+    paths = sorted(root.glob("*.la[sz]")) if root.is_dir() else [root]
+    if files:
+        missing = sorted(set(files) - {p.name for p in paths})
+        if missing:
+            raise InputError(root, f"background tiles {missing} not found")
+        paths = [p for p in paths if p.name in files]
+    if not paths:
+        raise InputError(root, "no *.las / *.laz background tile found")
+    return paths
+
+
+def _stations(rng: np.random.Generator, box: tuple[float, float, float, float], n_range: tuple[int, int],
+              lines: bool, clear) -> tuple[np.ndarray, np.ndarray]:
+    """Tower positions in a tile and the heading of the line through each.
+
+    With ``lines``, parallel lines :data:`LINE_GAP` apart cross the tile at one heading and
+    each has one tower in it (its neighbours stand one span away, outside the tile): the
+    towers of one line are of one type, and so are these.
+    """
+    xmin, ymin, xmax, ymax = box
+    lo = np.array([xmin + EDGE_MARGIN, ymin + EDGE_MARGIN])
+    hi = np.array([xmax - EDGE_MARGIN, ymax - EDGE_MARGIN])
+    if np.any(hi <= lo):                                   # a small tile: its centre
+        c = np.array([(xmin + xmax) / 2, (ymin + ymax) / 2])
+        return c[None, :], np.array([rng.uniform(0, np.pi)])
+    if not lines:
+        pts = []
+        for _ in range(int(rng.integers(n_range[0], n_range[1] + 1))):
+            for _ in range(100):
+                p = rng.uniform(lo, hi)
+                if clear(p):
+                    pts.append(p)
+                    break
+        return np.array(pts).reshape(-1, 2), rng.uniform(0, np.pi, len(pts))
+    heading = float(rng.uniform(0, np.pi))
+    d, nrm = np.array([np.cos(heading), np.sin(heading)]), np.array([-np.sin(heading), np.cos(heading)])
+    corners = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [lo[0], hi[1]], [hi[0], hi[1]]])
+    across, along = corners @ nrm, corners @ d
+    pts = []
+    off = across.min() + rng.uniform(0.2, 0.8) * min(LINE_GAP[0], np.ptp(across))
+    while off < across.max():
+        for _ in range(100):                              # a spot on this line inside the tile
+            p = off * nrm + rng.uniform(along.min(), along.max()) * d
+            if np.all((p >= lo) & (p <= hi)) and clear(p):
+                pts.append(p)
+                break
+        off += rng.uniform(*LINE_GAP)
+    return np.array(pts).reshape(-1, 2), np.full(len(pts), heading)
+
+
+def _tile_colour(las: laspy.LasData, cls: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``(n, 4)`` RGB + NIR in [0, 1] of a background tile (synthetic where it has none)."""
+    n = len(cls)
+    dims = set(las.point_format.dimension_names)
+    if "red" in dims and np.asarray(las.red).max() > 0:
+        rgb = np.c_[[np.asarray(las[c]).astype(np.float32) / 65535 for c in ("red", "green", "blue")]].T
+        if rgb.max() <= 255 / 65535:                      # 8-bit colour stored raw
+            rgb *= 257
+    else:                                                 # an orthophoto colour from the classes
+        mat = np.select([np.isin(cls, [3, 4, 5]), cls == 6], [col.TREE, col.ROOF], col.GROUND)
+        rgb = col.colors(mat, np.arange(n) // 50, np.full(n, 0.5), rng)[:, :3]
+    if "nir" in dims and np.asarray(las.nir).max() > 0:
+        nir = np.asarray(las.nir).astype(np.float32) / 65535
+    else:
+        veg = np.isin(cls, [3, 4, 5])
+        nir = np.where(veg, np.clip(0.35 + 1.6 * rgb[:, 1], 0, 1), np.clip(rgb[:, 0] * 0.95, 0, 1))
+    return np.c_[rgb, nir].astype(np.float32)
+
+
+def generate_background_zone(out: Path, *, seed: int, backgrounds: str | Path, tower_source: str,
+                             real_towers: str | Path | None, params: SceneParams,
+                             tower_families: list[str] | None = None, files: list[str] | None = None,
+                             copies: int = 1, towers_per_tile: tuple[int, int] = (1, 2),
+                             tower_density: tuple[float, float] | None = None, lines: bool = False,
+                             variant: str | list[str] = "intact") -> ZoneTruth:
+    """Insert towers into the real background tiles of ``backgrounds`` (see the module docstring).
+
+    Parameters
+    ----------
+    out
+        Output directory; blocks are named by their lower-left corner.
+    seed
+        Random seed.
+    backgrounds
+        A directory of ``*.las`` / ``*.laz`` tiles, or one tile.
+    tower_source
+        ``synthetic`` (generator designs), ``real`` (real shapes) or ``mixed`` (half each).
+    real_towers, tower_families
+        The real tower directory and the families drawn from (``None``: all).
+    params
+        Scene parameters (tower colour, intensity and visibility, wire width).
+    files
+        Names of the tiles to use (default: all).
+    copies
+        Copies of each tile, each moved :data:`COPY_SPACING` east with its own towers.
+    towers_per_tile
+        Range of the number of towers per tile without ``lines``.
+    tower_density
+        Range (pts/m²) of each tower's own density; ``None``: the tile's density.
+    lines
+        Towers on parallel lines across each tile, with conductors.
+    variant
+        One of :data:`VARIANTS`, or a list of them (degraded in every way listed).
+    """
+    variants = [variant] if isinstance(variant, str) else list(variant)
+    if not variants or set(variants) - set(VARIANTS):
+        raise ConfigError(f"synth variant {variant!r} unknown; choose one (or a list) of {list(VARIANTS)}")
+    if copies < 1:
+        raise ConfigError("synth copies must be >= 1")
+    paths = _tile_files(backgrounds, files)
+    lib = RealTowerLibrary(real_towers, tower_families) if tower_source != "synthetic" else None
+    out.mkdir(parents=True, exist_ok=True)
+    rows: list[dict] = []
+    blocks, spans = [], []
+    crs_out = None
+    next_id = 1
+    for copy in range(copies):
+        for f in paths:
+            rng = derive(seed, "background", f.name, copy)
+            las = laspy.read(f)
+            crs = las.header.parse_crs()
+            crs_out = crs_out or crs
+            ins = _insert(las, rng, copy * COPY_SPACING, next_id, lib=lib, tower_source=tower_source, params=params,
+                          towers_per_tile=towers_per_tile, tower_density=tower_density, lines=lines)
+            next_id += len(ins["rows"])
+            rows += ins["rows"]
+            spans += ins["spans"]
+            pts = ins["points"]
+            for v in variants:
+                pts = _degrade(pts, v)
+            name = ins["name"]
+            path = out / f"{name}.laz"
+            # one CRS for the zone: tiles of one system can carry differently written WKTs
+            write_block(path, pts, crs_out if crs_out is not None else "EPSG:2154",
+                        point_format=6 if "no_colour" in variants else 8)
+            for r in ins["rows"]:
+                r["block"] = r["blocks"] = name
+            blocks.append({"name": name, "path": str(path), "source": str(f), "copy": copy,
+                           "n_points": int(len(pts["x"])), "bounds": ins["bounds"]})
+            log.info("background block %s (%s, copy %d): %d towers", name, f.name, copy, len(ins["rows"]))
+    gdf = gpd.GeoDataFrame(rows, columns=TRUTH_COLUMNS, geometry="geometry", crs=crs_out)
+    write_truth(out, gdf)
+    meta = {"seed": seed, "backgrounds": str(backgrounds), "files": [p.name for p in paths], "copies": copies,
+            "tower_source": tower_source, "tower_families": tower_families, "tower_density": tower_density,
+            "lines": lines, "variant": variant, "blocks": blocks, "params": params.to_dict(), "spans": spans}
+    (out / META_JSON).write_text(json.dumps(meta, indent=1))
+    return ZoneTruth(out, blocks, gdf, np.array(spans, np.int64).reshape(-1, 2), meta)
+
+
+def _insert(las: laspy.LasData, rng: np.random.Generator, dx: float, first_id: int, *, lib, tower_source: str,
+            params: SceneParams, towers_per_tile, tower_density, lines: bool) -> dict:
+    """One tile (moved ``dx`` east) with its towers and conductors: points, truth rows, spans."""
+    from towerpipe.synth.scene import block_name
+
+    xyz = np.c_[np.asarray(las.x) + dx, las.y, las.z]
+    cls = np.asarray(las.classification).astype(np.uint8)
+    n0 = len(xyz)
+    xmin, ymin = xyz[:, :2].min(axis=0)
+    xmax, ymax = xyz[:, :2].max(axis=0)
+    tile_density = n0 / max((xmax - xmin) * (ymax - ymin), 1.0)
+    gz = _ground_fn(xyz, cls)
+    bld = xyz[cls == 6, :2]
+    btree = cKDTree(bld) if len(bld) else None
+    gtree = cKDTree(xyz[cls == 2, :2]) if (cls == 2).any() else cKDTree(xyz[:, :2])
+
+    def clear(p):
+        """Away from buildings, and on ground the tile has data of (a tile's box can be mostly empty)."""
+        return (btree is None or btree.query(p)[0] > BUILDING_MARGIN) and gtree.query(p)[0] < GROUND_GAP
+
+    where, heading = _stations(rng, (xmin, ymin, xmax, ymax), towers_per_tile, lines, clear)
+    towers = []                               # (id, design, height, base, world points, attachments, material)
+    wires: list[np.ndarray] = []
+    for k, (p, head) in enumerate(zip(where, heading)):
+        rot = head - np.pi / 2                # local x across the line
+        dens = float(rng.uniform(*tower_density)) if tower_density else tile_density
+        base_z = float(gz(p[:1], p[1:])[0])
+        if lib is not None and (tower_source == "real" or rng.random() < 0.5):
+            name, shape = lib.draw(rng)
+            h = float(np.clip(np.ptp(shape[:, 2]) * rng.uniform(0.9, 1.1), 10.0, 60.0))
+            local = realise(shape, h, dens, rng, params)
+            if len(local) < 5:                    # a thin pole at a low density: nothing to see
+                continue
+            pts = to_world(local, p[0], p[1], base_z, rot)
+            att = to_world(attachments(local), p[0], p[1], base_z, rot)
+            design, material = f"real:{name}", col.STEEL
+        else:
+            design = str(rng.choice(DESIGNS))
+            h = float(np.clip(rng.uniform(*HEIGHTS[design]), 10.0, 60.0))
+            t = place_tower(0, design, p[0], p[1], rot, h, gz, rng)
+            pts, _ = sample_segments(t.prim, dens, rng, beam=params.member_beam,
+                                     vertical_factor=params.vertical_factor)
+            zrel = np.clip((pts[:, 2] - t.base_z) / h, 0, 1)
+            vis = params.tower_visibility_min + (1 - params.tower_visibility_min) * zrel ** 0.6
+            pts = pts[rng.random(len(pts)) < vis]
+            att = t.attach
+            material = col.WOOD if design in WOODEN else col.STEEL
+        inside = (pts[:, 0] >= xmin) & (pts[:, 0] <= xmax) & (pts[:, 1] >= ymin) & (pts[:, 1] <= ymax)
+        if inside.sum() >= 5:
+            towers.append((first_id + len(towers), design, h, base_z, pts[inside], _three(att, head), material))
+            if lines:
+                wires.append(_conductors(towers[-1][5], head, float(rng.uniform(*LINE_SPAN)), gz, tile_density, rng))
+    parts, rows = [], []
+    for tid, design, h, base_z, pts, _, material in towers:
+        own_share = float(rng.uniform(*params.tower_own_color))
+        factor = float(np.exp(rng.uniform(*np.log(params.tower_intensity))))
+        parts.append((pts, 15, tid, material, own_share, factor))
+        fp = shapely.convex_hull(shapely.MultiPoint(pts[:, :2])).buffer(0.25, quad_segs=2)
+        base = pts[pts[:, 2] < base_z + 0.1 * h]
+        rows.append({"tower_id": tid, "design": design, "height": round(h, 3), "base_z": round(base_z, 3),
+                     "base_width": round(float(np.ptp(base[:, 0])) if len(base) else 1.0, 3),
+                     "x": float(np.median(base[:, 0])) if len(base) else float(pts[:, 0].mean()),
+                     "y": float(np.median(base[:, 1])) if len(base) else float(pts[:, 1].mean()),
+                     "centroid_x": fp.centroid.x, "centroid_y": fp.centroid.y, "n_points": int(len(pts)),
+                     "block": None, "blocks": None, "line_id": tid if lines else 0, "geometry": fp})
+    if wires:
+        w = np.concatenate(wires)
+        w = w[(w[:, 0] >= xmin) & (w[:, 0] <= xmax) & (w[:, 1] >= ymin) & (w[:, 1] <= ymax)]
+        parts.append((w, 14, 0, col.WIRE, 0.3, 1.0))
+    points = _points(las, xyz, cls, parts, rng)
+    return {"points": points, "rows": rows, "name": block_name(np.floor(xmin), np.floor(ymin)),
+            "bounds": [float(xmin), float(ymin), float(xmax), float(ymax)], "spans": []}
+
+
+def _three(att: np.ndarray, heading: float) -> np.ndarray:
+    """The outermost attachment on each side across the line and the highest one (3, 3)."""
+    across = att[:, :2] @ np.array([-np.sin(heading), np.cos(heading)])
+    return att[[int(np.argmin(across)), int(np.argmax(across)), int(np.argmax(att[:, 2]))]]
+
+
+def _conductors(att: np.ndarray, heading: float, span: float, gz, density: float,
+                rng: np.random.Generator) -> np.ndarray:
+    """Wire points of one tower's line: catenaries to the next tower on each side, one span away."""
+    d = np.array([np.cos(heading), np.sin(heading), 0.0])
+    chain = []
+    for sign in (-1.0, 0.0, 1.0):
+        moved = att + sign * span * d
+        moved[:, 2] += float(gz(moved[-1:, 0], moved[-1:, 1])[0]) - float(gz(att[-1:, 0], att[-1:, 1])[0])
+        chain.append(moved)
+    param = float(rng.uniform(900.0, 2200.0))
+    segs = []
+    for a, b in zip(chain[:-1], chain[1:]):
+        for pa, pb in zip(a, b):
+            c = catenary(pa, pb, param)
+            segs.append(np.stack([c[:-1], c[1:]], axis=1))
+    pts, _ = sample_segments(segments(np.concatenate(segs), 0.12), density, rng, beam=0.0, vertical_factor=0.25)
+    return pts
+
+
+def _points(las: laspy.LasData, xyz: np.ndarray, cls: np.ndarray, parts, rng: np.random.Generator) -> dict:
+    """The tile's points plus the inserted ones, with their attributes (see the module docstring)."""
+    n0 = len(xyz)
+    dims = set(las.point_format.dimension_names)
+
+    def get(name, default):
+        return np.asarray(las[name]) if name in dims else default
+
+    colour = _tile_colour(las, cls, rng)
+    inten = get("intensity", np.zeros(n0, np.uint16)).astype(np.float64)
+    gint = inten[cls == 2]
+    scale = float(np.median(gint)) if len(gint) and np.median(gint) > 0 else 10000.0
+    sa = get("scan_angle", np.zeros(n0)) * (0.006 if las.point_format.id >= 6 else 1.0)
+    gps = get("gps_time", np.zeros(n0))
+    psid = get("point_source_id", np.zeros(n0))
+    tree = cKDTree(xyz[:, :2])
+    add = {k: [] for k in ("xyz", "cls", "tid", "rgbn", "int", "rn", "nr", "sa", "gps", "psid")}
+    for pts, klass, tid, material, own_share, factor in parts:
+        m = len(pts)
+        if not m:
+            continue
+        _, near = tree.query(pts[:, :2])
+        own = rng.random(m) < own_share
+        c = colour[near].copy()
+        c[own] = col.colors(np.full(int(own.sum()), material), np.zeros(int(own.sum()), int),
+                            np.zeros(int(own.sum())), rng)
+        nr = (1 + (rng.random(m) < 0.6)).astype(np.uint8)
+        rn = np.where((nr == 2) & (rng.random(m) < 0.25), 2, 1).astype(np.uint8)
+        rel = col.intensity(np.full(m, material), rn, nr, rng).astype(np.float64) / (40000.0 * _GROUND_BASE)
+        add["xyz"].append(pts)
+        add["cls"].append(np.full(m, klass, np.uint8))
+        add["tid"].append(np.full(m, tid, np.uint32))
+        add["rgbn"].append(c)
+        add["int"].append(np.clip(rel * scale * factor, 0, 65535))
+        add["rn"].append(rn)
+        add["nr"].append(nr)
+        add["sa"].append(sa[near])
+        add["gps"].append(gps[near])
+        add["psid"].append(psid[near])
+    cat = {k: (np.concatenate(v) if v else None) for k, v in add.items()}
+    m = 0 if cat["xyz"] is None else len(cat["xyz"])
+
+    def join(a, b, dtype):
+        return np.r_[a, b if b is not None else np.zeros(0)].astype(dtype)
+
+    rgbn = np.r_[colour, cat["rgbn"] if m else np.zeros((0, 4))]
+    return {
+        "x": join(xyz[:, 0], None if not m else cat["xyz"][:, 0], np.float64),
+        "y": join(xyz[:, 1], None if not m else cat["xyz"][:, 1], np.float64),
+        "z": join(xyz[:, 2], None if not m else cat["xyz"][:, 2], np.float64),
+        "classification": join(cls, cat["cls"], np.uint8),
+        "tower_id": join(np.zeros(n0), cat["tid"], np.uint32),
+        "return_number": join(get("return_number", np.ones(n0)), cat["rn"], np.uint8),
+        "number_of_returns": join(get("number_of_returns", np.ones(n0)), cat["nr"], np.uint8),
+        "intensity": join(inten, cat["int"], np.uint16),
+        "red": col.to16(rgbn[:, 0]), "green": col.to16(rgbn[:, 1]), "blue": col.to16(rgbn[:, 2]),
+        "nir": col.to16(rgbn[:, 3]),
+        "point_source_id": join(psid, cat["psid"], np.uint16),
+        "scan_angle": join(sa, cat["sa"], np.float32),
+        "gps_time": join(gps, cat["gps"], np.float64),
+    }
+
+
+def _degrade(pts: dict, variant: str) -> dict:
+    """The attributes a degraded export keeps (see :data:`VARIANTS`)."""
+    if variant == "no_intensity":
+        for k in ("intensity", "return_number", "number_of_returns", "scan_angle", "gps_time"):
+            pts[k] = np.zeros_like(pts[k])
+    elif variant == "no_nir":
+        pts["nir"] = np.zeros_like(pts["nir"])
+    return pts
