@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from towerpipe.errors import ModelError
-from towerpipe.features import (FEATURE_SETS, NORM_RADIUS, intensity_scale, required_dimensions,
-                                tile_feature_meta, window_features)
+from towerpipe.features import (FEATURE_SETS, NORM_RADIUS, intensity_scale, missing_attributes,
+                                required_attributes, tile_feature_meta, window_features)
 
 
 def _arrays(n: int = 50, seed: int = 0) -> dict[str, np.ndarray]:
@@ -72,10 +72,29 @@ def test_colour_bits_and_intensity_scale():
     np.testing.assert_array_equal(fa, fc)
 
 
-def test_required_dimensions_and_missing_colour():
-    assert required_dimensions("full") == ["red", "green", "blue", "nir"]
-    assert required_dimensions("geometry") == []
-    with pytest.raises(ModelError, match="geometry"):
+def test_required_attributes_and_missing_colour():
+    assert required_attributes("full") == ["intensity", "nir", "rgb"]
+    assert required_attributes("rgb") == ["rgb"]
+    assert required_attributes("geometry") == ["intensity", "returns"]
+    assert required_attributes("shape") == []
+    # older tiles: only has_rgb / has_nir flags
+    assert missing_attributes("full", {"has_rgb": True, "has_nir": False}) == ["nir"]
+    # a tile whose intensity and returns carry nothing (a public re-export)
+    meta = {"valid_attributes": ["rgb"]}
+    assert missing_attributes("geometry", meta) == ["intensity", "returns"]
+    assert missing_attributes("rgb", meta) == [] and missing_attributes("shape", meta) == []
+    with pytest.raises(ModelError, match="model: auto"):
         window_features(_arrays(), np.arange(5), (0.0, 0.0), "full", {"has_rgb": False, "has_nir": False})
     with pytest.raises(ModelError, match="unknown feature set"):
-        required_dimensions("rgb")
+        required_attributes("colour")
+
+
+def test_shape_and_rgb_columns():
+    a = _arrays()
+    a["red"] = np.full(50, 255, np.uint16)
+    meta = tile_feature_meta(a, {**META, "color_bits": 8})
+    s = window_features(a, np.arange(50), (400000.0, 4600000.0), "shape", meta)
+    assert s.shape == (50, 3)
+    r = window_features(a, np.arange(50), (400000.0, 4600000.0), "rgb", meta)
+    np.testing.assert_allclose(r[:, 3], 1.0)                      # red, 8-bit full scale
+    np.testing.assert_array_equal(r[:, :3], s)

@@ -2,12 +2,17 @@
 
 Carós et al. (2022, sec. 5.2) represent each point by a 7-vector: x, y, z normalised
 to the unit sphere, intensity, green, blue and NDVI = (NIR - red) / (NIR + red).
-Two feature sets exist:
+Four feature sets exist, from the richest to the barest; each needs the sensor attributes
+(:mod:`towerpipe.attributes`) of :data:`REQUIRED_ATTRIBUTES` to be valid on the data:
 
 ``full``
-    the paper's vector ``x y z intensity green blue ndvi`` (needs RGB and NIR);
+    the paper's vector ``x y z intensity green blue ndvi`` (intensity, RGB and NIR);
+``rgb``
+    for colourised data without NIR: ``x y z red green blue`` (RGB);
 ``geometry``
-    for data without colour or NIR: ``x y z intensity return_ratio n_returns``.
+    for data without colour: ``x y z intensity return_ratio n_returns`` (intensity, returns);
+``shape``
+    coordinates and height above ground only: ``x y z`` (nothing).
 
 Normalisation (fixed, never data-dependent within a window)
 -----------------------------------------------------------
@@ -59,13 +64,22 @@ MAX_RETURNS = 5.0
 #: Feature sets: the columns of the model input, in order.
 FEATURE_SETS: dict[str, list[str]] = {
     "full": ["x", "y", "z", "intensity", "green", "blue", "ndvi"],
+    "rgb": ["x", "y", "z", "red", "green", "blue"],
     "geometry": ["x", "y", "z", "intensity", "return_ratio", "n_returns"],
+    "shape": ["x", "y", "z"],
 }
 
 #: Every feature column known, in a fixed order (the union of the feature sets).
-ALL_FEATURES: list[str] = ["x", "y", "z", "intensity", "green", "blue", "ndvi", "return_ratio", "n_returns"]
+ALL_FEATURES: list[str] = ["x", "y", "z", "intensity", "green", "blue", "ndvi", "return_ratio", "n_returns",
+                           "red"]
 
-_REQUIRED = {"full": ["red", "green", "blue", "nir"], "geometry": []}
+#: The sensor attributes (:data:`towerpipe.attributes.ATTRIBUTES`) each feature column reads.
+COLUMN_ATTRIBUTES: dict[str, str] = {"intensity": "intensity", "red": "rgb", "green": "rgb", "blue": "rgb",
+                                     "ndvi": "nir", "return_ratio": "returns", "n_returns": "returns"}
+#: The sensor attributes each feature set needs to be valid.
+REQUIRED_ATTRIBUTES: dict[str, list[str]] = {
+    name: sorted({COLUMN_ATTRIBUTES[c] for c in cols if c in COLUMN_ATTRIBUTES} | ({"rgb"} if "ndvi" in cols else set()))
+    for name, cols in FEATURE_SETS.items()}
 
 
 def _check_set(feature_set: str) -> list[str]:
@@ -74,21 +88,21 @@ def _check_set(feature_set: str) -> list[str]:
     return FEATURE_SETS[feature_set]
 
 
-def required_dimensions(feature_set: str) -> list[str]:
-    """Optional point dimensions a feature set needs (beyond x, y, z, intensity, HAG).
+def required_attributes(feature_set: str) -> list[str]:
+    """The sensor attributes a feature set needs to be valid on the data.
 
     Parameters
     ----------
     feature_set
-        ``"full"`` or ``"geometry"``.
+        A key of :data:`FEATURE_SETS`.
 
     Returns
     -------
     list of str
-        e.g. ``["red", "green", "blue", "nir"]`` for ``full``, ``[]`` for ``geometry``.
+        e.g. ``["intensity", "nir", "rgb"]`` for ``full``, ``[]`` for ``shape``.
     """
     _check_set(feature_set)
-    return list(_REQUIRED[feature_set])
+    return list(REQUIRED_ATTRIBUTES[feature_set])
 
 
 def intensity_scale(arrays: Mapping[str, np.ndarray]) -> float:
@@ -189,7 +203,7 @@ def compute_columns(arrays: Mapping[str, np.ndarray], idx: np.ndarray, center_xy
             if scale is None:
                 scale = intensity_scale(arrays)
             v = np.clip(col("intensity").astype(np.float64) / float(scale), 0.0, INTENSITY_CLIP)
-        elif name in ("green", "blue"):
+        elif name in ("red", "green", "blue"):
             v = np.clip(col(name).astype(np.float64) / cmax, 0.0, 1.0)
         elif name == "ndvi":
             nir = col("nir").astype(np.float64)
@@ -207,15 +221,31 @@ def compute_columns(arrays: Mapping[str, np.ndarray], idx: np.ndarray, center_xy
     return out
 
 
+def valid_attributes(meta: Mapping[str, Any]) -> set[str]:
+    """The valid sensor attributes of a tile (its ``valid_attributes``, else the older flags)."""
+    if "valid_attributes" in meta:
+        return set(meta["valid_attributes"])
+    out = {"intensity", "returns"}
+    if meta.get("has_rgb", True):
+        out.add("rgb")
+    if meta.get("has_nir", True):
+        out.add("nir")
+    return out
+
+
+def missing_attributes(feature_set: str, meta: Mapping[str, Any]) -> list[str]:
+    """The attributes ``feature_set`` needs that the tile ``meta`` does not carry validly."""
+    return [a for a in required_attributes(feature_set) if a not in valid_attributes(meta)]
+
+
 def check_meta(feature_set: str, meta: Mapping[str, Any]) -> None:
-    """Raise :class:`ModelError` if the tile lacks dimensions the feature set needs."""
-    need = required_dimensions(feature_set)
-    if not need:
-        return
-    if not meta.get("has_rgb", True) or ("nir" in need and not meta.get("has_nir", True)):
+    """Raise :class:`ModelError` if the tile lacks valid attributes the feature set needs."""
+    missing = missing_attributes(feature_set, meta)
+    if missing:
         raise ModelError(
-            f"feature set {feature_set!r} needs {need} but the tile {meta.get('tile', '?')!r} has "
-            f"has_rgb={meta.get('has_rgb')} has_nir={meta.get('has_nir')}; use the 'geometry' model")
+            f"feature set {feature_set!r} needs valid {', '.join(required_attributes(feature_set))} but the "
+            f"tile {meta.get('tile', '?')!r} has no valid {', '.join(missing)}; set `inference: {{model: auto}}` "
+            f"(or a model the data supports) in the config")
 
 
 def window_features(arrays: Mapping[str, np.ndarray], idx: np.ndarray, center_xy: tuple[float, float],

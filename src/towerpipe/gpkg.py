@@ -7,7 +7,7 @@ A tower GeoPackage holds
 * layer ``tower_points`` (Point): the footprint centroid with the same attributes;
 * table ``layer_styles``: the default QGIS style of both layers (as QGIS itself
   stores styles in a GeoPackage), from ``towerpipe/data/towers.qml``;
-* run metadata (``towerpipe_version``, ``model_name``, ``model_version``,
+* run metadata (``towerpipe_version``, ``model_name``, ``model_version``, ``model_choice``,
   ``config_hash``, ``run_time`` …) as GDAL dataset metadata, i.e. in the standard
   ``gpkg_metadata`` / ``gpkg_metadata_reference`` tables; read it with
   :func:`read_metadata` or ``pyogrio.read_info(path)["dataset_metadata"]``.
@@ -93,6 +93,8 @@ def run_metadata(*, model_meta: Mapping[str, Any] | None = None, config: Mapping
         "model_name": str(model_meta.get("name", "")),
         "model_version": str(model_meta.get("version", "")),
         "model_sha256": str(model_meta.get("sha256", "")),
+        # how the model was chosen (inference.model: auto picks per zone; towerpipe.modelchoice)
+        "model_choice": str((model_meta.get("choice") or {}).get("reason", "")),
         "config_hash": config_hash(config or {}),
         "run_time": run_time or datetime.now(timezone.utc).replace(microsecond=0).isoformat(),
     }

@@ -38,6 +38,7 @@ from rasterio.fill import fillnodata
 
 from towerpipe import tiling
 from towerpipe.assemble import write_text_atomic
+from towerpipe.attributes import AttributeStats, degenerate, describe, valid_set
 from towerpipe.columnfile import read_meta
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.lasio import BLOCK_COLUMNS, RECORDS_FILE, color_info, iter_block, read_header
@@ -208,6 +209,7 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
     cols = {c: _NpyStream(tmp / f"{c}.npy", dtypes.get(c, "u2"), (n,)) for c in BLOCK_COLUMNS}
     records: _NpyStream | None = None  # the raw point records, for the merge (no second decode)
     maxima = dict.fromkeys(("red", "green", "blue", "nir"), 0)
+    stats = AttributeStats(header.dimensions)
     mins, maxs = np.full(2, np.inf), np.full(2, -np.inf)
     class_counts = np.zeros(256, np.int64)
     try:
@@ -219,6 +221,7 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
             records.write(chunk["records"])
             for c in maxima:
                 maxima[c] = max(maxima[c], int(chunk[c].max()))
+            stats.update(chunk)
             mins = np.minimum(mins, [chunk["x"].min(), chunk["y"].min()])
             maxs = np.maximum(maxs, [chunk["x"].max(), chunk["y"].max()])
             class_counts += np.bincount(chunk["classification"], minlength=256)
@@ -226,7 +229,9 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
         for stream in [*cols.values(), *([] if records is None else [records])]:
             stream.close()
     t_read = time.perf_counter() - t0
-    has_rgb, has_nir, color_bits = color_info(header.dimensions, maxima)
+    _, _, color_bits = color_info(header.dimensions, maxima)
+    attributes = stats.result()
+    has_rgb, has_nir = attributes["rgb"]["valid"], attributes["nir"]["valid"]
     n_ground = int(class_counts[GROUND_CLASS])
     ground_fraction = n_ground / n
     ground_source = "class2" if ground_fraction >= cfg.min_ground_fraction else cfg.ground_filter
@@ -245,6 +250,8 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
         "has_rgb": has_rgb,
         "has_nir": has_nir,
         "color_bits": color_bits,
+        "attributes": attributes,
+        "degenerate_attributes": degenerate(attributes),
         "ground_points": n_ground,
         "ground_fraction": ground_fraction,
         "ground_source": ground_source,
@@ -252,6 +259,8 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
         "timings": {"read": t_read, "split": time.perf_counter() - t0},
         "peak_rss_mb": peak_rss_mb(),
     }
+    if meta["degenerate_attributes"]:
+        log.warning("%s: sensor attributes that carry no information: %s", path, describe(attributes))
     if ground_source != "class2":
         log.warning("%s: only %d class-2 points (%.1f %%); ground will be classified with PDAL %s",
                     path, n_ground, 100 * ground_fraction, ground_source)
@@ -481,6 +490,8 @@ def gather_tile(zone: str, block: str, tile: str, caches: Mapping[str, BlockCach
         "core_bounds": list(core_box), "buffer": cfg.buffer, "tile_size": cfg.tile_size, "blocks": names,
         "has_rgb": all(caches[b].meta["has_rgb"] for b in names),
         "has_nir": all(caches[b].meta["has_nir"] for b in names),
+        # the attributes valid on every block whose points the tile holds
+        "valid_attributes": sorted(set.intersection(*(valid_set(caches[b].meta.get("attributes")) for b in names))),
         "color_bits": own["color_bits"], "ground_source": own["ground_source"],
     }
     return Tile(arrays, meta)
@@ -620,12 +631,16 @@ def summarize_block(cache_dir: str | os.PathLike[str], tile_paths: list[str],
     m = cache.meta
     if totals.get("core", m["points"]) != m["points"]:
         warnings.append(f"tile cores hold {totals.get('core')} points, the block {m['points']}")
+    if m.get("degenerate_attributes"):
+        warnings.append("sensor attributes that carry no information: "
+                        + "; ".join(f"{a} ({m['attributes'][a]['reason']})" for a in m["degenerate_attributes"]))
     if m["ground_source"] != "class2":
         warnings.append(f"ground had to be classified with PDAL {m['ground_source']} "
                         f"(only {m['ground_points']} class-2 points)")
     summary = {
         "block": m["block"], "zone": m["zone"], "path": m["path"], "points": m["points"],
         "bounds": m["bounds"], "crs_wkt": m["crs_wkt"], "has_rgb": m["has_rgb"], "has_nir": m["has_nir"],
+        "attributes": m.get("attributes"), "degenerate_attributes": m.get("degenerate_attributes", []),
         "color_bits": m["color_bits"], "ground_source": m["ground_source"],
         "ground_fraction": m["ground_fraction"], "class_counts": m["class_counts"],
         "counts": totals, "tiles": tiles, "warnings": warnings,

@@ -25,18 +25,6 @@ from towerpipe.modelcard import config_hash
 log = logging.getLogger(__name__)
 
 
-def resolve_model(spec: str) -> Path:
-    """A model directory from the config's ``inference.model``.
-
-    ``"full"`` / ``"geometry"`` name the shipped models; anything else is a path.
-    """
-    from towerpipe.modelcard import default_model_path
-
-    if spec in ("full", "geometry"):
-        return default_model_path(spec)
-    return Path(spec)
-
-
 def _json(path: str | os.PathLike[str]) -> dict[str, Any]:
     return json.loads(Path(path).read_text())
 
