@@ -7,7 +7,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 CORES ?= 2
 
-.PHONY: setup pdal demo test lint bench train ship-models clean-demo
+.PHONY: setup pdal demo test lint bench train benchmark-realshape ship-models clean-demo
 
 setup: pdal $(VENV)/.installed
 
@@ -34,19 +34,24 @@ bench: setup
 	$(BIN)/python -m towerpipe.bench preprocess
 	$(BIN)/python -m towerpipe.bench e2e
 
-# The release of each shipped model: towerpipe.model.MODEL_RELEASES. full-v2 continues from
-# full-v1 (training.models in config/config.yaml); the recipe of geometry-v2 is defined the
-# same way but not trained yet, so geometry-v1 stays the shipped geometry model.
-MODELS := towerpipe-full-v2
+# The shipped models (towerpipe.modelcard.MODEL_RELEASES): one per feature set, each trained by
+# the workflow from the windows of the training zones (config/models.yaml).
+MODELS := towerpipe-full-v3 towerpipe-rgb-v3 towerpipe-geometry-v3 towerpipe-shape-v3
 
-# Retrain the shipped v2 model on the synthetic training zones (CPU: about 26 min).
+# Train the shipped models (CPU, 2 cores).
 train: setup
 	$(BIN)/snakemake --cores $(CORES) $(foreach m,$(MODELS),results/models/$(m)/)
 
-# Copy trained checkpoints + model cards into models/ (what inference uses by default).
+# The real-shape benchmark: every recipe trained without each real tower family and judged on it.
+benchmark-realshape: setup
+	$(BIN)/snakemake --cores $(CORES) results/benchmark/realshape/
+
+# Copy trained checkpoints + model cards into models/ (what inference uses), with the benchmark's
+# transfer scores in their cards (what inference.model: auto ranks by).
 ship-models:
 	for m in $(MODELS); do mkdir -p models/$$m && \
 	  cp results/models/$$m/{classifier.pt,segmenter.pt,model_card.json,MODEL_CARD.md,metrics.json,classifier_curves.png,segmenter_curves.png} models/$$m/; done
+	$(BIN)/towerpipe realshape-stamp --scores results/benchmark/realshape/scores.json
 
 clean-demo:
 	rm -rf results/demo work/demo data/demo

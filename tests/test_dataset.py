@@ -174,3 +174,61 @@ def test_pinned_split_is_used_and_checked(tmp_path):
     # YAML reads an unquoted 400000_4600800 as a number: a name that matches no block is an error
     with pytest.raises(ConfigError, match="quote block names"):
         build_windows(paths, {"n_points": 64, "split": {"val": [4000004600800], "test": ["b3"]}})
+
+
+def test_windows_thinned_to_their_own_density(tmp_path):
+    """Each window has a density of its own, from the range; a positive keeps enough tower points."""
+    paths = make_tiles(tmp_path, n_blocks=3, tower_pts=800)
+    full = build_windows(paths, {"val_fraction": 0.34, "test_fraction": 0.34, "seed": 3})
+    thin = build_windows(paths, {"val_fraction": 0.34, "test_fraction": 0.34, "seed": 3,
+                                 "density_range": [0.05, 0.2], "positive_shifts": 3})
+    pos_full = [np.diff(full.offsets)[i] for i in np.flatnonzero(full.label == 1)]
+    pos_thin = [np.diff(thin.offsets)[i] for i in np.flatnonzero(thin.label == 1)]
+    assert np.median(pos_thin) < 0.5 * np.median(pos_full)
+    assert len(set(pos_thin)) > len(pos_thin) // 2            # densities differ window to window
+    tower_pts = [int(thin.point_label[thin.offsets[i]:thin.offsets[i + 1]].sum()) for i in np.flatnonzero(thin.label)]
+    assert min(tower_pts) >= 20
+    # three shifted copies per tower on top of the centred one
+    assert (thin.kind == KINDS["positive_shifted"]).sum() == 3 * (thin.kind == KINDS["positive"]).sum()
+
+
+def test_occlusion_takes_a_face_of_the_tower(tmp_path):
+    paths = make_tiles(tmp_path, n_blocks=3, tower_pts=800)
+    cfg = {"val_fraction": 0.34, "test_fraction": 0.34, "seed": 5, "positive_shifts": 0}
+    plain = build_windows(paths, cfg)
+    occl = build_windows(paths, {**cfg, "occlusion": 1.0})
+    t0 = [int(plain.point_label[plain.offsets[i]:plain.offsets[i + 1]].sum()) for i in np.flatnonzero(plain.label)]
+    t1 = [int(occl.point_label[occl.offsets[i]:occl.offsets[i + 1]].sum()) for i in np.flatnonzero(occl.label)]
+    assert len(t0) == len(t1) and all(b < a for a, b in zip(t0, t1))
+    assert np.median(np.array(t1) / np.array(t0)) < 0.8
+
+
+def test_windows_know_their_tower_family(tmp_path):
+    """With the truth, every window records the families of its towers; a hard negative, its lost tower's."""
+    import geopandas as gpd
+    import shapely
+
+    from towerpipe.dataset import FAMILY_BITS
+
+    paths = make_tiles(tmp_path, n_blocks=3)
+    rows = []
+    for b in range(3):
+        ox = 1000.0 * b
+        rows += [{"design": "real:uav:001Tower", "x": ox + 30, "y": 30.0, "geometry": shapely.Point(ox + 30, 30)},
+                 {"design": "lattice_waist", "x": ox + 70, "y": 65.0, "geometry": shapely.Point(ox + 70, 65)}]
+    truth = tmp_path / "truth.gpkg"
+    gpd.GeoDataFrame(rows, geometry="geometry").to_file(truth, layer="towers")
+    ws = build_windows(paths, {"val_fraction": 0.34, "test_fraction": 0.34, "positive_shifts": 0},
+                       truth={"t": truth})
+    pos = np.flatnonzero(ws.kind == KINDS["positive"])
+    fams = {int(f) for f in ws.family[pos]}
+    assert FAMILY_BITS["uav"] in {f & FAMILY_BITS["uav"] for f in fams}
+    assert any(f & FAMILY_BITS["synthetic"] for f in fams)
+    hard = np.flatnonzero(ws.kind == KINDS["hard_negative"])
+    assert (ws.family[hard] > 0).all() and ws.label[hard].max() == 0
+    assert (ws.family[ws.kind == KINDS["random_negative"]] == 0).all()
+    out = ws.save(tmp_path / "w.npz")
+    np.testing.assert_array_equal(load_windows(out).family, ws.family)
+    assert ws.meta["summary"]["train"]["positive_by_family"]["uav"] + \
+        ws.meta["summary"]["val"]["positive_by_family"]["uav"] + \
+        ws.meta["summary"]["test"]["positive_by_family"]["uav"] >= 3

@@ -5,9 +5,9 @@ For each tile (``towerpipe.tilefile``) only the ``model_input`` points are used:
 * towers = connected components of class-15 points (``cKDTree`` pairs within
   ``tower_link_m``), kept when they have at least ``min_tower_points`` points and
   their centroid lies in the tile's core (so a tower is taken once per zone);
-* positive windows (``window_size`` square, all points) centred on each tower, plus a
-  copy with the centre shifted by up to ``shift_m`` in x and y (the paper's
-  augmentation, doubling the positives);
+* positive windows (``window_size`` square, all points) centred on each tower, plus
+  ``positive_shifts`` copies with the centre shifted by up to ``shift_m`` in x and y (the
+  paper's augmentation);
 * a *hard negative* per positive: the same window with every tower point removed;
 * negatives: random centres in the tile core, and tall negatives. Half of the tall
   budget goes to the tallest *objects* of the tile (:func:`tall_objects`: connected
@@ -16,7 +16,22 @@ For each tile (``towerpipe.tilefile``) only the ``model_input`` points are used:
   cranes, masts, turbines, chimneys, the tallest trees: the rare things a classifier
   confuses with pylons. The rest is centred on tall points drawn at random,
   at least half a window apart (mostly trees and wires: what the height pre-filter
-  sends to the classifier). A candidate holding a tower is rejected.
+  sends to the classifier). A candidate holding a tower is rejected. With
+  ``peak_negatives_per_tile``, more tall negatives are centred on the tile's height peaks,
+  where candidate windows (:func:`towerpipe.windows.candidate_windows`) put them at inference.
+
+Variety aimed at real flights (``density_range``, ``occlusion``): each window is thinned
+to its own density, drawn log-uniformly in ``density_range`` (pts/m², all returns; a
+window cannot be denser than its zone), so one tower is seen at 2 and at 30 pts/m²; a
+positive keeps at least ``min_tower_points`` + 10 of its tower's points. With probability
+``occlusion`` a positive's tower also loses most of the points of one side (a face in scan
+shadow): those beyond a random vertical plane through its centre are kept with a chance
+drawn in 0-0.4.
+
+Real tower families: with the zones' truth (``truth``, :func:`build_windows`), every
+window records which families (:data:`FAMILY_BITS`) its tower points come from, and a hard
+negative the family of the tower it lost, so that training can leave one family out
+(``exclude_families`` in :mod:`towerpipe.train`).
 
 A window is positive when it holds at least ``min_tower_points`` tower points. The
 split is *by block* (the block of the tile whose core holds the window centre), so no
@@ -47,7 +62,9 @@ from scipy.spatial import cKDTree
 from towerpipe.errors import ConfigError, InputError
 from towerpipe.features import ALL_FEATURES, FEATURE_SETS, compute_columns, tile_feature_meta
 from towerpipe.sampling import constrained_sample, random_sample
+from towerpipe.columnfile import read_meta
 from towerpipe.tilefile import load_tile
+from towerpipe.windows import height_peaks
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +85,14 @@ DEFAULT_DATASET_CONFIG: dict[str, Any] = {
     "val_fraction": 0.15,
     "test_fraction": 0.15,
     "split": None,
+    "peak_negatives_per_tile": 0,
+    "positive_shifts": 1,
+    "density_range": None,
+    "occlusion": 0.0,
 }
+
+#: Bit of each tower family in a window's ``family`` mask (real families: :data:`towerpipe.synth.real.FAMILIES`).
+FAMILY_BITS: dict[str, int] = {"synthetic": 1, "ts40k": 2, "uav": 4, "utility": 8}
 
 #: Window kinds (``kind`` array).
 KINDS = {"random_negative": 0, "tall_negative": 1, "positive": 2, "positive_shifted": 3, "hard_negative": 4}
@@ -198,6 +222,9 @@ class WindowSet:
     label, kind, split, block_id
         ``(W,)`` window label (1 = tower), kind (:data:`KINDS`), split (:data:`SPLITS`),
         index into ``meta["blocks"]``.
+    family
+        ``(W,)`` uint8 mask of the tower families (:data:`FAMILY_BITS`) in the window (0:
+        no tower, or no truth known).
     center
         ``(W, 2)`` float64 window centres.
     meta
@@ -214,6 +241,7 @@ class WindowSet:
     split: np.ndarray
     block_id: np.ndarray
     center: np.ndarray
+    family: np.ndarray
     meta: dict[str, Any] = field(default_factory=dict)
 
     def __len__(self) -> int:
@@ -252,7 +280,7 @@ class WindowSet:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".part")
         arrays = {k: getattr(self, k) for k in ("feat", "point_label", "offsets", "cs_idx", "rs_idx", "label",
-                                                 "kind", "split", "block_id", "center")}
+                                                 "kind", "split", "block_id", "center", "family")}
         with open(tmp, "wb") as fh:
             np.savez(fh, meta=np.frombuffer(json.dumps(self.meta).encode(), dtype=np.uint8), **arrays)
         os.replace(tmp, path)
@@ -265,6 +293,7 @@ def load_windows(path: str | os.PathLike[str]) -> WindowSet:
         with np.load(path, allow_pickle=False) as z:
             meta = json.loads(bytes(z["meta"]).decode())
             arrays = {k: z[k] for k in z.files if k != "meta"}
+        arrays.setdefault("family", np.zeros(len(arrays["label"]), np.uint8))
         return WindowSet(meta=meta, **arrays)
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InputError(path, f"not a towerpipe windows file ({exc}); rebuild it with towerpipe.dataset") from exc
@@ -279,8 +308,20 @@ def is_windows_file(path: str | os.PathLike[str]) -> bool:
         return False
 
 
-def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator) -> dict[str, Any]:
-    """Windows of one tile: dict of lists (centres, pools, samples, labels, kinds)."""
+def _point_families(xy: np.ndarray, truth: Any) -> np.ndarray:
+    """Family bit (:data:`FAMILY_BITS`) of tower points: that of the nearest true tower."""
+    from towerpipe.synth.real import tower_family
+
+    if truth is None or len(truth) == 0 or len(xy) == 0:
+        return np.zeros(len(xy), np.uint8)
+    bits = np.array([FAMILY_BITS[tower_family(d) or "synthetic"] for d in truth["design"]], np.uint8)
+    _, i = cKDTree(np.c_[truth["x"], truth["y"]]).query(xy)
+    return bits[i]
+
+
+def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator, truth: Any = None
+                  ) -> dict[str, Any]:
+    """Windows of one tile: dict of lists (centres, pools, samples, labels, kinds, families)."""
     tile = load_tile(path)
     meta = tile.meta
     mi = tile["model_input"]
@@ -289,7 +330,9 @@ def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator) -
     n_pts = int(cfg["n_points"])
     half = float(cfg["window_size"]) / 2.0
     xmin, ymin, xmax, ymax = [float(v) for v in meta["core_bounds"]]
-    out: dict[str, list[Any]] = {k: [] for k in ("center", "feat", "plabel", "cs", "rs", "label", "kind")}
+    # density of all returns of the tile's core (what a flight's pts/m² counts)
+    zone_density = float(np.asarray(tile["core"]).sum()) / max((xmax - xmin) * (ymax - ymin), 1.0)
+    out: dict[str, list[Any]] = {k: [] for k in ("center", "feat", "plabel", "cs", "rs", "label", "kind", "family")}
     counts = {"towers": 0, "towers_dropped": 0, "tall_objects": 0}
     if len(arr["x"]) == 0:
         return {"out": out, "counts": counts, "block": meta.get("block", Path(path).parent.name), "meta": meta}
@@ -302,15 +345,41 @@ def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator) -
     comps = [c for c in all_comps if c.size >= int(cfg["min_tower_points"])]
     counts["towers_dropped"] = len(all_comps) - len(comps)
     bands = tuple(float(b) for b in cfg["bands"])
+    family = np.zeros(len(arr["x"]), np.uint8)
+    family[tidx] = _point_families(xy[tidx], truth)
+    min_tower = int(cfg["min_tower_points"])
+    dens_range = cfg["density_range"]
 
-    def add(center: np.ndarray, kind: str, drop_towers: bool = False) -> bool:
+    def thin(pts: np.ndarray, towers_kept: int) -> np.ndarray:
+        """The window's points at its own density (see the module docstring)."""
+        if not dens_range:
+            return pts
+        lo, hi = (float(v) for v in dens_range)
+        keep = min(1.0, float(np.exp(rng.uniform(np.log(lo), np.log(hi)))) / max(zone_density, 1e-9))
+        if towers_kept:
+            keep = max(keep, min(1.0, (min_tower + 10) / towers_kept))
+        return pts if keep >= 1.0 else pts[rng.random(pts.size) < keep]
+
+    def occlude(pts: np.ndarray, tower_c: np.ndarray) -> np.ndarray:
+        """A face of the tower in scan shadow (see the module docstring)."""
+        if tower_c is None or not cfg["occlusion"] or rng.random() >= float(cfg["occlusion"]):
+            return pts
+        a = rng.uniform(0, 2 * np.pi)
+        side = ((xy[pts] - tower_c) @ np.array([np.cos(a), np.sin(a)])) > 0
+        gone = is_tower[pts] & side & (rng.random(pts.size) >= rng.uniform(0.0, 0.4))
+        return pts[~gone] if is_tower[pts][~gone].sum() >= min_tower + 10 else pts
+
+    def add(center: np.ndarray, kind: str, drop_towers: bool = False, tower_c: np.ndarray | None = None) -> bool:
         pts = np.asarray(tree.query_ball_point(center, half, p=np.inf), dtype=np.int64)
+        fam = int(np.bitwise_or.reduce(family[pts])) if pts.size else 0
         if drop_towers:
             pts = pts[~is_tower[pts]]
+        pts = thin(pts, int(is_tower[pts].sum()))
+        pts = occlude(pts, tower_c)
         pts.sort()
         if pts.size < int(cfg["min_window_points"]):
             return False
-        label = int(is_tower[pts].sum() >= int(cfg["min_tower_points"]))
+        label = int(is_tower[pts].sum() >= min_tower)
         if kind in ("random_negative", "tall_negative") and is_tower[pts].any():
             return False
         cs = constrained_sample(arr["hag"][pts], n_pts, rng, bands)
@@ -329,6 +398,7 @@ def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator) -
         out["rs"].append(rs.astype(np.int32))
         out["label"].append(label)
         out["kind"].append(KINDS[kind])
+        out["family"].append(fam)
         return True
 
     for c in comps:
@@ -336,9 +406,11 @@ def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator) -
         if not (xmin <= cen[0] < xmax and ymin <= cen[1] < ymax):
             continue
         counts["towers"] += 1
-        shifted = cen + rng.uniform(-float(cfg["shift_m"]), float(cfg["shift_m"]), size=2)
-        for centre, kind in ((cen, "positive"), (shifted, "positive_shifted")):
-            if add(centre, kind):
+        centres = [(cen, "positive")] + [
+            (cen + rng.uniform(-float(cfg["shift_m"]), float(cfg["shift_m"]), size=2), "positive_shifted")
+            for _ in range(int(cfg["positive_shifts"]))]
+        for centre, kind in centres:
+            if add(centre, kind, tower_c=cen):
                 add(centre, "hard_negative", drop_towers=True)
     n_rand = int(cfg["random_negatives_per_tile"])
     for _ in range(n_rand * 5):
@@ -368,11 +440,21 @@ def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator) -
             break
         if not chosen or np.min(np.abs(np.asarray(chosen) - xy[j]).max(axis=1)) >= half:
             add_tall(xy[j].copy())
+    n_peak = int(cfg["peak_negatives_per_tile"])
+    if n_peak:                       # windows as inference lays them: on the height peaks (not towers)
+        _, peaks, _ = height_peaks(xy[:, 0], xy[:, 1], arr["hag"], min_height=float(cfg["tall_hag_m"]))
+        inside = (peaks[:, 0] >= xmin) & (peaks[:, 0] < xmax) & (peaks[:, 1] >= ymin) & (peaks[:, 1] < ymax)
+        added = 0
+        for centre in peaks[inside][rng.permutation(int(inside.sum()))]:
+            if added >= n_peak:
+                break
+            added += add(centre, "tall_negative")
     return {"out": out, "counts": counts, "block": meta.get("block", Path(path).parent.name), "meta": meta}
 
 
 def build_windows(tile_paths: Iterable[str | os.PathLike[str]], config: Mapping[str, Any] | None = None,
-                  out_path: str | os.PathLike[str] | None = None) -> WindowSet:
+                  out_path: str | os.PathLike[str] | None = None,
+                  truth: Mapping[str, str | os.PathLike[str]] | None = None) -> WindowSet:
     """Build training windows from labelled tile files.
 
     Parameters
@@ -383,6 +465,9 @@ def build_windows(tile_paths: Iterable[str | os.PathLike[str]], config: Mapping[
         Overrides of :data:`DEFAULT_DATASET_CONFIG`.
     out_path
         If given, the windows are also saved there.
+    truth
+        Zone name -> its tower truth GeoPackage (``towers_truth.gpkg`` of a generated
+        zone): gives each window its tower families (``family``). Zones not listed: 0.
 
     Returns
     -------
@@ -392,10 +477,12 @@ def build_windows(tile_paths: Iterable[str | os.PathLike[str]], config: Mapping[
     paths = sorted(str(p) for p in tile_paths)
     if not paths:
         raise ConfigError("dataset: no tile files given")
+    truths = {z: _read_truth(t) for z, t in (truth or {}).items()}
     rng = np.random.default_rng(int(cfg["seed"]))
     per_tile = []
     for p in paths:
-        r = _tile_windows(p, cfg, np.random.default_rng([int(cfg["seed"]), len(per_tile)]))
+        zone = read_meta(p).get("zone")
+        r = _tile_windows(p, cfg, np.random.default_rng([int(cfg["seed"]), len(per_tile)]), truths.get(zone))
         per_tile.append(r)
         log.info("%s: %d windows, %d towers", p, len(r["out"]["label"]), r["counts"]["towers"])
     blocks = sorted({r["block"] for r in per_tile})
@@ -412,14 +499,15 @@ def build_windows(tile_paths: Iterable[str | os.PathLike[str]], config: Mapping[
                   for b in blocks}
     else:
         assign = split_blocks(has_towers, float(cfg["val_fraction"]), float(cfg["test_fraction"]), int(rng.integers(1 << 31)))
-    feats, plabels, cs, rs, label, kind, split, block_id, center, sizes = ([] for _ in range(10))
+    feats, plabels, cs, rs, label, kind, split, block_id, center, sizes, fams = ([] for _ in range(11))
     for r in per_tile:
         o = r["out"]
         b = blocks.index(r["block"])
-        for f, pl, c, s, lab, k, cen in zip(o["feat"], o["plabel"], o["cs"], o["rs"], o["label"], o["kind"],
-                                            o["center"]):
+        for f, pl, c, s, lab, k, cen, fm in zip(o["feat"], o["plabel"], o["cs"], o["rs"], o["label"], o["kind"],
+                                                o["center"], o["family"]):
             feats.append(f); plabels.append(pl); cs.append(c); rs.append(s); label.append(lab); kind.append(k)
             split.append(SPLITS[assign[r["block"]]]); block_id.append(b); center.append(cen); sizes.append(len(pl))
+            fams.append(fm)
     if not label:
         raise ConfigError(f"dataset: no windows could be built from {len(paths)} tile files (no model-input points?)")
     n = int(cfg["n_points"])
@@ -429,6 +517,7 @@ def build_windows(tile_paths: Iterable[str | os.PathLike[str]], config: Mapping[
         cs_idx=np.stack(cs).reshape(-1, n), rs_idx=np.stack(rs).reshape(-1, n),
         label=np.asarray(label, np.uint8), kind=np.asarray(kind, np.uint8), split=np.asarray(split, np.uint8),
         block_id=np.asarray(block_id, np.int32), center=np.asarray(center, np.float64).reshape(-1, 2),
+        family=np.asarray(fams, np.uint8),
         meta={"config": cfg, "blocks": blocks, "split": assign, "tiles": paths,
               "has_rgb": all(bool(r["meta"].get("has_rgb", False)) for r in per_tile),
               "has_nir": all(bool(r["meta"].get("has_nir", False)) for r in per_tile),
@@ -442,6 +531,12 @@ def build_windows(tile_paths: Iterable[str | os.PathLike[str]], config: Mapping[
     return ws
 
 
+def _read_truth(path: str | os.PathLike[str]) -> Any:
+    import pyogrio
+
+    return pyogrio.read_dataframe(path, layer="towers", columns=["design", "x", "y"], read_geometry=False)
+
+
 def summarise(ws: WindowSet) -> dict[str, Any]:
     """Window and point counts per split (for the model card)."""
     out: dict[str, Any] = {}
@@ -451,6 +546,7 @@ def summarise(ws: WindowSet) -> dict[str, Any]:
         tower_pts = int(sum(int(ws.point_label[ws.offsets[i]:ws.offsets[i + 1]].sum()) for i in pos))
         out[name] = {"windows": int(sel.sum()), "positive": int((ws.label[sel] == 1).sum()),
                      "negative": int((ws.label[sel] == 0).sum()),
+                     "positive_by_family": {f: int(((ws.family[pos] & bit) > 0).sum()) for f, bit in FAMILY_BITS.items()},
                      "blocks": sorted({ws.meta["blocks"][b] for b in np.unique(ws.block_id[sel])}) if "blocks" in ws.meta else [],
                      "tower_points_in_positives": tower_pts}
     return out

@@ -43,6 +43,9 @@ ARCHS: dict[str, dict[str, tuple[int, ...]]] = {
               "tnet_fc": (256, 48), "head": (256, 128), "seg_head": (256, 128, 64)},
     "full": {"mlp1": (64, 64), "conv": (64, 128, 1024), "tnet_conv": (64, 128, 1024),
              "tnet_fc": (512, 256), "head": (512, 256), "seg_head": (512, 256, 128)},
+    # half PointNet_L's global width: a third of its cost per window on a CPU
+    "compact": {"mlp1": (64, 64), "conv": (64, 128, 256), "tnet_conv": (64, 128, 256),
+                "tnet_fc": (128, 48), "head": (128, 64), "seg_head": (128, 64, 32)},
 }
 
 #: Points per chunk in :meth:`ModelBundle.segment` / :func:`segment_points`.
@@ -185,14 +188,50 @@ def count_parameters(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters() if p.requires_grad)
 
 
+#: Architectures of :mod:`towerpipe.edgeconv` (local geometry), beside the PointNet ones of :data:`ARCHS`.
+EDGE_ARCHS = ("edge",)
+
+
 def build_model(hparams: Mapping[str, Any]) -> nn.Module:
-    """Construct a classifier or segmenter from its recorded hyper-parameters."""
-    kw = {k: hparams[k] for k in ("in_channels", "arch", "k", "dropout")}
-    if hparams.get("kind") == "classifier":
-        return PointNetClassifier(**kw)
-    if hparams.get("kind") == "segmenter":
-        return PointNetSegmenter(**kw)
-    raise ModelError(f"unknown model kind {hparams.get('kind')!r}")
+    """Construct a classifier or segmenter from its recorded hyper-parameters (``kind``, ``arch`` ...)."""
+    kw = {k: hparams[k] for k in ("in_channels", "arch", "k", "dropout") if k in hparams}
+    kind = hparams.get("kind")
+    if kind not in ("classifier", "segmenter"):
+        raise ModelError(f"unknown model kind {kind!r}")
+    if hparams.get("arch") in EDGE_ARCHS:
+        from towerpipe.edgeconv import EdgeClassifier, EdgeSegmenter
+
+        return (EdgeClassifier if kind == "classifier" else EdgeSegmenter)(**kw)
+    return (PointNetClassifier if kind == "classifier" else PointNetSegmenter)(**kw)
+
+
+class NetRunner:
+    """Inference with one trained network: PointNet batch-norm folded (:class:`FoldedPointNet`),
+    EdgeConv through :mod:`towerpipe.edgeconv` (sampled segmentation)."""
+
+    def __init__(self, model: nn.Module, n_points: int, chunk: int = DEFAULT_CHUNK):
+        model.eval()
+        self.model, self.n_points, self.chunk = model, int(n_points), int(chunk)
+        self.edge = model.hparams.get("arch") in EDGE_ARCHS
+        self.folded = None if self.edge else FoldedPointNet(model)
+
+    @torch.inference_mode()
+    def classify(self, feats: np.ndarray) -> np.ndarray:
+        """Tower probability ``(B,)`` of windows ``(B, n, C)``."""
+        if self.edge:
+            from towerpipe import edgeconv
+
+            return edgeconv.classify(self.model, feats)
+        return self.folded.classify(torch.from_numpy(np.ascontiguousarray(feats, dtype=np.float32)),
+                                    self.chunk).numpy()
+
+    def segment(self, feats: np.ndarray) -> np.ndarray:
+        """Tower probability ``(N,)`` of every point of one window ``(N, C)``."""
+        if self.edge:
+            from towerpipe import edgeconv
+
+            return edgeconv.segment(self.model, feats, self.n_points)
+        return segment_points(self.folded, feats, self.chunk)
 
 
 Folded = list[tuple[torch.Tensor, torch.Tensor]]
@@ -376,11 +415,9 @@ class ModelBundle:
     chunk: int = DEFAULT_CHUNK
 
     def __post_init__(self) -> None:
-        self.classifier.eval()
-        self.segmenter.eval()
-        self._folded = (FoldedPointNet(self.classifier), FoldedPointNet(self.segmenter))
+        self._runners = (NetRunner(self.classifier, self.n_points, self.chunk),
+                         NetRunner(self.segmenter, self.n_points, self.chunk))
 
-    @torch.inference_mode()
     def classify(self, feats: np.ndarray) -> np.ndarray:
         """Tower probability of windows ``feats`` ``(B, n, C)`` float32 -> ``(B,)`` float32."""
         feats = np.asarray(feats, dtype=np.float32)
@@ -388,14 +425,14 @@ class ModelBundle:
             raise ModelError(f"classify expects (B, n, C) features, got shape {feats.shape}")
         if feats.shape[0] == 0:
             return np.zeros(0, dtype=np.float32)
-        return self._folded[0].classify(torch.from_numpy(np.ascontiguousarray(feats)), self.chunk).numpy()
+        return self._runners[0].classify(feats)
 
     def segment(self, feats: np.ndarray) -> np.ndarray:
-        """Tower probability of every point of one window ``(N, C)`` -> ``(N,)`` (exact, chunked)."""
+        """Tower probability of every point of one window ``(N, C)`` -> ``(N,)``."""
         feats = np.asarray(feats, dtype=np.float32)
         if feats.ndim != 2:
             raise ModelError(f"segment expects (N, C) features of one window, got shape {feats.shape}")
-        return segment_points(self._folded[1], feats, self.chunk)
+        return self._runners[1].segment(feats)
 
 
 def _state(model: nn.Module) -> dict[str, Any]:

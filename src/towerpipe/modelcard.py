@@ -28,7 +28,7 @@ REQUIRED_KEYS: tuple[str, ...] = ("name", "version", "bundle_version", "feature_
 BUNDLE_VERSION = 1
 #: Release of the shipped model of each feature set (``models/towerpipe-<set>-v<release>/``):
 #: bumped when it is retrained on other data or with another recipe (its card says how).
-MODEL_RELEASES = {"full": 2, "geometry": 1}
+MODEL_RELEASES = {"full": 3, "rgb": 3, "geometry": 3, "shape": 3}
 
 #: Environment variable overriding the shipped models directory.
 MODELS_ENV = "TOWERPIPE_MODELS"
@@ -150,7 +150,9 @@ def card_markdown(card: Mapping[str, Any]) -> str:
              f"- feature set: `{card['feature_set']}` — columns {', '.join(card['features'])}",
              f"- code: towerpipe {card['code'].get('towerpipe')} commit {card['code'].get('git_commit')}",
              f"- config hash: `{card['config_hash']}`", ""]
-    for section in ("normalisation", "sampling", "training_data", "metrics"):
+    for section in ("normalisation", "sampling", "training_data", "metrics", "transfer"):
+        if section not in card:
+            continue
         lines += [f"## {section.replace('_', ' ').capitalize()}", "", "| key | value |", "|---|---|"]
         for k, v in card[section].items():
             lines.append(f"| {k} | {_fmt(v)} |")

@@ -3,12 +3,19 @@
 As in Carós et al. (2022, sec. 5.1): class-balanced NLL (effective number of samples,
 ``beta``), Adam at 1e-3, learning rate halved when the validation loss has not improved
 for 10 epochs, at most 50 epochs with early stopping on the validation loss (the best
-epoch's weights are kept), batches of 32 windows of 2048 points. The classifier trains
+epoch's weights are kept), batches of 32 windows of 2048 points. ``lr_schedule:
+onecycle`` instead raises the rate to ``max_lr`` over the first 30 % of the planned
+steps and anneals it (one cycle), which converges in a few epochs on a CPU budget. The classifier trains
 on every training window; the segmenter on the positive windows plus
 ``seg_negatives_per_positive`` negative windows per positive, drawn first from the
 hard negatives (a positive window with its tower removed) and the tall negatives
 (centred on a tall non-tower object), so that a window wrongly passed by the gate does
-not produce tower points (a production addition; the paper trains on positives). Optional augmentation: rotation about z and coordinate jitter.
+not produce tower points (a production addition; the paper trains on positives).
+Augmentation (:mod:`towerpipe.augment`): rotation about z, scale, coordinate jitter, and
+attribute dropout and corruption (``attribute_corruption``, the chance per window and
+attribute group) so that no model collapses when a column carries nothing.
+``exclude_families`` leaves the windows of some real tower families out of every split
+(the leave-one-source-out benchmark).
 
 Entry points take plain paths and dicts::
 
@@ -36,12 +43,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from towerpipe.dataset import DEFAULT_DATASET_CONFIG, KINDS, WindowSet, load_or_build
+from towerpipe.augment import augment_geometry, corrupt_attributes
+from towerpipe.dataset import DEFAULT_DATASET_CONFIG, FAMILY_BITS, KINDS, WindowSet, load_or_build
 from towerpipe.errors import ConfigError
-from towerpipe.features import FEATURE_SETS, NORM_RADIUS, normalisation_spec
+from towerpipe.features import FEATURE_SETS, normalisation_spec, required_attributes
 from towerpipe.losses import class_balanced_weights, feature_transform_regulariser, weighted_nll
-from towerpipe.model import (BUNDLE_VERSION, DEFAULT_CHUNK, MODEL_RELEASES, FoldedPointNet, PointNetClassifier,
-                             PointNetSegmenter, count_parameters, load_bundle, save_bundle, segment_points)
+from towerpipe.model import (BUNDLE_VERSION, DEFAULT_CHUNK, MODEL_RELEASES, NetRunner, PointNetClassifier,
+                             PointNetSegmenter, build_model, count_parameters, load_bundle, save_bundle)
 from towerpipe.resources import peak_rss_mb
 
 log = logging.getLogger(__name__)
@@ -58,9 +66,14 @@ DEFAULT_TRAIN_CONFIG: dict[str, Any] = {
     "lr": 1e-3,
     "lr_factor": 0.5,
     "lr_patience": 10,
+    "lr_schedule": "plateau",
+    "max_lr": 3e-3,
     "ft_reg": 0.001,
     "rotate": True,
     "jitter_m": 0.05,
+    "scale": 0.0,
+    "attribute_corruption": 0.0,
+    "exclude_families": [],
     "seg_negatives_per_positive": 0.5,
     "init_from": None,
     "max_train_windows": None,
@@ -85,20 +98,26 @@ def train_config(config: Mapping[str, Any] | None = None) -> dict[str, Any]:
         raise ConfigError(f"train config: feature_set {out['feature_set']!r} not in {sorted(FEATURE_SETS)}")
     if out["sampling"] not in ("constrained", "random"):
         raise ConfigError("train config: sampling must be 'constrained' or 'random'")
+    if out["lr_schedule"] not in ("plateau", "onecycle"):
+        raise ConfigError("train config: lr_schedule must be 'plateau' (the paper's) or 'onecycle'")
     return out
 
 
-def _augment(x: np.ndarray, cfg: Mapping[str, Any], rng: np.random.Generator) -> np.ndarray:
-    """Rotation about z and jitter of the x, y, z columns of ``(B, n, C)``, in place."""
-    if cfg["rotate"]:
-        a = rng.uniform(0, 2 * np.pi, size=len(x)).astype(np.float32)
-        c, s = np.cos(a)[:, None], np.sin(a)[:, None]
-        xx, yy = x[..., 0].copy(), x[..., 1].copy()
-        x[..., 0] = c * xx - s * yy
-        x[..., 1] = s * xx + c * yy
-    if cfg["jitter_m"]:
-        x[..., :3] += rng.normal(0, float(cfg["jitter_m"]) / NORM_RADIUS, size=x[..., :3].shape).astype(np.float32)
-    return x
+def _augment(x: np.ndarray, labels: np.ndarray, cfg: Mapping[str, Any], rng: np.random.Generator) -> np.ndarray:
+    """Geometry and attribute augmentation of sampled windows ``(B, n, C)`` (:mod:`towerpipe.augment`)."""
+    augment_geometry(x, cfg, rng)
+    return corrupt_attributes(x, FEATURE_SETS[cfg["feature_set"]], labels, float(cfg["attribute_corruption"]), rng)
+
+
+def kept_windows(windows: WindowSet, split: str, cfg: Mapping[str, Any]) -> np.ndarray:
+    """The windows of a split, without those holding a tower of an excluded family."""
+    idx = windows.indices(split)
+    bits = 0
+    for f in cfg["exclude_families"]:
+        if f not in FAMILY_BITS:
+            raise ConfigError(f"train config: exclude_families: unknown family {f!r}; known: {sorted(FAMILY_BITS)}")
+        bits |= FAMILY_BITS[f]
+    return idx[(windows.family[idx] & bits) == 0] if bits else idx
 
 
 def _progress(total: int, desc: str, cfg: Mapping[str, Any]):
@@ -145,8 +164,15 @@ def _fit(model: torch.nn.Module, ws: WindowSet, train_idx: np.ndarray, val_idx: 
     torch.set_num_threads(int(cfg["threads"]))
     w = torch.tensor(weights, dtype=torch.float32)
     opt = torch.optim.Adam(model.parameters(), lr=float(cfg["lr"]))
-    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=float(cfg["lr_factor"]),
-                                                       patience=int(cfg["lr_patience"]))
+    plateau = cfg["lr_schedule"] == "plateau"
+    if plateau:
+        sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=float(cfg["lr_factor"]),
+                                                           patience=int(cfg["lr_patience"]))
+    else:  # one cycle over the planned epochs: up to max_lr, then annealed (converges in few epochs)
+        per_epoch = max(1, sum(1 for s in range(0, len(train_idx), int(cfg["batch_size"]))
+                               if len(train_idx[s:s + int(cfg["batch_size"])]) > 1))
+        sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=float(cfg["max_lr"]), pct_start=0.3,
+                                                    total_steps=int(cfg["epochs"]) * per_epoch)
     fs, samp, bs = cfg["feature_set"], cfg["sampling"], int(cfg["batch_size"])
     history: list[dict[str, float]] = []
     best = (math.inf, -1, copy.deepcopy(model.state_dict()))
@@ -166,14 +192,16 @@ def _fit(model: torch.nn.Module, ws: WindowSet, train_idx: np.ndarray, val_idx: 
         with _progress(len(batches), f"{desc} epoch {epoch + 1}", cfg) as bar:
             for b in batches:
                 x, lab = ws.sampled(b, fs, samp)
-                x = torch.from_numpy(_augment(x, cfg, rng))
+                x = torch.from_numpy(_augment(x, lab, cfg, rng))
                 logp, t_feat = model(x)
                 loss = weighted_nll(logp, target(lab, b), w)
-                if cfg["ft_reg"]:
+                if cfg["ft_reg"] and t_feat is not None:   # PointNet's feature transform
                     loss = loss + float(cfg["ft_reg"]) * feature_transform_regulariser(t_feat)
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
+                if not plateau:
+                    sched.step()
                 tot += float(loss.detach()) * len(b)
                 cnt += len(b)
                 n_batches += 1
@@ -181,7 +209,8 @@ def _fit(model: torch.nn.Module, ws: WindowSet, train_idx: np.ndarray, val_idx: 
         val_loss = _eval_loss(model, ws, val_idx, w, cfg, per_point)
         if not math.isfinite(val_loss):  # no validation windows: fall back to the training loss
             val_loss = tot / max(cnt, 1)
-        sched.step(val_loss)
+        if plateau:
+            sched.step(val_loss)
         rec = {"epoch": epoch + 1, "train_loss": tot / max(cnt, 1), "val_loss": val_loss,
                "lr": opt.param_groups[0]["lr"], "elapsed_s": time.perf_counter() - t0}
         history.append(rec)
@@ -224,9 +253,8 @@ def _eval_loss(model: torch.nn.Module, ws: WindowSet, idx: np.ndarray, w: torch.
 def predict_windows(model: PointNetClassifier, ws: WindowSet, idx: np.ndarray, feature_set: str,
                     sampling: str = "constrained") -> np.ndarray:
     """Tower probability of the sampled windows ``idx`` (eval-mode statistics, as at inference)."""
-    folded = FoldedPointNet(model)
-    out = [folded.classify(torch.from_numpy(ws.sampled(idx[s:s + 64], feature_set, sampling)[0])).numpy()
-           for s in range(0, len(idx), 64)]
+    runner = NetRunner(model, ws.n_points)
+    out = [runner.classify(ws.sampled(idx[s:s + 64], feature_set, sampling)[0]) for s in range(0, len(idx), 64)]
     return np.concatenate(out) if out else np.zeros(0, np.float32)
 
 
@@ -236,12 +264,12 @@ def segment_windows_metrics(model: PointNetSegmenter, ws: WindowSet, idx: np.nda
 
     Each window goes through :func:`towerpipe.model.segment_points`, as at inference.
     """
-    folded = FoldedPointNet(model)
+    runner = NetRunner(model, ws.n_points, chunk)
     pos = idx[ws.label[idx] == 1]
     preds, labs = [], []
     for i in pos:
         f, lab = ws.window_points(int(i), feature_set)
-        preds.append(segment_points(folded, f, chunk) >= threshold)
+        preds.append(runner.segment(f) >= threshold)
         labs.append(lab)
     out = segmentation_metrics(np.concatenate(preds) if preds else np.zeros(0, bool),
                                np.concatenate(labs) if labs else np.zeros(0, bool))
@@ -255,14 +283,14 @@ def _subset(idx: np.ndarray, n: int | None, rng: np.random.Generator) -> np.ndar
 
 def _initial(kind: str, cfg: Mapping[str, Any], n_features: int) -> torch.nn.Module:
     """A fresh network, or a copy of the ``kind`` network of bundle ``cfg["init_from"]`` (warm start)."""
-    cls = PointNetClassifier if kind == "classifier" else PointNetSegmenter
+    hp = {"kind": kind, "in_channels": n_features, "arch": cfg["arch"], "k": 2, "dropout": 0.3 if kind == "classifier" else 0.0}
     if not cfg["init_from"]:
-        return cls(n_features, cfg["arch"])
+        return build_model(hp)
     bundle = load_bundle(cfg["init_from"])
     if bundle.feature_set != cfg["feature_set"]:
         raise ConfigError(f"train: init_from {cfg['init_from']} is a {bundle.feature_set!r} model, this trains "
                           f"{cfg['feature_set']!r}; start from a bundle of the same feature set or set init_from: null")
-    net = cls(n_features, cfg["arch"])
+    net = build_model(hp)
     net.load_state_dict(getattr(bundle, kind).state_dict())
     return net
 
@@ -297,17 +325,18 @@ def train_classifier(windows: WindowSet, config: Mapping[str, Any] | None = None
     """
     cfg = train_config(config)
     rng = np.random.default_rng(int(cfg["seed"]))
-    train_idx = _subset(windows.indices("train"), cfg["max_train_windows"], rng)
+    train_idx = _subset(kept_windows(windows, "train", cfg), cfg["max_train_windows"], rng)
     if len(train_idx) < 2:
         raise ConfigError("train: fewer than 2 training windows; build a larger dataset")
     counts = np.bincount(windows.label[train_idx], minlength=2)
     weights = class_balanced_weights(counts, float(cfg["beta"]))
     torch.manual_seed(int(cfg["seed"]))
     model = _initial("classifier", cfg, len(FEATURE_SETS[cfg["feature_set"]]))
-    model, history, info = _fit(model, windows, train_idx, windows.indices("val"), weights, cfg, False, "classifier")
+    model, history, info = _fit(model, windows, train_idx, kept_windows(windows, "val", cfg), weights, cfg, False,
+                                "classifier")
     metrics: dict[str, Any] = dict(info, train_counts=[int(c) for c in counts])
     for split in ("val", "test"):
-        idx = windows.indices(split)
+        idx = kept_windows(windows, split, cfg)
         prob = predict_windows(model, windows, idx, cfg["feature_set"], cfg["sampling"])
         metrics[split] = classification_metrics(prob, windows.label[idx], float(cfg["threshold"]))
     metrics["peak_rss_mb"] = peak_rss_mb()
@@ -325,7 +354,7 @@ def train_segmenter(windows: WindowSet, config: Mapping[str, Any] | None = None
     rng = np.random.default_rng(int(cfg["seed"]) + 1)
 
     def pick(split: str) -> np.ndarray:
-        idx = windows.indices(split)
+        idx = kept_windows(windows, split, cfg)
         pos = idx[windows.label[idx] == 1]
         neg = idx[windows.label[idx] == 0]
         hard = np.isin(windows.kind[neg], [KINDS["hard_negative"], KINDS["tall_negative"]])
@@ -345,7 +374,7 @@ def train_segmenter(windows: WindowSet, config: Mapping[str, Any] | None = None
     model, history, info = _fit(model, windows, train_idx, pick("val"), weights, cfg, True, "segmenter")
     metrics: dict[str, Any] = dict(info, train_point_counts=[int(c) for c in counts])
     for split in ("val", "test"):
-        metrics[split] = segment_windows_metrics(model, windows, windows.indices(split), cfg["feature_set"],
+        metrics[split] = segment_windows_metrics(model, windows, kept_windows(windows, split, cfg), cfg["feature_set"],
                                                  float(cfg["threshold"]), int(cfg["eval_chunk"]))
     metrics["peak_rss_mb"] = peak_rss_mb()
     return model, history, metrics
@@ -442,23 +471,34 @@ def train_bundle(dataset_paths: Sequence[str | os.PathLike[str]] | str | os.Path
     ws = load_or_build(dataset_paths, config.get("dataset"))
     config["feature_set"] = feature_set
     cfg = train_config(config)
-    if feature_set == "full" and not (ws.meta.get("has_rgb") and ws.meta.get("has_nir")):
-        raise ConfigError("train: feature set 'full' needs RGB and NIR but the training tiles lack them; "
-                          "use --feature-set geometry")
+    lacking = [a for a, flag in (("rgb", "has_rgb"), ("nir", "has_nir"))
+               if a in required_attributes(feature_set) and not ws.meta.get(flag)]
+    if lacking:
+        raise ConfigError(f"train: feature set {feature_set!r} needs {', '.join(lacking).upper()} but some training "
+                          "tiles lack it; use a feature set without it (e.g. --feature-set shape)")
     out = Path(out_dir)
+    # the release from the directory name (``towerpipe-shape-v3``, ``towerpipe-shape-v3-without-uav``),
+    # decided before hours of training rather than after
+    release = re.search(r"-v(\d+)(?:-without-[a-z0-9]+)?$", out.name)
+    version = release.group(1) if release else str(MODEL_RELEASES.get(feature_set, 0))
     out.mkdir(parents=True, exist_ok=True)
     clf, h_clf, m_clf = train_classifier(ws, {**cfg, **per_net["classifier"]})
     seg, h_seg, m_seg = train_segmenter(ws, {**cfg, **per_net["segmenter"]})
     save_curves(h_clf, out / "classifier_curves.png", f"classifier ({feature_set})")
     save_curves(h_seg, out / "segmenter_curves.png", f"segmenter ({feature_set})")
     (out / "history.json").write_text(json.dumps({"classifier": h_clf, "segmenter": h_seg}, indent=1))
-    release = re.search(r"-v(\d+)$", out.name)
-    card = make_card(feature_set, ws, {**cfg, "per_network": per_net}, m_clf, m_seg,
-                     version=release.group(1) if release else None)
+    card = make_card(feature_set, ws, {**cfg, "per_network": per_net}, m_clf, m_seg, name=_bundle_name(out.name),
+                     version=version)
     save_bundle(out, clf, seg, card)
     log.info("wrote %s: classifier test F1 %.3f, segmenter test mIoU %.3f", out, m_clf["test"]["f1"],
              m_seg["test"]["miou"])
     return out
+
+
+def _bundle_name(dirname: str) -> str | None:
+    """``towerpipe-shape-v3-without-uav`` -> ``towerpipe-shape-without-uav``; ``None`` for the default name."""
+    m = re.match(r"^(.*)-v\d+(-without-[a-z0-9]+)?$", dirname)
+    return f"{m.group(1)}{m.group(2) or ''}" if m else None
 
 
 def _cli(args: argparse.Namespace) -> int:

@@ -1,0 +1,6 @@
+from towerpipe.dataset import build_windows
+from towerpipe.smk import run_step
+
+run_step(snakemake, lambda: build_windows(
+    list(snakemake.input.tiles), snakemake.params.dataset, snakemake.output.windows,
+    truth=snakemake.params.truth))
