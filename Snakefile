@@ -7,6 +7,7 @@ min_version("9.0")
 
 
 configfile: "config/config.yaml"
+configfile: "config/models.yaml"
 
 
 validate(config, "config/schema.yaml")

@@ -298,20 +298,67 @@ def test_seed_changes_sampling():
 
 # ----------------------------------------------------------------------------- compatibility, config
 
-def test_check_model_compatibility_names_missing_dimensions():
+def test_check_model_compatibility_names_missing_attributes():
     class Full(FakeBundle):
         feature_set = "full"
         name = "towerpipe-full"
 
-    meta = {"tile": "t0", "block": "b0", "has_rgb": True, "has_nir": False}
-    with pytest.raises(ModelError, match=r"NIR.*geometry"):
+    meta = {"tile": "t0", "block": "b0", "valid_attributes": ["intensity", "returns", "rgb"]}
+    with pytest.raises(ModelError, match=r"no valid nir.*model: auto"):
         check_model_compatibility(meta, Full())
-    with pytest.raises(ModelError, match=r"RED, GREEN, BLUE, NIR"):
-        check_model_compatibility(dict(meta, has_rgb=False), Full())
-    check_model_compatibility(dict(meta, has_nir=True), Full())
-    check_model_compatibility(dict(meta, has_rgb=False), FakeBundle())  # geometry needs nothing
+    with pytest.raises(ModelError, match=r"no valid intensity, nir, rgb"):
+        check_model_compatibility(dict(meta, valid_attributes=["returns"]), Full())
+    check_model_compatibility(dict(meta, valid_attributes=["intensity", "returns", "rgb", "nir"]), Full())
+    check_model_compatibility(dict(meta, valid_attributes=["intensity", "returns"]), FakeBundle())
+    with pytest.raises(ModelError, match="no valid intensity, returns"):
+        check_model_compatibility(dict(meta, valid_attributes=["rgb"]), FakeBundle())
     with pytest.raises(ModelError):
         predict_tile(make_tile(density=0.1), Full())
+
+
+# ----------------------------------------------------------------------------- candidate windows
+
+def tower_points(tile: Tile) -> np.ndarray:
+    a = tile.arrays
+    return np.flatnonzero(a["core"] & a["model_input"] & (np.hypot(a["x"] - TOWER[0], a["y"] - TOWER[1]) < 3)
+                          & (a["hag"] > 0.4))
+
+
+def test_candidate_window_is_centred_on_the_tower():
+    tile = make_tile()
+    out, st = predict_tile(tile, FakeBundle(), windows="candidates", min_height=10.0)
+    assert st["windows_mode"] == "candidates"
+    assert st["windows_passed_gate"] == 1 and len(st["window_probs"]) == 1
+    _, grid = predict_tile(tile, FakeBundle(), windows="grid", min_height=10.0)
+    # the vegetation is low: the tower's top is the only candidate, where the grid classifies many windows
+    assert st["windows_classified"] == 1 < grid["windows_classified"]
+
+
+def test_candidate_windows_cover_every_tower_point_the_grid_segments():
+    """When a tower is present, every one of its points that the grid mode segments is segmented."""
+    for seed in range(3):
+        tile = make_tile(seed=seed)
+        grid, _ = predict_tile(tile, FakeBundle(), windows="grid", min_height=10.0)
+        cand, _ = predict_tile(tile, FakeBundle(), windows="candidates", min_height=10.0)
+        a = tile.arrays
+        tower = set(zip(a["block_id"][tower_points(tile)].tolist(), a["point_index"][tower_points(tile)].tolist()))
+        seg_grid = set(zip(grid["block_id"].tolist(), grid["point_index"].tolist())) & tower
+        seg_cand = set(zip(cand["block_id"].tolist(), cand["point_index"].tolist()))
+        assert seg_grid and seg_grid <= seg_cand
+
+
+def test_candidate_windows_identical_from_adjacent_tiles():
+    tile = make_tile(density=0.3)
+    a = tile.arrays
+    west = a["x"] < 400080.0
+    t_w = Tile(dict(a, core=a["core"] & west), dict(tile.meta, tile="tw"))
+    t_e = Tile(dict(a, core=a["core"] & ~west), dict(tile.meta, tile="te"))
+    kw = dict(windows="candidates", min_height=10.0)
+    o_all, _ = predict_tile(tile, FakeBundle(), **kw)
+    merged = [predict_tile(t, FakeBundle(), **kw)[0] for t in (t_w, t_e)]
+    merged = {k: np.concatenate([m[k] for m in merged]) for k in o_all}
+    for k in ("point_index", "prob"):
+        np.testing.assert_array_equal(by_id(merged)[k], by_id(o_all)[k])
 
 
 def test_bad_config_rejected():
@@ -320,6 +367,8 @@ def test_bad_config_rejected():
         predict_tile(tile, FakeBundle(), combine="median")
     with pytest.raises(ConfigError):
         predict_tile(tile, FakeBundle(), gate=1.5)
+    with pytest.raises(ConfigError, match="inference.windows"):
+        predict_tile(tile, FakeBundle(), windows="hexagons")
 
 
 # ----------------------------------------------------------------------------- the real model

@@ -46,12 +46,14 @@ from towerpipe.errors import ConfigError, ModelError
 from towerpipe.predfile import save_pred
 from towerpipe.resources import peak_rss_mb
 from towerpipe.tilefile import Tile, load_tile
-from towerpipe.windows import WindowSet, sliding_windows
+from towerpipe.windows import CandidateWindows, WindowSet, candidate_windows, sliding_windows
 
 __all__ = ["TTA_CHOICES", "BundleLike", "check_model_compatibility", "infer_tile", "predict_tile", "segment_views",
            "window_rng"]
 
 _COMBINE = ("max", "mean")
+#: How a tile's windows are laid: centred on height peaks, or the paper's sliding grid.
+WINDOW_MODES = ("candidates", "grid")
 #: test-time views of a window's plan, in the order they are added: the window as it is,
 #: the half turn, the quarter turns, then the mirror images (x -> -x etc.). Each is the
 #: matrix (a, b, c, d): x' = a x + b y, y' = c x + d y, on the first two feature columns.
@@ -63,8 +65,6 @@ TTA_CHOICES = (1, 2, 4, 8)
 def _check_views(views: int) -> None:
     if views not in TTA_CHOICES:
         raise ConfigError(f"inference.tta must be one of {TTA_CHOICES}, got {views!r}")
-# which tile meta flag tells whether a dimension is really present
-_DIM_FLAGS = {"red": "has_rgb", "green": "has_rgb", "blue": "has_rgb", "nir": "has_nir"}
 
 
 class BundleLike(Protocol):
@@ -128,38 +128,32 @@ def window_rng(seed: int, kx: int, ky: int) -> np.random.Generator:
 
 
 def check_model_compatibility(tile_meta: Mapping[str, Any], bundle: BundleLike) -> None:
-    """Raise :class:`ModelError` when the tile lacks dimensions the model's features need.
+    """Raise :class:`ModelError` when the tile lacks valid attributes the model's features need.
 
     Parameters
     ----------
     tile_meta
-        Tile metadata (``has_rgb``, ``has_nir``, ``tile``, ``block``).
+        Tile metadata (``valid_attributes``, ``tile``, ``block``).
     bundle
-        The model bundle (its ``feature_set`` decides the needed dimensions).
+        The model bundle (its ``feature_set`` decides the needed attributes).
 
     Raises
     ------
     ModelError
-        Naming the missing dimensions, the model, and the ``geometry`` model to use instead.
+        Naming the missing attributes, the model, and the config key that chooses a model.
     """
     from towerpipe import features
 
     try:
-        need = features.required_dimensions(bundle.feature_set)
+        missing = features.missing_attributes(bundle.feature_set, tile_meta)
     except ModelError as exc:
         raise ModelError(f"model {bundle.name!r} v{bundle.version}: {exc}") from exc
-    missing = [d for d in need if not bool(tile_meta.get(_DIM_FLAGS.get(d, f"has_{d}"), False))]
     if missing:
-        try:
-            from towerpipe.model import default_model_path
-
-            alt = f" ({default_model_path('geometry')})"
-        except Exception:  # noqa: BLE001 - only used to make the message more helpful
-            alt = ""
         where = f"block {tile_meta.get('block', '?')!r} tile {tile_meta.get('tile', '?')!r}"
         raise ModelError(
-            f"{where} lacks {', '.join(missing).upper()} but model {bundle.name!r} v{bundle.version} "
-            f"(feature set {bundle.feature_set!r}) needs {need}; use the 'geometry' model{alt} for this zone")
+            f"{where} has no valid {', '.join(missing)} but model {bundle.name!r} v{bundle.version} "
+            f"(feature set {bundle.feature_set!r}) needs {', '.join(features.required_attributes(bundle.feature_set))}; "
+            f"set `inference: {{model: auto}}` (or the zone's `model: auto`) to use a model these data support")
 
 
 def _model_info(bundle: BundleLike, model_path: str | os.PathLike[str] | None) -> dict[str, Any]:
@@ -185,8 +179,13 @@ def predict_tile(
     min_points: int = 10,
     min_height: float | None = None,
     tta: int = 1,
+    windows: str = "grid",
 ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Tower probabilities of a tile's core points (in memory; see :func:`infer_tile`).
+
+    ``windows``: ``"grid"`` slides windows on a ``stride`` grid and skips those whose
+    highest point is below ``min_height`` (the paper's); ``"candidates"`` centres one window
+    on each height peak of at least ``min_height`` (:func:`towerpipe.windows.candidate_windows`).
 
     Returns
     -------
@@ -206,6 +205,8 @@ def predict_tile(
 
     if combine not in _COMBINE:
         raise ConfigError(f"infer.combine must be one of {_COMBINE}, got {combine!r}")
+    if windows not in WINDOW_MODES:
+        raise ConfigError(f"inference.windows must be one of {WINDOW_MODES}, got {windows!r}")
     if not (0.0 <= gate <= 1.0):
         raise ConfigError(f"infer.gate must be in [0, 1], got {gate}")
     if batch_size < 1:
@@ -220,16 +221,24 @@ def predict_tile(
     core = np.asarray(arrays["core"], dtype=bool)
     mi = np.flatnonzero(np.asarray(arrays["model_input"], dtype=bool))
     canon = np.lexsort((arrays["point_index"][mi], arrays["block_id"][mi]))
-    all_windows = sliding_windows(arrays["x"][mi], arrays["y"][mi], core[mi], window=window, stride=stride,
-                                  min_points=1, canonical_order=canon)
-    ws: WindowSet = all_windows.select(all_windows.counts >= max(int(min_points), 1))
-    fmeta = features.tile_feature_meta(arrays, tile.meta)
     hag = arrays["hag"]
+    if windows == "candidates":
+        ws: WindowSet | CandidateWindows = candidate_windows(
+            arrays["x"][mi], arrays["y"][mi], hag[mi], core[mi], window=window,
+            min_height=0.0 if min_height is None else min_height, min_points=max(int(min_points), 1),
+            canonical_order=canon)
+        n_all = len(ws)
+    else:
+        all_windows = sliding_windows(arrays["x"][mi], arrays["y"][mi], core[mi], window=window, stride=stride,
+                                      min_points=1, canonical_order=canon)
+        ws = all_windows.select(all_windows.counts >= max(int(min_points), 1))
+        n_all = len(all_windows)
+    fmeta = features.tile_feature_meta(arrays, tile.meta)
     timings["windows"] = time.perf_counter() - t0
 
     # --- optional height pre-filter: a window with nothing tall holds no tower -------
     n_win = len(ws)
-    if min_height is not None:
+    if min_height is not None and windows == "grid":
         tall = np.fromiter((hag[mi[ws.indices(i)]].max() >= min_height for i in range(n_win)), bool, n_win)
     else:
         tall = np.ones(n_win, dtype=bool)
@@ -306,7 +315,8 @@ def predict_tile(
     timings["total"] = time.perf_counter() - t0
     stats = {
         "windows_total": int(n_win),
-        "windows_empty": int(len(all_windows) - n_win),
+        "windows_empty": int(n_all - n_win),
+        "windows_mode": windows,
         "windows_prefiltered": int(n_win - n_todo),
         "windows_classified": int(n_todo),
         "windows_passed_gate": int(len(passed)),
@@ -343,6 +353,8 @@ def infer_tile(
     min_points: int = 10,
     min_height: float | None = None,
     tta: int = 1,
+    windows: str = "grid",
+    choice: Mapping[str, Any] | str | os.PathLike[str] | None = None,
 ) -> dict[str, Any]:
     """Run gated window inference on one tile file and write its prediction file.
 
@@ -373,6 +385,12 @@ def infer_tile(
         vegetation at no model cost. ``None`` (default): every window is classified.
     tta
         Views of each segmented window averaged (:func:`segment_views`): 1, 2, 4 or 8.
+    windows
+        ``"candidates"`` (windows centred on height peaks) or ``"grid"`` (:func:`predict_tile`).
+    choice
+        The zone's model choice (:func:`towerpipe.modelchoice.choose_model`, or its JSON
+        file): recorded as ``model.choice``; a block it lists as incompatible fails here
+        with the message naming the config key.
 
     Returns
     -------
@@ -381,6 +399,10 @@ def infer_tile(
         ``points_predicted``, ``windows_empty`` and ``windows_per_s_classify``.
     """
     t0 = time.perf_counter()
+    if isinstance(choice, (str, os.PathLike)):
+        from towerpipe.modelchoice import read_choice
+
+        choice = read_choice(choice)
     model_path = None
     if isinstance(model, (str, os.PathLike)):
         from towerpipe.model import load_bundle
@@ -392,12 +414,20 @@ def infer_tile(
     t_model = time.perf_counter() - t0
     tile = load_tile(tile_path)
     t_load = time.perf_counter() - t0 - t_model
+    if choice is not None and np.asarray(tile.arrays["model_input"], dtype=bool).any():
+        from towerpipe.modelchoice import incompatibility_error
+
+        msg = incompatibility_error(choice, str(tile.meta.get("block")))
+        if msg:
+            raise ModelError(msg)
     arrays, stats = predict_tile(tile, bundle, window=window, stride=stride, gate=gate, combine=combine,
                                  batch_size=batch_size, seed=seed, min_points=min_points,
-                                 min_height=min_height, tta=tta)
+                                 min_height=min_height, tta=tta, windows=windows)
     timings = {"load_model": t_model, "load_tile": t_load, **stats.pop("timings")}
     meta = {k: tile.meta.get(k) for k in ("zone", "block", "tile", "blocks", "crs_wkt", "core_bounds")}
     meta["model"] = _model_info(bundle, model_path)
+    if choice is not None:
+        meta["model"]["choice"] = {k: choice.get(k) for k in ("mode", "key", "reason", "valid_attributes")}
     meta.update(stats)
     tw = time.perf_counter()
     meta["timings"] = timings

@@ -147,15 +147,26 @@ INFER = config["inference"]
 TOWERS = config["towers"]
 
 
-def model_dir():
-    from towerpipe.steps import resolve_model
+def model_spec_of(zone):
+    """``(spec, config key)`` of a zone's model: its own ``model:`` key, else ``inference.model``."""
+    own = zone_config(zone).get("model")
+    return (own, f"zones.{zone}.model") if own else (INFER["model"], "inference.model")
 
-    return str(resolve_model(INFER["model"]))
+
+def model_choice_file(zone):
+    return f"{WORK}/{zone}/model.json"
 
 
-def model_files():
-    """The model's files: inputs of every inference job, so a new model reruns the zone."""
-    d = model_dir()
+def zone_model(zone):
+    """The zone's model directory, once the choose_model checkpoint has run."""
+    from towerpipe.modelchoice import read_choice
+
+    return read_choice(checkpoints.choose_model.get(zone=zone).output.choice)["path"]
+
+
+def model_files(zone):
+    """The zone's model files: inputs of its inference jobs, so a new model reruns the zone."""
+    d = zone_model(zone)
     return [f"{d}/classifier.pt", f"{d}/segmenter.pt", f"{d}/model_card.json"]
 
 
@@ -191,6 +202,9 @@ def block_benchmarks(zone, block):
 
 
 TRAIN = config["training"]
+#: ``<model>-without-<family>``: the model's recipe trained without one real tower family
+#: (the leave-one-source-out benchmark, towerpipe.realshape)
+LOSO = "-without-"
 
 
 def training_tiles():
@@ -198,12 +212,24 @@ def training_tiles():
     return lambda wc: [p for z in TRAIN["zones"] for p in tile_files(z)]
 
 
+def training_truth():
+    """Zone -> tower truth of the generated training zones (tower families of the windows)."""
+    return {z: f"data/{z}/towers_truth.gpkg" for z in TRAIN["zones"] if "synth" in zone_config(z)}
+
+
 def model_spec(name):
+    base, _, family = name.partition(LOSO)
     try:
-        return TRAIN["models"][name]
+        spec = dict(TRAIN["models"][base])
     except KeyError:
         known = ", ".join(sorted(TRAIN["models"]))
-        raise WorkflowError(f"model {name!r} is not in training.models (known: {known})")
+        raise WorkflowError(
+            f"model {base!r} is not in training.models (known: {known}; {LOSO}<family> leaves a real tower "
+            "family out)"
+        )
+    if family:
+        spec["train"] = {**spec.get("train", {}), "exclude_families": [family]}
+    return spec
 
 
 def init_bundle_files(name):
@@ -214,5 +240,24 @@ def init_bundle_files(name):
 
 def model_train_config(name, ablation=False):
     base = dict(TRAIN["ablation_config"] if ablation else TRAIN["train"])
-    base.update(model_spec(name).get("train", {}))
+    own = dict(model_spec(name).get("train", {}))
+    for net in ("classifier", "segmenter"):  # per-network overrides merge, not replace
+        if net in own:
+            own[net] = {**base.get(net, {}), **own[net]}
+    base.update(own)
     return base
+
+
+def realshape_zones():
+    """The zones of the real-shape benchmark (towerpipe.realshape)."""
+    return [z for z in config["zones"] if z.startswith("realshape_")]
+
+
+def loso_models():
+    """Recipe (feature set) -> real family -> the recipe's model trained without that family."""
+    from towerpipe.synth.real import FAMILIES
+
+    return {
+        spec["feature_set"]: {f: f"{WORK}/models/{name}{LOSO}{f}" for f in FAMILIES}
+        for name, spec in TRAIN["models"].items()
+    }

@@ -1,14 +1,39 @@
-# Gated window inference per tile, then back into every point of each block.
+# The zone's model, then gated window inference per tile, then back into every point of each block.
+
+
+checkpoint choose_model:
+    input:
+        caches=lambda wc: [cache_dir(wc.zone, b) for b in blocks(wc.zone)],
+    output:
+        choice=f"{WORK}/{{zone}}/model.json",
+    params:
+        spec=lambda wc: model_spec_of(wc.zone)[0],
+        key=lambda wc: model_spec_of(wc.zone)[1],
+        caches=lambda wc: {b: cache_dir(wc.zone, b) for b in blocks(wc.zone)},
+    log:
+        f"{WORK}/{{zone}}/logs/choose_model.log",
+    benchmark:
+        f"{WORK}/{{zone}}/benchmarks/choose_model.tsv"
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 1
+    resources:
+        mem_mb=500,
+        runtime=5,
+    script:
+        "../scripts/choose_model.py"
 
 
 rule infer_tile:
     input:
         tile=f"{WORK}/{{zone}}/tiles/{{block}}/{{tile}}.npz",
-        model=model_files(),
+        model=lambda wc: model_files(wc.zone),
     output:
         pred=f"{WORK}/{{zone}}/pred/{{block}}/{{tile}}.npz",
     params:
         model=lambda wc, input: os.path.dirname(input.model[0]),
+        # read, not an input: a rewritten choice naming the same model reruns nothing
+        choice=lambda wc: model_choice_file(wc.zone),
         # the point threshold applies after the windows (towers, merge): changing it
         # does not rerun the inference
         inference={k: v for k, v in INFER.items() if k != "threshold"},

@@ -72,3 +72,20 @@ rule preprocess_block:
         runtime=10,
     script:
         "../scripts/preprocess_block.py"
+
+
+rule prepared_zone:
+    """Every tile of a zone, preprocessed (what calibration and the benchmark read)."""
+    input:
+        tiles=lambda wc: tile_files(wc.zone),
+    output:
+        touch(f"{WORK}/{{zone}}/prepared.done"),
+    log:
+        f"{WORK}/{{zone}}/logs/prepared_zone.log",
+    benchmark:
+        f"{WORK}/{{zone}}/benchmarks/prepared_zone.tsv"
+    threads: 1
+    resources:
+        mem_mb=100,
+        runtime=1,
+    localrule: True
