@@ -367,3 +367,20 @@ def test_towers_found_on_the_single_view_points_chosen_on_the_view_mean():
     # found on the view mean instead, there would be no tower at all
     mean_only = dict(arrays, prob_single=arrays["prob"])
     assert len(extract_towers([(mean_only, meta)], "b1", BOUNDS, zone="z1", threshold=0.5)) == 0
+
+
+def test_a_tower_reports_at_least_min_points():
+    """Clustered from 30 single-view points but only 12 reach the point threshold on the view
+    mean: 12 points are not a tower (towers.min_points applies to what is reported)."""
+    xyz, hag = synthetic_tower(X0 + 50, Y0 + 50, height=12.0, seed=8)
+    xyz, hag = xyz[:30], hag[:30]
+    arrays, meta = pred_pair(xyz, hag, 0.3, ["b1"])
+    arrays["prob"][:12] = 0.9
+    arrays["prob_single"] = np.full(len(xyz), 0.95, np.float32)
+    kw = dict(zone="z1", threshold=0.5, min_points=20, min_height=5.0)
+    assert len(extract_towers([(arrays, meta)], "b1", BOUNDS, **kw)) == 1
+    members: dict = {}
+    assert len(extract_towers([(arrays, meta)], "b1", BOUNDS, point_threshold=0.4, members=members, **kw)) == 0
+    assert members == {}
+    arrays["prob"][:25] = 0.9
+    assert len(extract_towers([(arrays, meta)], "b1", BOUNDS, point_threshold=0.4, **kw)) == 1

@@ -32,8 +32,9 @@ from towerpipe.errors import InputError
 
 __all__ = ["Candidate", "score_zone", "sweep", "zone_predictions"]
 
-#: One candidate: (views, towers.threshold, inference.threshold, towers.min_core_prob).
-Candidate = tuple[int, float, float, float]
+#: One candidate: (views, towers.threshold, inference.threshold, towers.min_core_prob), optionally
+#: followed by inference.gate and towers.min_wire_support (default: the config's).
+Candidate = tuple[float, ...]
 
 _UNBOUNDED = (-1e18, -1e18, 1e18, 1e18)
 # the towers config keys that extract_towers takes as they are
@@ -77,7 +78,7 @@ def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.Pa
     from towerpipe.modelcard import config_hash, read_card
 
     tiles = _zone_tiles(work, zone)
-    keys = ("window", "stride", "gate", "combine", "batch_size", "min_points", "min_height")
+    keys = ("window", "windows", "stride", "gate", "combine", "batch_size", "min_points", "min_height")
     kw = {k: inference[k] for k in keys if k in inference}
     # the weights' hashes are part of the key: a retrained model never reuses old predictions
     key = config_hash({"inference": kw, "weights": read_card(model).get("files")})
@@ -131,7 +132,10 @@ def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: M
     Returns
     -------
     dict
-        ``precision``, ``recall``, ``towers``, ``point_iou``, ``tp``, ``fp``, ``fn``.
+        ``precision``, ``recall``, ``f1``, ``towers``, ``point_iou``, ``tp``, ``fp``, ``fn``
+        (tower points), ``towers_tp``, ``towers_fp``, ``towers_fn``, ``true_towers``,
+        ``gate_recall`` (share of the true towers that some window passing the gate
+        covers: they have segmented points) and ``false_towers`` (height, points).
     """
     from towerpipe.towers import extract_towers, match_towers
     from towerpipe.wires import TileContext
@@ -152,12 +156,33 @@ def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: M
         hit = int(np.intersect1d(pred, true, assume_unique=True).size)
         tp, fp, fn = tp + hit, fp + pred.size - hit, fn + true.size - hit
     m = match_towers(gdf, truth, max_dist=5.0)
-    return {"precision": m["precision"], "recall": m["recall"], "towers": int(len(gdf)),
-            "point_iou": tp / (tp + fp + fn) if tp + fp + fn else float("nan"), "tp": tp, "fp": fp, "fn": fn}
+    false = gdf[gdf["tower_id"].astype(str).isin([str(i) for i in m["unmatched_pred"]])] if len(gdf) else gdf
+    return {"precision": m["precision"], "recall": m["recall"], "f1": m["f1"], "towers": int(len(gdf)),
+            "point_iou": tp / (tp + fp + fn) if tp + fp + fn else float("nan"), "tp": tp, "fp": fp, "fn": fn,
+            "towers_tp": m["tp"], "towers_fp": m["fp"], "towers_fn": m["fn"], "true_towers": int(len(truth)),
+            "gate_recall": gate_recall(preds, truth),
+            "false_towers": [{"height_m": round(float(r["height_m"]), 1), "n_points": int(r["n_points"])}
+                             for _, r in false.iterrows()]}
 
 
-def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Candidate], *, work: str, model: str,
-          inference: Mapping[str, Any], towers: Mapping[str, Any]) -> list[dict[str, Any]]:
+def gate_recall(preds: Sequence[Any], truth) -> float | None:
+    """Share of the true towers (footprint + 1 m) holding a segmented point, i.e. reached by the gate."""
+    import shapely
+
+    from towerpipe.predfile import load_pred
+
+    if not len(truth):
+        return None
+    loaded = [load_pred(p) if isinstance(p, (str, os.PathLike)) else p for p in preds]
+    x = np.concatenate([np.asarray(p.arrays["x"]) for p in loaded]) if loaded else np.empty(0)
+    y = np.concatenate([np.asarray(p.arrays["y"]) for p in loaded]) if loaded else np.empty(0)
+    hit = [bool(shapely.contains_xy(shapely.buffer(g, 1.0), x, y).any()) for g in truth.geometry]
+    return float(np.mean(hit))
+
+
+def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Candidate], *, work: str,
+          model: str | Mapping[str, str], inference: Mapping[str, Any], towers: Mapping[str, Any]
+          ) -> list[dict[str, Any]]:
     """Score every candidate on every zone.
 
     Parameters
@@ -165,9 +190,10 @@ def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Cand
     zones
         Zone name -> its input directory (labelled blocks and ``towers_truth.gpkg``).
     candidates
-        ``(views, towers.threshold, inference.threshold, towers.min_core_prob)`` tuples.
+        ``(views, towers.threshold, inference.threshold, towers.min_core_prob[, inference.gate[,
+        towers.min_wire_support]])`` tuples (the last two default to the config's).
     work, model, inference, towers
-        Workdir, model bundle directory and the config's sections.
+        Workdir, model bundle directory (or zone -> its model directory) and the config's sections.
 
     Returns
     -------
@@ -186,16 +212,23 @@ def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Cand
             raise InputError(truth_path, "calibration needs the zone's true towers (a synthetic zone has them)")
         data[zone] = (gpd.read_file(truth_path, layer="towers"), _labels(Path(input_dir)),
                       [str(p) for p in _zone_tiles(work, zone)])
-    preds: dict[tuple[str, int], list[Any]] = {}
+    preds: dict[tuple[str, int, float], list[Any]] = {}
     rows = []
     for cand in candidates:
-        tta, thr, pthr, mcp = cand
-        row: dict[str, Any] = {"tta": tta, "threshold": thr, "point_threshold": pthr, "min_core_prob": mcp}
+        tta, thr, pthr, mcp, *rest = cand
+        tta = int(tta)
+        gate = float(rest[0]) if rest else float(inference.get("gate", 0.5))
+        wire = float(rest[1]) if len(rest) > 1 else float(towers.get("min_wire_support", 0.0))
+        row: dict[str, Any] = {"tta": tta, "threshold": thr, "point_threshold": pthr, "min_core_prob": mcp,
+                               "gate": gate, "min_wire_support": wire}
         for zone, (truth, labels, tiles) in data.items():
-            if (zone, tta) not in preds:
-                preds[(zone, tta)] = [load_pred(p) for p in zone_predictions(work, zone, model, tta, inference)]
-            row[zone] = score_zone(preds[(zone, tta)], tiles, truth, labels, threshold=thr, point_threshold=pthr,
-                                   min_core_prob=mcp, towers=towers, zone=zone)
+            if (zone, tta, gate) not in preds:
+                zm = model if isinstance(model, (str, os.PathLike)) else model[zone]
+                preds[(zone, tta, gate)] = [load_pred(p) for p in zone_predictions(work, zone, zm, tta,
+                                                                                  {**inference, "gate": gate})]
+            row[zone] = score_zone(preds[(zone, tta, gate)], tiles, truth, labels, threshold=thr,
+                                   point_threshold=pthr, min_core_prob=mcp,
+                                   towers={**towers, "min_wire_support": wire}, zone=zone)
         row["mean_point_iou"] = float(np.mean([row[z]["point_iou"] for z in data]))
         rows.append(row)
     return rows
@@ -205,44 +238,70 @@ def _floats(text: str) -> list[float]:
     return [float(v) for v in text.split(",") if v.strip()]
 
 
+def _zone_model(work: str, zone: str, spec: str) -> str:
+    """The model a zone's pipeline run used: its choice file for ``auto``, else the named model."""
+    from towerpipe.modelchoice import AUTO, read_choice, resolve_model
+
+    if spec != AUTO:
+        return str(resolve_model(spec))
+    path = Path(work, zone, "model.json")
+    if not path.exists():
+        raise InputError(path, f"zone {zone!r} has no model choice yet; run `snakemake --cores 2 results/{zone}/` "
+                               "first, or pass --model")
+    return str(read_choice(path)["path"])
+
+
 def _cli(args: argparse.Namespace) -> int:
     import yaml
 
-    from towerpipe.steps import resolve_model
-
-    cfg = yaml.safe_load(Path(args.config).read_text())
+    cfg: dict[str, Any] = {}
+    for path in args.config:                     # later files win, zones are merged
+        more = yaml.safe_load(Path(path).read_text()) or {}
+        zones_so_far = {**(cfg.get("zones") or {}), **(more.get("zones") or {})}
+        cfg = {**cfg, **more, "zones": zones_so_far}
     inference, towers = dict(cfg.get("inference") or {}), dict(cfg.get("towers") or {})
-    zones = {}
+    work = args.workdir or cfg.get("workdir", "work")
+    zones, models = {}, {}
     for z in args.zones.split(","):
         spec = (cfg.get("zones") or {}).get(z)
         if spec is None:
-            raise InputError(args.config, f"zone {z!r} is not defined there")
+            raise InputError(args.config[-1], f"zone {z!r} is not defined in {', '.join(args.config)}")
         zones[z] = spec["input"]
+        models[z] = args.model or _zone_model(work, z, str(spec.get("model") or inference.get("model", "auto")))
     tta = [int(v) for v in args.tta.split(",")] if args.tta else [int(inference.get("tta", 1))]
     thr = _floats(args.threshold) if args.threshold else [float(towers.get("threshold", 0.5))]
     pthr = _floats(args.point_threshold) if args.point_threshold else [float(inference.get("threshold", 0.5))]
     mcp = _floats(args.min_core_prob) if args.min_core_prob else [float(towers.get("min_core_prob", 0.0))]
-    model = args.model or str(resolve_model(str(inference.get("model", "full"))))
-    rows = sweep(zones, list(itertools.product(tta, thr, pthr, mcp)), work=args.workdir or cfg.get("workdir", "work"),
-                 model=model, inference=inference, towers=towers)
+    gates = _floats(args.gate) if args.gate else [float(inference.get("gate", 0.5))]
+    wires = _floats(args.min_wire_support) if args.min_wire_support else [float(towers.get("min_wire_support", 0.0))]
+    rows = sweep(zones, list(itertools.product(tta, thr, pthr, mcp, gates, wires)), work=work, model=models,
+                 inference=inference, towers=towers)
+    print("models: " + ", ".join(f"{z}: {Path(m).name}" for z, m in models.items()))
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
-    print("views  threshold  points  min_core | " + " | ".join(f"{z}: P / R / IoU" for z in zones) + " | mean IoU")
+    def f(v: Any) -> str:
+        return "  -  " if v is None else f"{v:.3f}"
+
+    print("views  gate  threshold  points  min_core  wire | " + " | ".join(f"{z}: P / R / IoU" for z in zones)
+          + " | mean IoU")
     for r in rows:
-        cells = " | ".join(f"{r[z]['precision']:.3f} / {r[z]['recall']:.3f} / {r[z]['point_iou']:.4f}" for z in zones)
-        print(f"{r['tta']:5d}  {r['threshold']:9.2f}  {r['point_threshold']:6.2f}  {r['min_core_prob']:8.2f} | "
-              f"{cells} | {r['mean_point_iou']:.4f}")
+        cells = " | ".join(f"{f(r[z]['precision'])} / {f(r[z]['recall'])} / {r[z]['point_iou']:.4f}" for z in zones)
+        print(f"{r['tta']:5d}  {r['gate']:4.2f}  {r['threshold']:9.2f}  {r['point_threshold']:6.2f}  "
+              f"{r['min_core_prob']:8.2f}  {r['min_wire_support']:4.2f} | {cells} | {r['mean_point_iou']:.4f}")
     return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("calibrate", help="score views / thresholds on labelled calibration zones (after their run)")
-    p.add_argument("--config", default="config/config.yaml", help="config defining the zones and the other rules")
+    p.add_argument("--config", nargs="+", default=["config/config.yaml", "config/models.yaml"],
+                   help="config files defining the zones and the other rules (later files win)")
     p.add_argument("--zones", required=True, help="comma-separated calibration zones (never held-out ones)")
     p.add_argument("--tta", help="views to try, e.g. 1,2,4 (default: the config's)")
     p.add_argument("--threshold", help="towers.threshold values (default: the config's)")
     p.add_argument("--point-threshold", help="inference.threshold values (default: the config's)")
     p.add_argument("--min-core-prob", help="towers.min_core_prob values (default: the config's)")
+    p.add_argument("--gate", help="inference.gate values (default: the config's); each predicts the zones again")
+    p.add_argument("--min-wire-support", help="towers.min_wire_support values (default: the config's)")
     p.add_argument("--model", help="model bundle directory (default: the config's inference.model)")
     p.add_argument("--workdir", help="workdir holding the zones' tiles (default: the config's)")
     p.add_argument("--json", help="also write the rows here")

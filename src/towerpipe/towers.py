@@ -392,7 +392,7 @@ def extract_towers(
     point_threshold
         The points of a tower are its cluster's points whose view-averaged probability
         (``prob``) is at or above this (``n_points`` and ``members``); ``None``: all of
-        them. This trims the uncertain edge of each tower (crowns next to it) without
+        them. A tower with fewer than ``min_points`` such points is dropped. This trims the uncertain edge of each tower (crowns next to it) without
         splitting off the pieces of conductor that a higher clustering threshold leaves
         as false towers, and without losing a tower the segmenter is unsure of.
     members
@@ -456,6 +456,8 @@ def extract_towers(
                 continue
         tid = tower_id(zone, c.x, c.y)
         g_pts = g if point_threshold is None else g[pts["prob"][g] >= point_threshold]
+        if len(g_pts) < min_points:
+            continue  # what would be reported is too few points for a tower (the paper's 20)
         if members is not None:
             members[tid] = (pts["block"][g_pts], pts["point_index"][g_pts])
         if not owned:

@@ -1,0 +1,63 @@
+"""Real airborne tiles run exactly as a user runs them: a zone with `input` only, every other setting
+at its default (``inference.model: auto``).
+
+The zone is a public-derivative-like re-export of a real IGN tile (RGB kept, NIR all 0, intensity,
+return numbers, scan angle and GPS time all 0) with real lattice towers on lines with conductors.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+
+import pyogrio
+import pytest
+import yaml
+
+from conftest import BACKGROUNDS, REPO, TOWERS, need
+
+pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow, pytest.mark.shared]
+
+ZONE = "realdata_corridor"
+
+
+@pytest.fixture(scope="module")
+def corridor(tmp_path_factory):
+    from towerpipe.synth import generate_zone
+
+    tmp = tmp_path_factory.mktemp("corridor")
+    truth = generate_zone(tmp / "in", seed=77, real_backgrounds=need(BACKGROUNDS),
+                          background_files=["ign_rgb_subset.laz"], copies=3, lines=True, tower_source="real",
+                          real_towers=need(TOWERS), tower_families=["uav", "ts40k"], tower_density=(10, 20),
+                          tower_variety=True, variant="no_intensity")
+    cfg = tmp / "zones.yaml"
+    cfg.write_text(yaml.safe_dump({"zones": {ZONE: {"input": str(tmp / "in")}}, "workdir": str(tmp / "work")}))
+    proc = subprocess.run([sys.executable, "-m", "snakemake", "--cores", "2", f"results/{ZONE}/",
+                           f"--configfile={cfg}"], cwd=REPO, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    yield tmp, truth, REPO / "results" / ZONE
+    shutil.rmtree(REPO / "results" / ZONE, ignore_errors=True)
+
+
+def test_attributes_recorded_and_a_usable_model_chosen(corridor):
+    tmp, _, _ = corridor
+    choice = json.loads((tmp / "work" / ZONE / "model.json").read_text())
+    assert choice["mode"] == "auto" and choice["key"] == "inference.model"
+    assert choice["valid_attributes"] == ["rgb"]
+    assert choice["feature_set"] in ("rgb", "shape") and "transfers best" in choice["reason"]
+    for summary in (tmp / "work" / ZONE / "prep").glob("*.json"):
+        s = json.loads(summary.read_text())
+        assert s["degenerate_attributes"] == ["intensity", "returns", "nir"]
+
+
+def test_towers_found_and_named_with_the_model(corridor):
+    from towerpipe.evaluate import evaluate_zone
+
+    tmp, truth, out = corridor
+    rep = evaluate_zone(tmp / "in", out)
+    assert rep["towers_true"] == len(truth.towers) >= 3
+    assert rep["tower_recall"] >= 2 / 3 and rep["tower_precision"] == 1.0, rep
+    meta = pyogrio.read_info(out / "towers.gpkg", layer="towers")["dataset_metadata"]
+    assert meta["model_choice"].startswith("auto:")

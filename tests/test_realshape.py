@@ -1,0 +1,73 @@
+"""The real-shape benchmark's plumbing: usable recipes per variant, auto rows, report, card stamps."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from conftest import BACKGROUNDS, TOWERS, need
+from towerpipe.realshape import run_benchmark, stamp_cards, zone_name
+
+pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.shared]
+
+
+@pytest.fixture(scope="module")
+def bare_zone(tmp_path_factory):
+    """A tiny benchmark zone: TS40K towers on a real tile, exported without colour, preprocessed."""
+    from towerpipe import tiling
+    from towerpipe.preprocess import preprocess_tile, split_block
+    from towerpipe.synth import generate_zone
+
+    tmp = tmp_path_factory.mktemp("realshape")
+    zone = zone_name("ts40k", "no_colour")
+    truth = generate_zone(tmp / "data" / zone, seed=3, real_backgrounds=need(BACKGROUNDS),
+                          background_files=["ign_bridge.laz"], copies=1, lines=True, tower_source="real",
+                          real_towers=need(TOWERS), tower_families=["ts40k"], tower_density=(8, 15),
+                          variant="no_colour")
+    block = truth.blocks[0]
+    cache = tmp / "work" / zone / "cache" / block["name"]
+    meta = split_block(block["path"], cache, block=block["name"], zone=zone)
+    for t in tiling.tile_ids(tuple(meta["header_bounds"]), 500.0):
+        preprocess_tile(zone, block["name"], t, {block["name"]: cache},
+                        tmp / "work" / zone / "tiles" / block["name"] / f"{t}.npz")
+    return tmp, zone, truth
+
+
+def test_benchmark_rows_auto_and_report(bare_zone, random_model_factory):
+    tmp, zone, truth = bare_zone
+    assert len(truth.towers) >= 1
+    loso = {"full": {"ts40k": random_model_factory("full")}, "shape": {"ts40k": random_model_factory("shape")}}
+    inference = {"window": 40.0, "stride": 20.0, "gate": 0.5, "combine": "max", "batch_size": 8, "min_points": 10,
+                 "min_height": 10.0, "tta": 1, "threshold": 0.5}
+    towers = {"threshold": 0.5, "linkage": 2.5, "min_points": 20, "min_height": 10.0, "min_core_prob": 0.0,
+              "min_wire_support": 0.0, "wire_min_height": 20.0, "max_base_ratio": 1.0}
+    out = tmp / "out"
+    result = run_benchmark(loso, {zone: tmp / "data" / zone}, work=tmp / "work", inference=inference,
+                           towers=towers, out_dir=out)
+    rows = {r["recipe"]: r for r in result["rows"]}
+    # no colour in this variant: the full recipe cannot run, the shape recipe can
+    assert not rows["full"]["usable"] and rows["full"]["missing"] == ["nir", "rgb"]
+    assert rows["shape"]["usable"] and rows["shape"]["true_towers"] == len(truth.towers)
+    assert 0.0 <= rows["shape"]["gate_recall"] <= 1.0
+    assert [a["feature_set"] for a in result["auto"]] == ["shape"]
+    report = (out / "report.md").read_text()
+    assert "not usable: no valid nir, rgb" in report and "| ts40k | no_colour | shape |" in report
+    assert json.loads((out / "scores.json").read_text())["transfer"]["full"]["score"] is None
+
+
+def test_stamp_cards_writes_the_transfer_figures(tmp_path, random_model_factory):
+    import shutil
+
+    from towerpipe.modelcard import read_card
+
+    model = tmp_path / "m"
+    shutil.copytree(random_model_factory("shape"), model)
+    scores = tmp_path / "scores.json"
+    scores.write_text(json.dumps({"transfer": {"shape": {"score": 0.93, "point_iou": 0.71, "families": ["uav"]}},
+                                  "rows": [{"recipe": "shape", "usable": True, "family": "uav", "variant": "intact",
+                                            "gate_recall": 1.0, "recall": 0.95, "precision": 0.9, "point_iou": 0.7}]}))
+    stamp_cards(scores, {"shape": model})
+    card = read_card(model)                  # the weights' checksums still hold
+    assert card["transfer"]["score"] == 0.93 and card["transfer"]["per_family"][0]["recall"] == 0.95
+    assert "## Transfer" in (model / "MODEL_CARD.md").read_text()

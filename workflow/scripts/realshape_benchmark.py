@@ -1,0 +1,6 @@
+from towerpipe.realshape import run_benchmark
+from towerpipe.smk import run_step
+
+run_step(snakemake, lambda: run_benchmark(
+    snakemake.params.loso, snakemake.params.zones, work=snakemake.config["workdir"],
+    inference=snakemake.params.inference, towers=snakemake.params.towers, out_dir=snakemake.output[0]))
