@@ -111,7 +111,7 @@ def _labels(input_dir: Path) -> dict[str, np.ndarray]:
 
 def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: Mapping[str, np.ndarray], *,
                threshold: float, point_threshold: float, min_core_prob: float, towers: Mapping[str, Any],
-               zone: str = "zone") -> dict[str, Any]:
+               zone: str = "zone", min_truth_points: int = 0) -> dict[str, Any]:
     """Towers of a whole zone from its predictions, scored against its labels.
 
     Parameters
@@ -128,6 +128,9 @@ def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: M
         The candidate (``towers.threshold``, ``inference.threshold``, ``towers.min_core_prob``).
     towers
         The config's ``towers`` section: the other rules.
+    min_truth_points
+        True towers with fewer points are left out of the tower scores, and a prediction
+        matching one is not a false tower (the paper's floor: 20 points).
 
     Returns
     -------
@@ -155,6 +158,12 @@ def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: M
         true = labels.get(name, np.empty(0, np.int64))
         hit = int(np.intersect1d(pred, true, assume_unique=True).size)
         tp, fp, fn = tp + hit, fp + pred.size - hit, fn + true.size - hit
+    if min_truth_points and "n_points" in truth.columns and len(truth):
+        small = truth["n_points"].to_numpy() < int(min_truth_points)
+        if small.any() and len(gdf):
+            hits = {str(h["pred"]) for h in match_towers(gdf, truth[small], max_dist=5.0)["matches"]}
+            gdf = gdf[~gdf["tower_id"].astype(str).isin(hits)]
+        truth = truth[~small]
     m = match_towers(gdf, truth, max_dist=5.0)
     false = gdf[gdf["tower_id"].astype(str).isin([str(i) for i in m["unmatched_pred"]])] if len(gdf) else gdf
     return {"precision": m["precision"], "recall": m["recall"], "f1": m["f1"], "towers": int(len(gdf)),
