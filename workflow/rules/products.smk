@@ -20,7 +20,7 @@ rule towers_block:
         neighbours=f"{WORK}/{{zone}}/towers/{{block}}.neighbours.json",
         members=f"{WORK}/{{zone}}/towers/{{block}}.points.npz",
     params:
-        bounds=lambda wc: bounds(wc.zone).get(wc.block),
+        bounds=lambda wc: planned(wc.zone, wc.block)["bounds"],
         source_files=lambda wc: blocks(wc.zone),
         towers=TOWERS,
         threshold=INFER["threshold"],
