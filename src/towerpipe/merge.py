@@ -38,6 +38,7 @@ import laspy
 import numpy as np
 from laspy import ExtraBytesParams, LazBackend, PackedPointRecord
 from laspy.vlrs.known import ExtraBytesVlr
+from laspy.vlrs.vlrlist import VLRList
 
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.predfile import load_pred
@@ -341,7 +342,7 @@ def merge_block(
             out_dtype = out_pf.dtype()
             prob_off = out_dtype.fields[PROB_DIMENSION][1]
             cls_field = "classification" if pf_id >= 6 else "raw_classification"
-            evlrs = [v for v in (header.evlrs or []) if v.user_id != _COPC_USER_ID]
+            evlrs = VLRList(v for v in (header.evlrs or []) if v.user_id != _COPC_USER_ID)
 
             n_tower = n_relab = n_in15 = n_above = 0
             out_path.parent.mkdir(parents=True, exist_ok=True)

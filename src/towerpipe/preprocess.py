@@ -460,9 +460,12 @@ def write_raster(path: Path, band: np.ndarray, transform: Any, crs_wkt: str | No
         profile["crs"] = rasterio.crs.CRS.from_wkt(crs_wkt)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".part.tif")
-    with rasterio.open(tmp, "w", **profile) as dst:
-        dst.write(band, 1)
-    os.replace(tmp, path)
+    try:
+        with rasterio.open(tmp, "w", **profile) as dst:
+            dst.write(band, 1)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def height_above_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, dtm_tif: Path, workdir: Path, *,

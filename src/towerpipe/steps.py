@@ -45,8 +45,8 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
                 out_gpkg: str | os.PathLike[str], *, towers_cfg: Mapping[str, Any],
                 source_files: Mapping[str, str], run_cfg: Mapping[str, Any],
                 out_neighbours: str | os.PathLike[str] | None = None, point_threshold: float | None = None,
-                tile_files: Sequence[str] = (), out_members: str | os.PathLike[str] | None = None
-                ) -> dict[str, Any]:
+                tile_files: Sequence[str] = (), out_members: str | os.PathLike[str] | None = None,
+                survey: Sequence[Sequence[float]] = ()) -> dict[str, Any]:
     """Towers owned by ``block`` (from its and its neighbours' predictions) → GeoPackage.
 
     ``out_neighbours`` (JSON) receives the towers with points in the block that a
@@ -54,13 +54,17 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
     ``tile_files`` (the block's and its neighbours' tiles) give the conductor support of
     each tower (:class:`towerpipe.wires.TileContext`); ``out_members`` receives the points
     of every accepted tower with points in the block, owned or not
-    (:func:`towerpipe.towers.save_members`): the merge classifies them 15.
+    (:func:`towerpipe.towers.save_members`): the merge classifies them 15. ``survey``
+    (measured bounds of the block and its neighbours) and ``towers_cfg["wire_ring_coverage"]``
+    leave the support of a tower whose conductor ring is mostly outside the data unknown.
     """
     from towerpipe.gpkg import run_metadata, write_towers_gpkg
     from towerpipe.predfile import load_pred
     from towerpipe.towers import extract_towers, save_members
     from towerpipe.wires import TileContext
 
+    towers_cfg = dict(towers_cfg)
+    ring_share = float(towers_cfg.pop("wire_ring_coverage", 0.0))
     loaded = [load_pred(p) for p in preds]
     own = [p for p in loaded if p.meta.get("block") == block] or loaded
     model_meta = own[0].meta.get("model") if own else None
@@ -69,7 +73,7 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
     members: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     gdf = extract_towers(loaded, block, block_bounds, zone=zone, model_meta=model_meta,
                          source_files=source_files, crs=crs_wkt, neighbours=neighbours, point_threshold=point_threshold,
-                         context=TileContext(tile_files) if tile_files else None, members=members,
+                         context=TileContext(tile_files, survey=survey, min_ring_share=ring_share) if tile_files else None, members=members,
                          **dict(towers_cfg))
     if out_members is not None:
         save_members(out_members, members)

@@ -12,7 +12,8 @@ rule assemble_zone:
         manifest=f"{WORK}/{{zone}}/published.json",
     params:
         results="results/{zone}",
-        stage=f"{WORK}/{{zone}}/published",
+        # the published zone is kept beside its manifest: work/<zone>/published/
+        stage=lambda wc, output: os.path.splitext(output.manifest)[0],
         files=lambda wc: zone_products(wc.zone),
         gpkgs=lambda wc: [f"{WORK}/{wc.zone}/towers/{b}.gpkg" for b in blocks(wc.zone)],
         qa=lambda wc: [f"{WORK}/{wc.zone}/qa/{b}.json" for b in blocks(wc.zone)],
@@ -38,7 +39,7 @@ rule zone_results:
     output:
         directory("results/{zone}/"),
     params:
-        stage=f"{WORK}/{{zone}}/published",
+        stage=lambda wc, input: os.path.splitext(input[0])[0],
     log:
         f"{WORK}/{{zone}}/logs/zone_results.log",
     benchmark:
