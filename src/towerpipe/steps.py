@@ -63,9 +63,16 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
     from towerpipe.towers import extract_towers, save_members
     from towerpipe.wires import TileContext
 
+    from towerpipe.errors import ModelError
+
     towers_cfg = dict(towers_cfg)
     ring_share = float(towers_cfg.pop("wire_ring_coverage", 0.0))
     loaded = [load_pred(p) for p in preds]
+    for p in loaded:  # an inference that could not run on a tile (infer_step recorded why)
+        if p.meta.get("error"):
+            if p.meta.get("block") == block:
+                raise ModelError(p.meta["error"])
+            log.warning("neighbour block %s: no predictions (%s)", p.meta.get("block"), p.meta["error"])
     own = [p for p in loaded if p.meta.get("block") == block] or loaded
     model_meta = own[0].meta.get("model") if own else None
     crs_wkt = own[0].meta.get("crs_wkt") if own else None
@@ -83,6 +90,34 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
         write_text_atomic(out_neighbours, json.dumps({"block": block, "towers_owned_by_neighbours": neighbours},
                                                      indent=1))
     return {"towers": len(gdf), "towers_owned_by_neighbours": len(neighbours)}
+
+
+def infer_step(tile_path: str | os.PathLike[str], model: str | os.PathLike[str], out_path: str | os.PathLike[str],
+               **kw: Any) -> dict[str, Any]:
+    """:func:`towerpipe.infer.infer_tile`, a model that cannot run on the tile recorded, not raised.
+
+    A :class:`~towerpipe.errors.ModelError` (e.g. the model needs NIR and the block has
+    none) becomes an empty prediction file whose ``meta["error"]`` says why: the
+    neighbours' towers jobs, which read this tile's predictions for the towers across
+    their edges, go on; the block's own towers job raises it (:func:`towers_step`). A
+    block the model cannot run on thus costs only itself.
+    """
+    from towerpipe.errors import ModelError
+    from towerpipe.infer import infer_tile
+    from towerpipe.predfile import PRED_ARRAYS, save_pred
+
+    try:
+        return infer_tile(tile_path, model, out_path, **kw)
+    except ModelError as exc:
+        meta = read_meta(tile_path)
+        log.error("ModelError: %s; recorded in %s: the block fails at its towers step, its neighbours go on",
+                  exc, out_path)
+        rec = {k: meta.get(k) for k in ("zone", "block", "tile", "blocks", "crs_wkt", "core_bounds")}
+        rec.update(model={}, windows_total=0, windows_passed_gate=0, windows_segmented=0,
+                   gate_threshold=kw.get("gate"), combine=kw.get("combine"), points_core=0,
+                   points_model_input_core=0, timings={}, peak_rss_mb=0.0, error=str(exc))
+        save_pred(out_path, {k: np.zeros(0, d) for k, d in PRED_ARRAYS.items()}, rec)
+        return rec
 
 
 def _block_dtm(dtm_paths: Sequence[str], out: Path) -> Path | None:

@@ -172,6 +172,13 @@ def zone_products(zone):
     return files
 
 
+def planned_products(zone):
+    """The zone's per-block products, once its plan exists: until then the job graph holds
+    the splits and the plan only, so a dry run of a new zone of thousands of blocks stays small."""
+    plan(zone)
+    return list(zone_products(zone).values())
+
+
 INFER = config["inference"]
 TOWERS = config["towers"]
 

@@ -7,7 +7,7 @@
 # zone_results only recreates results/<zone>/ when it is missing (its input is ancient).
 rule assemble_zone:
     input:
-        lambda wc: list(zone_products(wc.zone).values()),
+        lambda wc: planned_products(wc.zone),
     output:
         manifest=f"{WORK}/{{zone}}/published.json",
     params:
