@@ -84,7 +84,7 @@ def write_zone_config(path: Path, zones: dict, workdir: Path, **extra) -> Path:
 
 @pytest.fixture(scope="session")
 def ci_scene(tmp_path_factory):
-    """The CI zone's blocks, generated once per session (the generator is deterministic)."""
+    """The CI zone's blocks, generated once per test run (the generator is deterministic)."""
     from towerpipe.synth import generate_zone
 
     out = tmp_path_factory.mktemp("ci_scene") / "in"

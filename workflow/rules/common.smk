@@ -174,9 +174,12 @@ def zone_products(zone):
 
 def planned_products(zone):
     """The zone's per-block products, once its plan exists: until then the job graph holds
-    the splits and the plan only, so a dry run of a new zone of thousands of blocks stays small."""
+    the splits and the plan only, so a dry run of a new zone of thousands of blocks stays small.
+    The blocks come first: a synthetic zone's generation is the checkpoint waited for before
+    the plan (the rule's parameters need the blocks)."""
+    products = list(zone_products(zone).values())
     plan(zone)
-    return list(zone_products(zone).values())
+    return products
 
 
 INFER = config["inference"]
