@@ -7,12 +7,16 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 CORES ?= 2
 
-.PHONY: setup pdal demo test lint bench train benchmark-realshape ship-models clean-demo
+.PHONY: setup pdal slurm demo test lint bench train benchmark-realshape ship-models clean-demo
 
 setup: pdal $(VENV)/.installed
 
 pdal:
 	@bash scripts/install_pdal.sh
+
+# A single-node SLURM for the cluster test (tests/test_slurm.py starts it with scripts/slurm_local.sh).
+slurm:
+	@bash scripts/install_slurm.sh
 
 $(VENV)/.installed: requirements.txt pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,7 +28,7 @@ $(VENV)/.installed: requirements.txt pyproject.toml
 demo: setup
 	$(BIN)/snakemake --cores $(CORES) results/demo/
 
-test: setup
+test: setup slurm
 	$(BIN)/python -m pytest -q
 
 lint: setup

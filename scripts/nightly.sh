@@ -3,10 +3,11 @@
 #
 #   scripts/nightly.sh ZONE [CONFIGFILE] [extra snakemake arguments...]
 #
-# - one run at a time: a second start while one is running exits with status 75;
-# - a run that was killed (power cut, OOM killer, kill -9) leaves Snakemake's lock behind:
-#   it is cleared first (safe, as no other run can hold it), and the incomplete outputs of
-#   the killed jobs are redone (rerun-incomplete in profiles/default);
+# - one run per zone: every run takes the zone's run lock (towerpipe.runlock, held by the
+#   Snakefile, whatever started the run); a start while one is alive exits with status 75;
+# - a run that was killed (power cut, OOM killer, kill -9) leaves Snakemake's own lock
+#   behind: it is cleared (`snakemake --unlock`) only when no towerpipe run is alive, and the
+#   incomplete outputs of the killed jobs are redone (rerun-incomplete in profiles/default);
 # - --keep-going: a bad block costs only itself; the exit status is then non-zero and
 #   results/<zone>/INCOMPLETE.txt plus the QA index name the block and the reason.
 set -euo pipefail
@@ -17,14 +18,15 @@ cd "$(dirname "$0")/.."
 if [ -n "${SNAKEMAKE:-}" ]; then read -r -a smk <<< "$SNAKEMAKE"
 elif [ -x .venv/bin/snakemake ]; then smk=(.venv/bin/snakemake)
 else smk=(snakemake); fi
+if [ -n "${PYTHON:-}" ]; then py=("$PYTHON")
+elif [ -x .venv/bin/python ]; then py=(.venv/bin/python)
+else py=(python3); fi
 args=(--cores "${CORES:-2}" --keep-going)
 [ -n "$cfg" ] && args+=("--configfile=$cfg")
-mkdir -p .snakemake
-exec 9>".snakemake/towerpipe-nightly-$zone.lock"
-if ! flock -n 9; then
+if "${py[@]}" -m towerpipe.runlock busy "$zone"; then
   echo "towerpipe: another run of zone $zone is in progress; nothing done" >&2
   exit 75
 fi
-"${smk[@]}" "${args[@]}" --unlock -- "results/$zone/" >/dev/null
+"${py[@]}" -m towerpipe.runlock if-idle -- "${smk[@]}" "${args[@]}" --unlock -- "results/$zone/"
 echo "towerpipe: $(date -u +%FT%TZ) zone $zone: start" >&2
 "${smk[@]}" "${args[@]}" "$@" -- "results/$zone/"

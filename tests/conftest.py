@@ -58,3 +58,71 @@ def random_model_factory(tmp_path_factory):
         return made[feature_set]
 
     return make
+
+
+#: The CI zone's scene (.test/config): 2 blocks of 120 m, 5 towers, one across the block edge.
+CI_SYNTH = {"seed": 4242, "blocks": 2, "size": 120, "density": 8, "preset": "test", "edge_tower": True}
+CI_BLOCKS = ("400000_4600000", "400120_4600000")
+
+
+def snakemake_run(*args, env=None):
+    """``python -m snakemake ARGS`` in the repository (no check)."""
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=REPO, capture_output=True, text=True,
+                          env=env)
+
+
+def write_zone_config(path: Path, zones: dict, workdir: Path, **extra) -> Path:
+    """A config file with ``zones`` and ``workdir`` (+ ``extra`` top-level sections)."""
+    import yaml
+
+    path.write_text(yaml.safe_dump({"zones": zones, "workdir": str(workdir), **extra}))
+    return path
+
+
+@pytest.fixture(scope="session")
+def ci_scene(tmp_path_factory):
+    """The CI zone's blocks, generated once per test run (the generator is deterministic)."""
+    from towerpipe.synth import generate_zone
+
+    out = tmp_path_factory.mktemp("ci_scene") / "in"
+    generate_zone(out, **CI_SYNTH)
+    return out
+
+
+@pytest.fixture(scope="session")
+def ci_reference(ci_scene, tmp_path_factory):
+    """``results/<zone>/`` of a plain local run of the CI scene with the shipped model (a copy)."""
+    import uuid
+
+    tmp = tmp_path_factory.mktemp("ci_ref")
+    zone = f"pytest_ref_{uuid.uuid4().hex[:6]}"
+    cfg = write_zone_config(tmp / "c.yaml", {zone: {"input": str(ci_scene)}}, tmp / "work",
+                            preprocess={"tile_size": 120})
+    proc = snakemake_run("--cores", "2", f"results/{zone}/", f"--configfile={cfg}")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    ref = tmp / "results"
+    shutil.copytree(REPO / "results" / zone, ref)
+    shutil.rmtree(REPO / "results" / zone, ignore_errors=True)
+    return ref
+
+
+def tower_features(path, layer="towers"):
+    """A zone's or block's towers without what names the run (zone, ids, files, time)."""
+    import pyogrio
+
+    df = pyogrio.read_dataframe(path, layer=layer)
+    drop = [c for c in ("tower_id", "zone", "source_files", "processed_at") if c in df.columns]
+    return df.drop(columns=drop).sort_values(["centroid_x", "centroid_y"]).reset_index(drop=True)
+
+
+def same_points(a_path, b_path):
+    """Every point record of two LAZ files is equal (their headers may differ)."""
+    import laspy
+    import numpy as np
+
+    a, b = laspy.read(a_path), laspy.read(b_path)
+    assert list(a.point_format.dimension_names) == list(b.point_format.dimension_names)
+    np.testing.assert_array_equal(a.points.array, b.points.array)

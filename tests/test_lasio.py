@@ -96,3 +96,19 @@ def test_find_blocks_with_flight_subfolders(tmp_path):
     write_points(tmp_path / "b.LAS")
     (tmp_path / "readme.txt").write_text("x")
     assert list(find_blocks(tmp_path)) == ["b", "f1__a"]
+
+
+def test_crs_units_refused_naming_the_unit():
+    import pytest
+    from pyproj import CRS
+
+    from towerpipe.errors import InputError
+    from towerpipe.lasio import check_metric_crs
+
+    for ok in ("EPSG:25831", "EPSG:2154+5720", "EPSG:7415"):
+        check_metric_crs("b.laz", CRS.from_user_input(ok).to_wkt())
+    for crs, msg in (("EPSG:2263", "horizontal unit 'US survey foot'"), ("EPSG:4326", "horizontal unit 'degree'"),
+                     ("EPSG:25831+6360", "vertical unit 'US survey foot'"), ("EPSG:2227", "US survey foot")):
+        with pytest.raises(InputError, match=msg) as exc:
+            check_metric_crs("b.laz", CRS.from_user_input(crs).to_wkt(), zone="z", from_config=True)
+        assert "\n" not in str(exc.value) and "zones.z.crs" in str(exc.value)

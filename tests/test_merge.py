@@ -309,3 +309,18 @@ def test_merge_with_tower_points_classifies_only_reported_towers(tmp_path):
     prob[idx] = p
     np.testing.assert_array_equal(np.asarray(las[PROB_DIMENSION]), prob)
     assert stats["tower_points"] == 300 and stats["points_above_threshold"] == 800
+
+
+def test_every_las_version_and_point_format_is_accepted_at_split_and_merge():
+    import pytest
+
+    from towerpipe.errors import InputError
+    from towerpipe.merge import SUPPORTED_FORMATS, check_format
+
+    assert sum(len(v) for v in SUPPORTED_FORMATS.values()) == 2 + 4 + 6 + 11
+    for (major, minor), pfs in SUPPORTED_FORMATS.items():
+        for pf in pfs:
+            check_format(f"{major}.{minor}", pf, "b.laz")
+    for version, pf in (("1.2", 6), ("1.0", 0), ("1.4", 11)):
+        with pytest.raises(InputError, match=f"LAS {version} point format {pf} is not a valid"):
+            check_format(version, pf, "b.laz")

@@ -55,8 +55,10 @@ def towers_of(pts, block="b1"):
     n = int(sel.sum())
     arrays = {"block_id": np.zeros(n, np.int32), "point_index": np.flatnonzero(sel).astype(np.int64),
               **{k: pts[k][sel] for k in ("x", "y", "z", "hag", "prob")}}
-    return extract_towers([(arrays, {"blocks": [block], "crs_wkt": "EPSG:25831", "model": MODEL})], block, BOUNDS,
-                          zone="z1")
+    gdf = extract_towers([(arrays, {"blocks": [block], "crs_wkt": "EPSG:25831", "model": MODEL})], block, BOUNDS,
+                         zone="z1")
+    gdf["wire_support"] = 1.0  # conductors found (unknown support is flagged)
+    return gdf
 
 
 def metas(ground_source="class2", passed=3):
@@ -128,6 +130,17 @@ def test_block_flags(tmp_path):
     assert doc["towers"][0]["flags"] and "1 needs a look" in doc["summary"]
 
 
+def test_tower_whose_ring_is_outside_the_data_is_flagged(tmp_path):
+    pts = make_block()
+    gdf = towers_of(pts)
+    gdf["wire_support"] = float("nan")  # towerpipe.wires: ring mostly outside the surveyed area
+    tiles, preds = metas()
+    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", block_name="b", block_bounds=BOUNDS,
+                       tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts)
+    tall = [t for t in doc["towers"] if t["height_m"] >= 20]
+    assert tall and all(any("outside the data" in f for f in t["flags"]) for t in tall)
+
+
 def test_clean_block_is_ok_and_uses_raster(tmp_path):
     pts = make_block()
     # a DTM GeoTIFF: used for the hillshade and HAG when points carry no HAG
@@ -141,8 +154,9 @@ def test_clean_block_is_ok_and_uses_raster(tmp_path):
         ds.write(dtm, 1)
     no_hag = {k: v for k, v in pts.items() if k != "hag"}
     tiles, preds = metas()
+    gdf = towers_of(pts)
     doc = block_report(tmp_path / "b.html", tmp_path / "b.json", block_name="b", zone="z1", block_bounds=BOUNDS,
-                       tile_metas=tiles, pred_metas=preds, towers=towers_of(pts), classified=no_hag, raster=tif)
+                       tile_metas=tiles, pred_metas=preds, towers=gdf, classified=no_hag, raster=tif)
     assert doc["status"] == "ok" and doc["flags"] == []
     assert doc["summary"] == "2 towers found; nothing to check."
     page = (tmp_path / "b.html").read_text()

@@ -32,3 +32,28 @@ def test_neighbours_and_tile_blocks():
     # with 250 m tiles, a tile in the middle of a needs no neighbour; one at its east edge needs b
     assert tiling.blocks_for_tile(b["a"], "1_1", 250.0, 40.0, b) == ["a"]
     assert tiling.blocks_for_tile(b["a"], "3_1", 250.0, 40.0, b) == ["a", "b"]
+
+
+def test_plan_comes_from_the_points_never_from_a_header():
+    import numpy as np
+
+    from towerpipe.tiling import TileGrid, occupied_tiles, plan_zone
+
+    # a block of 1 km with one stray point 1,400 km away: 4 tiles and one more, not 2,800²
+    x = np.r_[np.random.default_rng(0).uniform(0, 1000, 5000), 1.4e6]
+    y = np.r_[np.random.default_rng(1).uniform(0, 1000, 5000), 1.4e6]
+    grid = TileGrid((0.0, 0.0, float(x.max()), float(y.max())), 500.0)
+    tiles = occupied_tiles(grid, x, y)
+    assert len(tiles) <= 5 and grid.shape[0] > 2000
+    metas = {
+        "a": {"bounds": [0.0, 0.0, 1000.0, 1000.0], "tiles": ["0_0", "1_0", "0_1", "1_1"], "points": 10},
+        "b": {"bounds": [1000.0, 0.0, 2000.0, 1000.0], "tiles": ["0_0", "1_0", "0_1", "1_1"], "points": 10},
+        "c": {"bounds": [5000.0, 0.0, 6000.0, 1000.0], "tiles": ["0_0"], "points": 10},
+        # a block that could not be split, whose header claims the whole country
+        "bad": {"error": {"cause": "truncated"}, "header_bounds": [0.0, 0.0, 1.4e6, 1.4e6]},
+    }
+    plan = plan_zone(metas, 500.0, 40.0)["blocks"]
+    assert plan["bad"]["tiles"] == [] and plan["bad"]["neighbours"] == []
+    assert plan["a"]["neighbours"] == ["b"] and plan["c"]["neighbours"] == []
+    assert plan["a"]["tile_blocks"]["1_0"] == ["a", "b"] and plan["a"]["tile_blocks"]["0_0"] == ["a"]
+    assert all(p["missing_neighbours"] == ["bad"] for b, p in plan.items() if b != "bad")

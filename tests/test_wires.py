@@ -103,7 +103,48 @@ def test_tile_context_picks_the_tile_holding_the_centre(tmp_path):
         save_tile(path, Tile(a, {"core_bounds": [x0, Y0, x0 + 500, Y0 + 500], "buffer": 40.0}))
         paths.append(str(path))
     ctx = TileContext(paths)
-    arrays, extent = ctx(X0 + 600, Y0 + 10)
+    arrays, coverage = ctx(X0 + 600, Y0 + 10)
     np.testing.assert_array_equal(arrays["x"], X0 + 500 + np.array([10.0, 20.0]))
-    assert extent == (X0 + 460, Y0 - 40, X0 + 1040, Y0 + 540)
+    # the data is where the tile's points are (all three, the non-model-input one too)
+    assert coverage.contains(np.array([X0 + 535.0, X0 + 600.0]), np.array([Y0 + 5.0, Y0 + 5.0])).tolist() == \
+        [True, False]
     assert ctx(X0 - 1, Y0) is None
+
+
+def test_tile_context_skips_a_tile_without_points(tmp_path):
+    # a block whose split failed used to leave an empty tile over its neighbour's place:
+    # listed first, it hid the neighbour's tile and its tower lost its conductor support
+    from towerpipe.tilefile import Tile, empty_arrays, save_tile
+
+    empty = tmp_path / "a_failed.npz"
+    save_tile(empty, Tile(empty_arrays(0), {"core_bounds": [X0, Y0, X0 + 500, Y0 + 500], "buffer": 40.0,
+                                            "counts": {"points": 0}}))
+    a = empty_arrays(2)
+    a["x"][:], a["y"][:], a["model_input"][:] = X0 + 10, Y0 + 10, True
+    good = tmp_path / "b_good.npz"
+    save_tile(good, Tile(a, {"core_bounds": [X0, Y0, X0 + 500, Y0 + 500], "buffer": 40.0,
+                             "counts": {"points": 2}}))
+    arrays, _ = TileContext([str(empty), str(good)])(X0 + 100, Y0 + 100)
+    assert len(arrays["x"]) == 2
+
+
+def test_corridor_strip_scores_only_where_points_exist():
+    # a 40 m wide strip along the line (a corridor survey): the ring beside the strip has
+    # no data. Scored on the tile's box it looked like a tower without conductors
+    from towerpipe.wires import Coverage
+
+    rng = np.random.default_rng(5)
+    line = line_through(X0, Y0, 0.0, rng=rng, length=400.0)
+    gx, gy = np.meshgrid(np.arange(X0 - 200, X0 + 200, 2.0), np.arange(Y0 - 20, Y0 + 20, 2.0))
+    cover = Coverage(np.r_[gx.ravel(), line[:, 0]], np.r_[gy.ravel(), line[:, 1]])
+    box = (X0 - 200, Y0 - 200, X0 + 200, Y0 + 200)
+    assert support(line, X0, Y0, extent=cover) == 1.0
+    # the line crosses the strip: the sectors in the data hold no wire, but most of the ring
+    # is outside the data, so where the conductors go is not known: unknown (kept, flagged)
+    across = line_through(X0, Y0, np.pi / 2, rng=rng, length=400.0)
+    inside = across[np.abs(across[:, 1] - Y0) < 20]
+    strip = Coverage(gx.ravel(), gy.ravel())
+    assert support(inside, X0, Y0, extent=strip) == 0.0
+    assert np.isnan(support(inside, X0, Y0, extent=strip, min_ring_coverage=0.5))
+    assert support(line, X0, Y0, extent=cover, min_ring_coverage=0.1) == 1.0
+    assert support(inside, X0, Y0, extent=box) == 0.0

@@ -77,6 +77,13 @@ def planned(proc):
     return [(r, (re.search(r"block=([^,\s]+)", body) or [None, None])[1]) for r, body in jobs]
 
 
+def executed(proc):
+    """(rule, block) of every job a real run executed."""
+    text = proc.stdout + proc.stderr
+    jobs = re.findall(r"^(?:local)?rule (\w+):\n(.*?)(?=^\[|\Z)", text, re.M | re.S)
+    return [(r, (re.search(r"block=([^,\s]+)", body) or [None, None])[1]) for r, body in jobs]
+
+
 def job_count(proc, rule):
     m = re.search(rf"^{rule}\s+(\d+)$", proc.stdout, re.M)
     return int(m.group(1)) if m else 0
@@ -98,19 +105,23 @@ def test_zone_runs_and_adding_a_block_reruns_only_it(zone, random_model):
     assert (out / "towers.gpkg").is_file()
     # nothing changed: nothing to do
     assert planned_jobs(snakemake("-n", "--cores", "2", f"results/{name}/", f"--configfile={cfg}")) == 0
-    # a new block: its split, its tiles, its summary, the neighbours' edge tiles and the assembly
+    # a new block: its split, its tiles, its summary, the neighbours' edge tiles and the assembly.
+    # The tiles are planned from the split's measured bounds (a checkpoint), so a dry run
+    # cannot list them before the split: count the jobs the run executes
     shutil.copy(blocks[2], indir / blocks[2].name)
-    proc = snakemake("-n", "--cores", "2", f"results/{name}/", f"--configfile={cfg}")
-    assert job_count(proc, "split_block") == 1, proc.stdout
+    proc = snakemake("--cores", "2", f"results/{name}/", f"--configfile={cfg}")
+    jobs = executed(proc)
+    assert [j for j in jobs if j[0] == "split_block"] == [("split_block", "b2")], jobs
     # the new block, plus the neighbour whose edge tile now has the new block in its buffer
     # (its windows see across the seam); a block not touching the new one is not
     # preprocessed nor inferred again. It is re-merged: its classes follow the towers its
     # neighbour reports (a tower across their edge belongs to one of them), and those were
     # recomputed
-    assert job_count(proc, "merge_block") == 3
+    assert len([j for j in jobs if j[0] == "merge_block"]) == 3, jobs
     heavy = {"split_block", "preprocess_tile", "infer_tile"}
-    assert not [j for j in planned(proc) if j[1] == "b0" and j[0] in heavy], proc.stdout
-    assert job_count(proc, "assemble_zone") == 1
+    assert not [j for j in jobs if j[1] == "b0" and j[0] in heavy], jobs
+    assert len([j for j in jobs if j[0] == "assemble_zone"]) == 1
+    assert planned_jobs(snakemake("-n", "--cores", "2", f"results/{name}/", f"--configfile={cfg}")) == 0
     # a changed model reprocesses every tile of every block
     (random_model / "segmenter.pt").touch()
     proc = snakemake("-n", "--cores", "2", f"results/{name}/", f"--configfile={cfg}")

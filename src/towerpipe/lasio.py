@@ -56,6 +56,9 @@ class BlockHeader:
         The file's CRS as WKT, or ``None``.
     version, point_format
         LAS version (``"1.4"``) and point format id.
+    mins, maxs, scales
+        ``(x, y, z)`` bounds and scales from the header (only ever compared with the
+        points: see :func:`towerpipe.preprocess.header_warnings`).
     """
 
     path: str
@@ -65,6 +68,9 @@ class BlockHeader:
     version: str
     point_format: int
     dimensions: list[str] = field(default_factory=list)
+    mins: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    maxs: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    scales: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 def _parse_crs(header: laspy.LasHeader) -> str | None:
@@ -98,6 +104,8 @@ def read_header(path: str | os.PathLike[str]) -> BlockHeader:
                 version=str(h.version),
                 point_format=int(h.point_format.id),
                 dimensions=list(h.point_format.dimension_names),
+                mins=tuple(float(v) for v in h.mins), maxs=tuple(float(v) for v in h.maxs),
+                scales=tuple(float(v) for v in h.scales),
             )
     except laspy.errors.LaspyException as exc:
         raise InputError(path, f"not a readable LAS/LAZ file ({exc})") from exc
@@ -122,6 +130,58 @@ def resolve_crs(path: str | os.PathLike[str], file_wkt: str | None, override: st
         return file_wkt
     z = zone or "ZONE"
     raise InputError(path, f'no CRS in the file; set it in the config: `zones: {{{z}: {{crs: "EPSG:…"}}}}`')
+
+
+_METRE_NAMES = ("metre", "meter", "metres", "meters")
+
+
+def crs_units(wkt: str) -> dict[str, tuple[str, float] | None]:
+    """Horizontal and vertical units of a CRS: ``{"horizontal": (name, metres per unit),
+    "vertical": (name, metres per unit) or None}``.
+
+    A compound CRS gives both from its parts; a 3-D CRS its third axis; a 2-D CRS has no
+    vertical unit (heights are then taken in the horizontal unit).
+    """
+    crs = CRS.from_wkt(wkt)
+    parts = crs.sub_crs_list or [crs]
+    horiz = next((c for c in parts if not c.is_vertical), parts[0])
+    vert = next((c for c in parts if c.is_vertical), None)
+
+    def unit(axis) -> tuple[str, float]:
+        return axis.unit_name, float(axis.unit_conversion_factor)
+
+    h_axes = horiz.axis_info
+    out: dict[str, tuple[str, float] | None] = {"horizontal": unit(h_axes[0]) if h_axes else None, "vertical": None}
+    if vert is not None and vert.axis_info:
+        out["vertical"] = unit(vert.axis_info[0])
+    elif len(h_axes) > 2:
+        out["vertical"] = unit(h_axes[2])
+    return out
+
+
+def check_metric_crs(path: str | os.PathLike[str], wkt: str, *, zone: str | None = None,
+                     from_config: bool = False) -> None:
+    """Refuse a block whose CRS is not in metres (horizontally and vertically).
+
+    Every length in towerpipe (40 m windows, 100 m HAG limit, tile size, tower heights,
+    the 80-160 m conductor ring) is in metres, and so are the models' inputs: applied
+    to feet or degrees they silently give wrong results.
+
+    Raises
+    ------
+    InputError
+        One line naming the unit, the axis and the fix.
+    """
+    units = crs_units(wkt)
+    name = CRS.from_wkt(wkt).name
+    where = f"config key `zones.{zone or 'ZONE'}.crs`" if from_config else "the file's CRS"
+    for axis in ("horizontal", "vertical"):
+        u = units[axis]
+        if u is None or (u[0].lower() in _METRE_NAMES and abs(u[1] - 1.0) < 1e-12):
+            continue
+        raise InputError(path, f"{where} ({name}) has {axis} unit {u[0]!r}; towerpipe's parameters and models "
+                               "are in metres: reproject the block to a metre CRS (e.g. pdal translate with "
+                               "filters.reprojection)")
 
 
 @dataclass
@@ -240,22 +300,14 @@ def read_block(path: str | os.PathLike[str], *, crs: str | None = None, zone: st
 
 
 def find_blocks(input_dir: str | os.PathLike[str]) -> dict[str, str]:
-    """Map block name → path for every ``.las``/``.laz`` under ``input_dir``.
+    """Map block id → path for every ``.las``/``.laz`` under ``input_dir`` (sorted by id).
 
-    Flight subfolders are allowed; the block name is the relative path without
-    suffix, with ``/`` replaced by ``__`` so names stay flat and unique.
-    Sorted by name, so every run sees the same order.
+    The ids are those of the workflow (:func:`towerpipe.inputs.find_blocks`): safe,
+    unique names whatever the files are called; flight subfolders give ``folder__name``.
     """
-    root = Path(input_dir)
-    found: dict[str, str] = {}
-    for p in sorted(root.rglob("*")):
-        if p.suffix.lower() in LAS_SUFFIXES and p.is_file():
-            rel = p.relative_to(root).with_suffix("")
-            name = "__".join(rel.parts)
-            if name in found:
-                raise InputError(p, f"two files give the block name {name!r} (e.g. .las and .laz of one block); keep one")
-            found[name] = str(p)
-    return found
+    from towerpipe.inputs import find_blocks as _find
+
+    return _find(input_dir)
 
 
 def las_header_for(template: laspy.LasHeader | None = None, *, point_format: int = 8,

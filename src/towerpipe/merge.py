@@ -1,7 +1,7 @@
 """Write the tower predictions back into every point of a block.
 
-:func:`merge_block` streams a block file (LAS/LAZ 1.2 formats 0–3 or 1.4 formats
-6–8) chunk by chunk and writes a LAZ holding **every input point in input order**
+:func:`merge_block` streams a block file (LAS/LAZ 1.1–1.4, every point format of its
+version, COPC read as LAZ 1.4) chunk by chunk and writes a LAZ holding **every input point in input order**
 with every input byte preserved, except:
 
 * ``Classification``: 15 (transmission tower) on the points of the reported towers
@@ -38,6 +38,7 @@ import laspy
 import numpy as np
 from laspy import ExtraBytesParams, LazBackend, PackedPointRecord
 from laspy.vlrs.known import ExtraBytesVlr
+from laspy.vlrs.vlrlist import VLRList
 
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.predfile import load_pred
@@ -45,7 +46,8 @@ from towerpipe.resources import peak_rss_mb
 
 log = logging.getLogger(__name__)
 
-__all__ = ["TOWER_CLASS", "OTHER_CLASS", "PROB_DIMENSION", "merge_block", "block_probabilities", "relabel"]
+__all__ = ["TOWER_CLASS", "OTHER_CLASS", "PROB_DIMENSION", "SUPPORTED_FORMATS", "check_format", "merge_block",
+           "block_probabilities", "relabel"]
 
 #: ASPRS class of transmission towers.
 TOWER_CLASS = 15
@@ -55,7 +57,25 @@ OTHER_CLASS = 1
 PROB_DIMENSION = "TowerProbability"
 
 _CHUNK = 1_000_000  # points per streamed chunk (a multiple of the usual LAZ chunk, 50 000)
-_SUPPORTED = {(1, 2): {0, 1, 2, 3}, (1, 4): {6, 7, 8}}
+#: LAS versions and the point formats each defines: all are read and written (COPC files
+#: are LAS 1.4 LAZ and read as such; their COPC records are not copied to the output).
+SUPPORTED_FORMATS = {(1, 1): frozenset(range(2)), (1, 2): frozenset(range(4)), (1, 3): frozenset(range(6)),
+                     (1, 4): frozenset(range(11))}
+_COPC_USER_ID = "copc"
+
+
+def check_format(version: Any, point_format: int, path: str | os.PathLike[str]) -> None:
+    """Refuse a LAS version / point format the merge cannot write (checked at split time).
+
+    Parameters
+    ----------
+    version
+        ``"1.4"``, ``(1, 4)`` or a :class:`laspy.header.Version`.
+    """
+    major, minor = (int(v) for v in (str(version).split(".") if not isinstance(version, tuple) else version))
+    if int(point_format) not in SUPPORTED_FORMATS.get((major, minor), ()):
+        raise InputError(path, f"LAS {major}.{minor} point format {point_format} is not a valid LAS point format "
+                               "(LAS 1.1: 0-1, 1.2: 0-3, 1.3: 0-5, 1.4: 0-10); convert it with pdal translate")
 
 
 def _laz_backends() -> tuple[LazBackend, ...]:
@@ -183,7 +203,8 @@ def _output_header(header: laspy.LasHeader, crs: Any, path: Path) -> laspy.LasHe
     else:  # unregistered extra bytes in the input: keep laspy's description of them
         kept = list(gen.extra_bytes_structs[:-1])
     merged.extra_bytes_structs = kept + [gen.extra_bytes_structs[-1]]
-    others = [v for v in out.vlrs if not isinstance(v, ExtraBytesVlr)]
+    # COPC's info VLR describes the input's octree and chunk layout: not this file's
+    others = [v for v in out.vlrs if not isinstance(v, ExtraBytesVlr) and v.user_id != _COPC_USER_ID]
     pos = first_eb_pos if first_eb_pos is not None else len(others)
     # positions in `others` are those of the input minus the EB VLRs before first_eb_pos (none)
     others.insert(min(pos, len(others)), merged)
@@ -251,7 +272,7 @@ def merge_block(
     Parameters
     ----------
     block_path
-        The input block (LAS/LAZ 1.2 pf 0–3 or 1.4 pf 6–8).
+        The input block (:data:`SUPPORTED_FORMATS`).
     pred_paths
         The prediction files of the block's tiles.
     out_path
@@ -303,9 +324,7 @@ def merge_block(
             header = reader.header
             ver = (header.version.major, header.version.minor)
             pf_id = header.point_format.id
-            if pf_id not in _SUPPORTED.get(ver, set()):
-                raise InputError(block_path, f"LAS {ver[0]}.{ver[1]} point format {pf_id} is not supported "
-                                             "(use LAS 1.2 formats 0-3 or LAS 1.4 formats 6-8)")
+            check_format(ver, pf_id, block_path)
             n = int(header.point_count)
             prob, info = block_probabilities(pred_paths, n, block=block, block_path=block_path)
             if tower_points is not None:
@@ -323,7 +342,7 @@ def merge_block(
             out_dtype = out_pf.dtype()
             prob_off = out_dtype.fields[PROB_DIMENSION][1]
             cls_field = "classification" if pf_id >= 6 else "raw_classification"
-            evlrs = header.evlrs
+            evlrs = VLRList(v for v in (header.evlrs or []) if v.user_id != _COPC_USER_ID)
 
             n_tower = n_relab = n_in15 = n_above = 0
             out_path.parent.mkdir(parents=True, exist_ok=True)

@@ -20,6 +20,7 @@ model input (``model_input`` flag); the merge step writes every point back.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -41,7 +42,8 @@ from towerpipe.assemble import write_text_atomic
 from towerpipe.attributes import AttributeStats, degenerate, describe, valid_set
 from towerpipe.columnfile import read_meta
 from towerpipe.errors import InputError, TowerpipeError
-from towerpipe.lasio import BLOCK_COLUMNS, RECORDS_FILE, color_info, iter_block, read_header
+from towerpipe.lasio import (BLOCK_COLUMNS, RECORDS_FILE, BlockHeader, check_metric_crs, color_info, iter_block,
+                             read_header)
 from towerpipe.pdal import run_pipeline
 from towerpipe.resources import peak_rss_mb
 from towerpipe.tilefile import Tile, empty_arrays, save_tile
@@ -101,7 +103,8 @@ class PreprocessConfig:
 
 def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, block: str,
                 zone: str | None = None, crs: str | None = None, zone_crs: str | None = None,
-                config: PreprocessConfig | None = None, record_errors: bool = False) -> dict[str, Any]:
+                config: PreprocessConfig | None = None, record_errors: bool = False,
+                source: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Decode a block once into an uncompressed column cache.
 
     With ``record_errors``, a block that cannot be read (:class:`InputError`: truncated,
@@ -128,30 +131,56 @@ def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     zone_crs
         The CRS the zone's other blocks have (WKT); a block in another CRS is refused
         (a zone is one CRS: windows, neighbours and the GeoPackage mix blocks).
+    source
+        The block's input record (:func:`towerpipe.inputs.describe`: original relative
+        path, size, fingerprint, ``clash``), kept in ``meta.json`` as ``source``. A block
+        with a ``clash`` (the same block in a second file) is refused.
+
+    Every check that can fail a block runs here, before any compute: readable, not
+    truncated, a CRS in metres (:func:`towerpipe.lasio.check_metric_crs`), a LAS
+    version and point format the merge writes (:func:`towerpipe.merge.check_format`).
+    The tiles come from the points (``bounds``, ``tiles``: the occupied tiles); a header
+    whose bounds contradict the points is kept as ``header_warnings`` (a QA warning).
 
     Returns
     -------
     dict
         The metadata written to ``meta.json``.
     """
+    src = dict(source or {})
     try:
-        return _split_block(path, out_dir, block=block, zone=zone, crs=crs, zone_crs=zone_crs, config=config)
+        if src.get("clash"):
+            raise InputError(path, f"{src['clash']} is the same block in a second file; keep one of the two "
+                                   "(both are left out until then)")
+        return _split_block(path, out_dir, block=block, zone=zone, crs=crs, zone_crs=zone_crs, config=config,
+                            source=src)
     except InputError as exc:
         if not record_errors:
             raise
         log.error("%s: %s", type(exc).__name__, exc)
         log.error("recorded in %s: block %r fails at its next step; its neighbours go on without its points",
                   out_dir, block)
-        meta = {"block": block, "zone": zone, "path": str(path), "error": {"type": type(exc).__name__,
-                                                                           "path": exc.path, "cause": exc.cause}}
+        meta = {"block": block, "zone": zone, "path": str(path), "source": src,
+                "error": {"type": type(exc).__name__, "path": exc.path, "cause": exc.cause}}
         try:
             meta["header_bounds"] = list(read_header(path).bounds)
         except TowerpipeError:
             pass
-        tmp = _staging_dir(out_dir)
-        (tmp / CACHE_META).write_text(json.dumps(meta, indent=1))
-        _publish_dir(tmp, out_dir)
+        with _staged(out_dir) as tmp:
+            (tmp / CACHE_META).write_text(json.dumps(meta, indent=1))
         return meta
+
+
+@contextlib.contextmanager
+def _staged(out_dir: str | os.PathLike[str]):
+    """A staging directory that replaces ``out_dir`` on success and is removed on any failure."""
+    tmp = _staging_dir(out_dir)
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    _publish_dir(tmp, out_dir)
 
 
 def _staging_dir(out_dir: str | os.PathLike[str]) -> Path:
@@ -192,16 +221,65 @@ class _NpyStream:
 
 def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, block: str,
                  zone: str | None, crs: str | None, zone_crs: str | None,
-                 config: PreprocessConfig | None) -> dict[str, Any]:
+                 config: PreprocessConfig | None, source: Mapping[str, Any]) -> dict[str, Any]:
+    from towerpipe.merge import check_format
+
     cfg = config or PreprocessConfig()
     t0 = time.perf_counter()
     it = iter_block(path, crs=crs, zone=zone, records=True)
     header, crs_wkt = next(it)
+    check_format(header.version, header.point_format, path)
+    check_metric_crs(path, crs_wkt, zone=zone, from_config=bool(crs))
     if zone_crs and not crs and not _same_crs(crs_wkt, zone_crs):
         raise InputError(path, f"its CRS ({_crs_name(crs_wkt)}) differs from the rest of zone {zone!r} "
                                f"({_crs_name(zone_crs)}); reproject it or put it in a zone of its own")
     n = header.point_count
-    tmp = _staging_dir(out_dir)
+    with _staged(out_dir) as tmp:
+        meta = _stream_block(it, tmp, header, n, cfg)
+        bounds = meta["bounds"]
+        grid = tiling.TileGrid(tuple(bounds), cfg.tile_size)
+        x, y = (np.load(tmp / f"{c}.npy", mmap_mode="r") for c in ("x", "y"))
+        meta.update(
+            block=block, zone=zone, path=str(path), source=dict(source), points=n,
+            tiles=tiling.occupied_tiles(grid, x, y), header_bounds=list(header.bounds),
+            header_warnings=header_warnings(header, meta.pop("extent")),
+            crs_wkt=crs_wkt, crs_from="config" if crs else "file", las_version=header.version,
+            point_format=header.point_format, dimensions=header.dimensions,
+        )
+        del x, y
+        ground_source = meta["ground_source"]
+        if ground_source != "class2":
+            log.warning("%s: only %d class-2 points (%.1f %%); ground will be classified with PDAL %s",
+                        path, meta["ground_points"], 100 * meta["ground_fraction"], ground_source)
+        for w in meta["header_warnings"]:
+            log.warning("%s: %s", path, w)
+        if meta["degenerate_attributes"]:
+            log.warning("%s: sensor attributes that carry no information: %s", path, describe(meta["attributes"]))
+        meta["timings"]["split"] = time.perf_counter() - t0
+        meta["peak_rss_mb"] = peak_rss_mb()
+        (tmp / CACHE_META).write_text(json.dumps(meta, indent=1))
+    return meta
+
+
+def header_warnings(header: BlockHeader, extent: Mapping[str, list[float]], tolerance: float = 1.0) -> list[str]:
+    """What a block's header says that its points contradict (for the QA; never used for tiling).
+
+    ``extent`` holds the points' ``mins`` and ``maxs`` (x, y, z); a header bound more
+    than ``tolerance`` m (plus one scale step) off is reported.
+    """
+    hmins, hmaxs = header.mins, header.maxs
+    pmins, pmaxs = extent["mins"], extent["maxs"]
+    off = max(max(abs(a - b) for a, b in zip(hmins, pmins)), max(abs(a - b) for a, b in zip(hmaxs, pmaxs)))
+    if off <= tolerance + max(header.scales):
+        return []
+    fmt = lambda v: "[" + ", ".join(f"{c:.2f}" for c in v) + "]"  # noqa: E731
+    return [f"header bounds {fmt(hmins)}-{fmt(hmaxs)} contradict the points {fmt(pmins)}-{fmt(pmaxs)} "
+            f"(off by up to {off:.1f} m); tiles follow the points"]
+
+
+def _stream_block(it, tmp: Path, header: BlockHeader, n: int, cfg: PreprocessConfig) -> dict[str, Any]:
+    """Stream the decoded chunks of a block into the cache columns; what was measured on the way."""
+    t0 = time.perf_counter()
     dtypes = {"x": "f8", "y": "f8", "z": "f8", "classification": "u1", "return_number": "u1",
               "number_of_returns": "u1"}
     # streamed into .npy files (header first, then each chunk appended): the cache never
@@ -210,7 +288,7 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
     records: _NpyStream | None = None  # the raw point records, for the merge (no second decode)
     maxima = dict.fromkeys(("red", "green", "blue", "nir"), 0)
     stats = AttributeStats(header.dimensions)
-    mins, maxs = np.full(2, np.inf), np.full(2, -np.inf)
+    mins, maxs = np.full(3, np.inf), np.full(3, -np.inf)
     class_counts = np.zeros(256, np.int64)
     try:
         for chunk in it:
@@ -222,8 +300,8 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
             for c in maxima:
                 maxima[c] = max(maxima[c], int(chunk[c].max()))
             stats.update(chunk)
-            mins = np.minimum(mins, [chunk["x"].min(), chunk["y"].min()])
-            maxs = np.maximum(maxs, [chunk["x"].max(), chunk["y"].max()])
+            mins = np.minimum(mins, [chunk["x"].min(), chunk["y"].min(), chunk["z"].min()])
+            maxs = np.maximum(maxs, [chunk["x"].max(), chunk["y"].max(), chunk["z"].max()])
             class_counts += np.bincount(chunk["classification"], minlength=256)
     finally:
         for stream in [*cols.values(), *([] if records is None else [records])]:
@@ -234,19 +312,9 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
     has_rgb, has_nir = attributes["rgb"]["valid"], attributes["nir"]["valid"]
     n_ground = int(class_counts[GROUND_CLASS])
     ground_fraction = n_ground / n
-    ground_source = "class2" if ground_fraction >= cfg.min_ground_fraction else cfg.ground_filter
-    meta = {
-        "block": block,
-        "zone": zone,
-        "path": str(path),
-        "points": n,
+    return {
         "bounds": [float(mins[0]), float(mins[1]), float(maxs[0]), float(maxs[1])],
-        "header_bounds": list(header.bounds),
-        "crs_wkt": crs_wkt,
-        "crs_from": "config" if crs else "file",
-        "las_version": header.version,
-        "point_format": header.point_format,
-        "dimensions": header.dimensions,
+        "extent": {"mins": mins.tolist(), "maxs": maxs.tolist()},
         "has_rgb": has_rgb,
         "has_nir": has_nir,
         "color_bits": color_bits,
@@ -254,19 +322,10 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
         "degenerate_attributes": degenerate(attributes),
         "ground_points": n_ground,
         "ground_fraction": ground_fraction,
-        "ground_source": ground_source,
+        "ground_source": "class2" if ground_fraction >= cfg.min_ground_fraction else cfg.ground_filter,
         "class_counts": {str(k): int(v) for k, v in enumerate(class_counts) if v},
-        "timings": {"read": t_read, "split": time.perf_counter() - t0},
-        "peak_rss_mb": peak_rss_mb(),
+        "timings": {"read": t_read},
     }
-    if meta["degenerate_attributes"]:
-        log.warning("%s: sensor attributes that carry no information: %s", path, describe(attributes))
-    if ground_source != "class2":
-        log.warning("%s: only %d class-2 points (%.1f %%); ground will be classified with PDAL %s",
-                    path, n_ground, 100 * ground_fraction, ground_source)
-    (tmp / CACHE_META).write_text(json.dumps(meta, indent=1))
-    _publish_dir(tmp, out_dir)
-    return meta
 
 
 def _same_crs(a: str, b: str) -> bool:
@@ -410,9 +469,12 @@ def write_raster(path: Path, band: np.ndarray, transform: Any, crs_wkt: str | No
         profile["crs"] = rasterio.crs.CRS.from_wkt(crs_wkt)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".part.tif")
-    with rasterio.open(tmp, "w", **profile) as dst:
-        dst.write(band, 1)
-    os.replace(tmp, path)
+    try:
+        with rasterio.open(tmp, "w", **profile) as dst:
+            dst.write(band, 1)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def height_above_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, dtm_tif: Path, workdir: Path, *,
@@ -451,14 +513,52 @@ def statistical_outliers(x: np.ndarray, y: np.ndarray, z: np.ndarray, workdir: P
 # --------------------------------------------------------------------------- tile
 
 
+_COLOUR = ("red", "green", "blue", "nir")
+
+
+def buffer_attributes(own: Mapping[str, Any], other: Mapping[str, Any]) -> tuple[bool, int, str | None]:
+    """How a neighbour's buffer points join a tile of a block with other sensor attributes.
+
+    Returns ``(model_input_ok, colour_shift, note)``: a neighbour without an attribute
+    that is valid on the block (RGB, NIR, intensity, returns: :mod:`towerpipe.attributes`) gives points for ground, DTM and HAG only (they never reach the
+    model, whose features would read zeros); 8-bit colour beside 16-bit colour is
+    rescaled (``colour_shift`` bits to the left); ``note`` says what was done.
+    """
+    lacks = [a for a in ("rgb", "nir") if own.get(f"has_{a}") and not other.get(f"has_{a}")]
+    if own.get("attributes") is not None and other.get("attributes") is not None:
+        # valid on the block, degenerate on the neighbour (an all-zero NIR, intensity all 0)
+        theirs = valid_set(other.get("attributes"))
+        lacks += [a for a in sorted(valid_set(own.get("attributes")) - theirs) if a not in lacks]
+    shift = 0
+    if own.get("has_rgb") and other.get("has_rgb") and own.get("color_bits") != other.get("color_bits"):
+        shift = 8 if own.get("color_bits") == 16 else -8
+    note = None
+    if lacks:
+        note = (f"buffer points of block {other.get('block')} have no valid {' or '.join(lacks)}: "
+                "used for ground and heights only, not as model input")
+    elif shift:
+        note = (f"buffer points of block {other.get('block')} have {other.get('color_bits')}-bit colour: "
+                f"rescaled to {own.get('color_bits')} bits")
+    return not lacks, shift, note
+
+
 def gather_tile(zone: str, block: str, tile: str, caches: Mapping[str, BlockCache],
                 cfg: PreprocessConfig) -> Tile:
-    """Core points of ``block`` in ``tile`` plus buffer points of every cached block."""
-    grid = tiling.TileGrid(tuple(caches[block].meta["header_bounds"]), cfg.tile_size)
+    """Core points of ``block`` in ``tile`` plus buffer points of every cached block.
+
+    The tile grid comes from the block's points (``bounds`` measured by the split). A
+    neighbour with other sensor attributes is handled by :func:`buffer_attributes`; its
+    notes are ``meta["buffer_notes"]`` and its geometry-only points
+    ``meta["geometry_only_blocks"]``.
+    """
+    grid = tiling.TileGrid(tuple(caches[block].meta["bounds"]), cfg.tile_size)
     core_box = grid.core_box(tile)
     box = tiling.expand(core_box, cfg.buffer)
     names = sorted(caches)
+    own = caches[block].meta
     parts: list[dict[str, np.ndarray]] = []
+    notes: list[str] = []
+    geometry_only: list[str] = []
     for bid, name in enumerate(names):
         c = caches[name]
         x, y = c["x"], c["y"]
@@ -474,6 +574,15 @@ def gather_tile(zone: str, block: str, tile: str, caches: Mapping[str, BlockCach
         if sel.size == 0:
             continue
         part = {col: np.asarray(c[col][sel]) for col in BLOCK_COLUMNS}
+        if name != block:
+            ok, shift, note = buffer_attributes(own, c.meta)
+            if note:
+                notes.append(note)
+            if not ok:
+                geometry_only.append(name)
+            for col in _COLOUR if shift else ():
+                v = part[col].astype(np.uint32)
+                part[col] = (v << 8 | v if shift > 0 else v >> 8).astype(np.uint16)
         part.update(block_id=np.full(sel.size, bid, np.int32), point_index=sel.astype(np.int64), core=is_core)
         parts.append(part)
     arrays = empty_arrays(0)
@@ -484,22 +593,22 @@ def gather_tile(zone: str, block: str, tile: str, caches: Mapping[str, BlockCach
         n = len(arrays["x"])
         arrays["hag"] = np.zeros(n, np.float32)
         arrays["model_input"] = np.zeros(n, bool)
-    own = caches[block].meta
     meta = {
         "zone": zone, "block": block, "tile": tile, "crs_wkt": own["crs_wkt"],
         "core_bounds": list(core_box), "buffer": cfg.buffer, "tile_size": cfg.tile_size, "blocks": names,
-        "has_rgb": all(caches[b].meta["has_rgb"] for b in names),
-        "has_nir": all(caches[b].meta["has_nir"] for b in names),
-        # the attributes valid on every block whose points the tile holds
-        "valid_attributes": sorted(set.intersection(*(valid_set(caches[b].meta.get("attributes")) for b in names))),
+        # the block's own sensor attributes: a neighbour's never fail it (buffer_attributes)
+        "has_rgb": own["has_rgb"], "has_nir": own["has_nir"],
+        "valid_attributes": sorted(valid_set(own.get("attributes"))),
         "color_bits": own["color_bits"], "ground_source": own["ground_source"],
+        "buffer_notes": notes, "geometry_only_blocks": geometry_only,
     }
     return Tile(arrays, meta)
 
 
 def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, str | os.PathLike[str]],
                     out_path: str | os.PathLike[str], *, dtm_path: str | os.PathLike[str] | None = None,
-                    config: PreprocessConfig | Mapping[str, Any] | None = None) -> dict[str, Any]:
+                    config: PreprocessConfig | Mapping[str, Any] | None = None,
+                    missing: Mapping[str, str | os.PathLike[str]] | None = None) -> dict[str, Any]:
     """Ground, DTM, HAG and noise flags for one tile; writes the tile file.
 
     Parameters
@@ -513,6 +622,9 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
         The tile ``.npz`` (:mod:`towerpipe.tilefile`).
     dtm_path
         Where to keep the filled DTM GeoTIFF (for QA maps); a temporary file if ``None``.
+    missing
+        Blocks nearby that could not be split (id → cache directory holding the error):
+        the tile goes on without their points and says so in its warnings.
 
     Returns
     -------
@@ -523,18 +635,17 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
     what = f"{zone}/{block}/{tile}"
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    caches = {b: BlockCache.open(d, allow_failed=True) for b, d in cache_dirs.items()}
-    if caches[block].failed:
-        # keep the zone's DAG going (neighbours' towers read this tile's predictions):
-        # an empty tile; the block itself fails at preprocess_block with the recorded error
-        log.error("%s: %s; writing an empty tile", block, caches[block].failed)
-        return _failed_tile(zone, block, tile, caches[block], out_path, dtm_path, cfg)
+    caches = {b: BlockCache.open(d, allow_failed=b != block) for b, d in cache_dirs.items()}
+    for b, d in (missing or {}).items():
+        if b not in caches and Path(d, CACHE_META).exists():
+            caches[b] = BlockCache.open(d, allow_failed=True)
     warnings = [f"neighbour block {b} could not be read ({c.failed}); no buffer points from it"
                 for b, c in sorted(caches.items()) if c.failed]
-    for w in warnings:
-        log.warning("%s: %s", block, w)
     caches = {b: c for b, c in caches.items() if not c.failed}
     t = gather_tile(zone, block, tile, caches, cfg)
+    warnings += t.meta["buffer_notes"]
+    for w in warnings:
+        log.warning("%s: %s", block, w)
     timings["gather"] = time.perf_counter() - t0
     n = len(t)
     counts: dict[str, int] = {"points": n, "core": int(t["core"].sum()) if n else 0}
@@ -569,6 +680,9 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
                     outlier[idx] = statistical_outliers(x[idx], y[idx], z[idx], work, mean_k=cfg.outlier_mean_k,
                                                         multiplier=cfg.outlier_multiplier, what=what)
             model_input = ~ground & ~noise_cls & ~noise_hag & ~outlier
+            if t.meta["geometry_only_blocks"]:
+                geometry_only = [t.meta["blocks"].index(b) for b in t.meta["geometry_only_blocks"]]
+                model_input &= ~np.isin(t["block_id"], geometry_only)
             timings["noise"] = time.perf_counter() - s
             t.arrays["hag"] = hag
             t.arrays["model_input"] = model_input
@@ -592,22 +706,6 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
     return t.meta
 
 
-def _failed_tile(zone: str, block: str, tile: str, cache: BlockCache, out_path: str | os.PathLike[str],
-                 dtm_path: str | os.PathLike[str] | None, cfg: PreprocessConfig) -> dict[str, Any]:
-    """The empty tile of a block whose split failed (see :func:`split_block`)."""
-    hb = cache.meta.get("header_bounds")
-    core = list(tiling.TileGrid(tuple(hb), cfg.tile_size).core_box(tile)) if hb else [0.0, 0.0, 0.0, 0.0]
-    meta = {"zone": zone, "block": block, "tile": tile, "crs_wkt": None, "core_bounds": core, "buffer": cfg.buffer,
-            "tile_size": cfg.tile_size, "blocks": [block], "has_rgb": False, "has_nir": False, "color_bits": None,
-            "ground_source": None, "failed": cache.failed, "counts": {"points": 0, "core": 0}, "timings": {},
-            "dtm": {}, "warnings": [cache.failed]}
-    if dtm_path:
-        write_raster(Path(dtm_path), np.full((1, 1), NODATA, np.float32),
-                     rasterio.transform.from_origin(core[0], core[3], cfg.tile_size, cfg.tile_size), None)
-    save_tile(out_path, Tile(empty_arrays(0), meta))
-    return meta
-
-
 def summarize_block(cache_dir: str | os.PathLike[str], tile_paths: list[str],
                     out_json: str | os.PathLike[str]) -> dict[str, Any]:
     """Per-block preprocessing summary (counts per stage, ground source, timings) for QA.
@@ -629,6 +727,7 @@ def summarize_block(cache_dir: str | os.PathLike[str], tile_paths: list[str],
             warnings.append(f"tile {meta['tile']}: {fallback}")
         warnings += [f"tile {meta['tile']}: {w}" for w in meta.get("warnings", [])]
     m = cache.meta
+    warnings = [f"header: {w}" for w in m.get("header_warnings", [])] + warnings
     if totals.get("core", m["points"]) != m["points"]:
         warnings.append(f"tile cores hold {totals.get('core')} points, the block {m['points']}")
     if m.get("degenerate_attributes"):
@@ -637,8 +736,10 @@ def summarize_block(cache_dir: str | os.PathLike[str], tile_paths: list[str],
     if m["ground_source"] != "class2":
         warnings.append(f"ground had to be classified with PDAL {m['ground_source']} "
                         f"(only {m['ground_points']} class-2 points)")
+    # one dict: later stages and other records (e.g. sensor-attribute validity) add keys
     summary = {
-        "block": m["block"], "zone": m["zone"], "path": m["path"], "points": m["points"],
+        "block": m["block"], "zone": m["zone"], "path": m["path"], "source": m.get("source", {}),
+        "points": m["points"], "header_bounds": m.get("header_bounds"),
         "bounds": m["bounds"], "crs_wkt": m["crs_wkt"], "has_rgb": m["has_rgb"], "has_nir": m["has_nir"],
         "attributes": m.get("attributes"), "degenerate_attributes": m.get("degenerate_attributes", []),
         "color_bits": m["color_bits"], "ground_source": m["ground_source"],

@@ -38,6 +38,7 @@ DEFAULT_LIMITS: dict[str, float] = {
     "edge_margin_m": 5.0,          # tower centroid closer than this to the block edge
     "min_tower_prob": 0.6,         # mean probability of a tower's points
     "min_wire_support": 0.5,       # conductor support of a tower (a low tower is kept without it)
+    "wire_min_height": 20.0,       # the conductor rule applies from this height (towers.wire_min_height)
     "max_gate_ratio": 0.25,        # share of windows that passed the classifier gate
     "min_recall": 1.0,             # tower recall against input labels (when present)
     "min_precision": 1.0,          # tower precision against input labels (when present)
@@ -537,6 +538,8 @@ def block_report(
         support = float(getattr(r, "wire_support", float("nan")))
         if math.isfinite(support) and support < lim["min_wire_support"]:
             tflags.append(f"no conductors found (support {support:.2f}): a pole, or not a tower?")
+        elif not math.isfinite(support) and "wire_support" in gdf.columns and r.height_m >= lim["wire_min_height"]:
+            tflags.append("conductor ring (80-160 m) outside the data: support not measured, kept")
         for t in tflags:
             flag("tower", f"tower {i} ({r.tower_id}): {t}")
         tower_rows.append({"n": i, "tower_id": r.tower_id, "x": r.centroid_x, "y": r.centroid_y,

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from towerpipe import __version__
-from towerpipe.assemble import assemble_directory, write_text_atomic
+from towerpipe.assemble import assemble_directory, publish_copy, write_text_atomic
 from towerpipe.columnfile import read_meta
 from towerpipe.modelcard import config_hash
 
@@ -33,8 +33,8 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
                 out_gpkg: str | os.PathLike[str], *, towers_cfg: Mapping[str, Any],
                 source_files: Mapping[str, str], run_cfg: Mapping[str, Any],
                 out_neighbours: str | os.PathLike[str] | None = None, point_threshold: float | None = None,
-                tile_files: Sequence[str] = (), out_members: str | os.PathLike[str] | None = None
-                ) -> dict[str, Any]:
+                tile_files: Sequence[str] = (), out_members: str | os.PathLike[str] | None = None,
+                survey: Sequence[Sequence[float]] = ()) -> dict[str, Any]:
     """Towers owned by ``block`` (from its and its neighbours' predictions) → GeoPackage.
 
     ``out_neighbours`` (JSON) receives the towers with points in the block that a
@@ -42,14 +42,25 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
     ``tile_files`` (the block's and its neighbours' tiles) give the conductor support of
     each tower (:class:`towerpipe.wires.TileContext`); ``out_members`` receives the points
     of every accepted tower with points in the block, owned or not
-    (:func:`towerpipe.towers.save_members`): the merge classifies them 15.
+    (:func:`towerpipe.towers.save_members`): the merge classifies them 15. ``survey``
+    (measured bounds of the block and its neighbours) and ``towers_cfg["wire_ring_coverage"]``
+    leave the support of a tower whose conductor ring is mostly outside the data unknown.
     """
     from towerpipe.gpkg import run_metadata, write_towers_gpkg
     from towerpipe.predfile import load_pred
     from towerpipe.towers import extract_towers, save_members
     from towerpipe.wires import TileContext
 
+    from towerpipe.errors import ModelError
+
+    towers_cfg = dict(towers_cfg)
+    ring_share = float(towers_cfg.pop("wire_ring_coverage", 0.0))
     loaded = [load_pred(p) for p in preds]
+    for p in loaded:  # an inference that could not run on a tile (infer_step recorded why)
+        if p.meta.get("error"):
+            if p.meta.get("block") == block:
+                raise ModelError(p.meta["error"])
+            log.warning("neighbour block %s: no predictions (%s)", p.meta.get("block"), p.meta["error"])
     own = [p for p in loaded if p.meta.get("block") == block] or loaded
     model_meta = own[0].meta.get("model") if own else None
     crs_wkt = own[0].meta.get("crs_wkt") if own else None
@@ -57,7 +68,7 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
     members: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     gdf = extract_towers(loaded, block, block_bounds, zone=zone, model_meta=model_meta,
                          source_files=source_files, crs=crs_wkt, neighbours=neighbours, point_threshold=point_threshold,
-                         context=TileContext(tile_files) if tile_files else None, members=members,
+                         context=TileContext(tile_files, survey=survey, min_ring_share=ring_share) if tile_files else None, members=members,
                          **dict(towers_cfg))
     if out_members is not None:
         save_members(out_members, members)
@@ -67,6 +78,34 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
         write_text_atomic(out_neighbours, json.dumps({"block": block, "towers_owned_by_neighbours": neighbours},
                                                      indent=1))
     return {"towers": len(gdf), "towers_owned_by_neighbours": len(neighbours)}
+
+
+def infer_step(tile_path: str | os.PathLike[str], model: str | os.PathLike[str], out_path: str | os.PathLike[str],
+               **kw: Any) -> dict[str, Any]:
+    """:func:`towerpipe.infer.infer_tile`, a model that cannot run on the tile recorded, not raised.
+
+    A :class:`~towerpipe.errors.ModelError` (e.g. the model needs NIR and the block has
+    none) becomes an empty prediction file whose ``meta["error"]`` says why: the
+    neighbours' towers jobs, which read this tile's predictions for the towers across
+    their edges, go on; the block's own towers job raises it (:func:`towers_step`). A
+    block the model cannot run on thus costs only itself.
+    """
+    from towerpipe.errors import ModelError
+    from towerpipe.infer import infer_tile
+    from towerpipe.predfile import PRED_ARRAYS, save_pred
+
+    try:
+        return infer_tile(tile_path, model, out_path, **kw)
+    except ModelError as exc:
+        meta = read_meta(tile_path)
+        log.error("ModelError: %s; recorded in %s: the block fails at its towers step, its neighbours go on",
+                  exc, out_path)
+        rec = {k: meta.get(k) for k in ("zone", "block", "tile", "blocks", "crs_wkt", "core_bounds")}
+        rec.update(model={}, windows_total=0, windows_passed_gate=0, windows_segmented=0,
+                   gate_threshold=kw.get("gate"), combine=kw.get("combine"), points_core=0,
+                   points_model_input_core=0, timings={}, peak_rss_mb=0.0, error=str(exc))
+        save_pred(out_path, {k: np.zeros(0, d) for k, d in PRED_ARRAYS.items()}, rec)
+        return rec
 
 
 def _block_dtm(dtm_paths: Sequence[str], out: Path) -> Path | None:
@@ -150,21 +189,51 @@ def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_fi
 
 def zone_step(zone: str, out_dir: str, files: Mapping[str, str], *, tower_gpkgs: Sequence[str],
               qa_jsons: Sequence[str], failures: Mapping[str, str] | None = None,
-              run_cfg: Mapping[str, Any] | None = None) -> Path:
-    """Assemble ``results/<zone>/``: per-block links, zone GeoPackage and QA index, atomically."""
+              run_cfg: Mapping[str, Any] | None = None, stage_dir: str | os.PathLike[str] | None = None,
+              manifest: str | os.PathLike[str] | None = None, sources: Mapping[str, str] | None = None) -> Path:
+    """Publish ``results/<zone>/``: per-block links, zone GeoPackage, QA index (+ ``INCOMPLETE.txt``).
+
+    The zone is built in ``stage_dir`` (the last published zone, kept so that a deleted
+    ``results/<zone>/`` can be restored without rebuilding) and ``out_dir`` is swapped in
+    as a hard-linked copy of it (:func:`towerpipe.assemble.publish_copy`): it is never
+    deleted first and exists at every moment. With ``failures`` the zone is INCOMPLETE:
+    ``INCOMPLETE.txt`` is written before the swap. ``manifest`` (JSON, the workflow's
+    record of the publication) lists the blocks, their original files and the failures.
+    A zone where no block completed gets no ``towers.gpkg`` (nothing to merge, no CRS).
+    """
     from towerpipe.gpkg import merge_gpkgs
     from towerpipe.qa import zone_index
 
+    failures = dict(failures or {})
+
     def build(tmp: Path) -> None:
-        merge_gpkgs(list(tower_gpkgs), tmp / "towers.gpkg",
-                    metadata={"zone": zone, "towerpipe_version": __version__,
-                              "assembled_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-                              "config_hash": config_hash(run_cfg or {})})
+        if tower_gpkgs:
+            merge_gpkgs(list(tower_gpkgs), tmp / "towers.gpkg",
+                        metadata={"zone": zone, "towerpipe_version": __version__,
+                                  "assembled_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                                  "config_hash": config_hash(run_cfg or {})})
         (tmp / "qa").mkdir(exist_ok=True)
         zone_index(tmp / "qa" / "index.html", [str(tmp / "qa" / Path(j).name) for j in qa_jsons],
-                   failures=dict(failures or {}), zone=zone, out_json=tmp / "qa" / "index.json")
+                   failures=failures, zone=zone, out_json=tmp / "qa" / "index.json")
+        if failures:
+            (tmp / "INCOMPLETE.txt").write_text(
+                "This zone is INCOMPLETE: the run failed for these blocks (see qa/index.html):\n"
+                + "".join(f"  {b}: {r}\n" for b, r in sorted(failures.items()))
+                + "Fix the inputs (or remove them) and rerun the same snakemake command.\n")
 
-    return assemble_directory(out_dir, files, build)
+    stage = Path(stage_dir) if stage_dir is not None else None
+    if stage is None:
+        out = assemble_directory(out_dir, files, build)
+    else:
+        assemble_directory(stage, files, build)
+        out = publish_copy(stage, out_dir)
+    if manifest is not None:
+        blocks = sorted({Path(rel).stem for rel in files if rel.startswith("blocks/")})
+        write_text_atomic(manifest, json.dumps({
+            "zone": zone, "published": str(out), "complete": not failures,
+            "published_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "blocks": {b: (sources or {}).get(b) for b in blocks}, "failures": failures}, indent=1))
+    return out
 
 
 def model_results_step(bundle_dir: str, ablation_dirs: Sequence[str], out_dir: str) -> Path:
@@ -211,22 +280,71 @@ def failures_from_log(snakemake_log: str | os.PathLike[str] | Sequence[str], wor
     return failures
 
 
+def current_blocks(files: Mapping[str, str], caches: Mapping[str, str], fingerprints: Mapping[str, str],
+                   neighbours: Mapping[str, Sequence[str]] | None = None) -> tuple[set[str], dict[str, str]]:
+    """Blocks whose products are those of their current input, and why the others are not.
+
+    A block's products are current when they all exist, its split ran on the input's
+    present content (the cache's fingerprint) without error, and none of them is older
+    than its own or a neighbour's split (the buffers it used). Old products of a block
+    whose input changed, or whose jobs failed, are therefore never republished as current.
+    """
+    by_block: dict[str, list[Path]] = {}
+    for rel, src in files.items():
+        by_block.setdefault(Path(rel).stem, []).append(Path(src))
+    cache_meta = {b: Path(d) / "meta.json" for b, d in caches.items()}
+
+    def split_time(b: str) -> float | None:
+        return cache_meta[b].stat().st_mtime if b in cache_meta and cache_meta[b].exists() else None
+
+    ok: set[str] = set()
+    why: dict[str, str] = {}
+    for b, products in sorted(by_block.items()):
+        if not all(p.exists() for p in products):
+            why[b] = "not processed by this run (no products)"
+            continue
+        try:
+            meta = json.loads(cache_meta[b].read_text())
+        except (KeyError, OSError, ValueError):
+            why[b] = "not split by this run; its previous products are withheld"
+            continue
+        if meta.get("error") or (meta.get("source") or {}).get("fingerprint") != fingerprints.get(b):
+            why[b] = "its input changed and was not processed; its previous products are withheld"
+            continue
+        made = min(p.stat().st_mtime for p in products)
+        times = [t for t in (split_time(n) for n in [b, *(neighbours or {}).get(b, [])]) if t is not None]
+        if times and made < max(times):
+            why[b] = "its products are older than its input or its neighbours'; withheld until rerun"
+            continue
+        ok.add(b)
+    return ok, why
+
+
 def assemble_incomplete_zone(zone: str, out_dir: str, files: Mapping[str, str], failures: Mapping[str, str],
-                             *, run_cfg: Mapping[str, Any] | None = None) -> Path:
+                             *, run_cfg: Mapping[str, Any] | None = None, caches: Mapping[str, str] | None = None,
+                             fingerprints: Mapping[str, str] | None = None,
+                             neighbours: Mapping[str, Sequence[str]] | None = None,
+                             stage_dir: str | os.PathLike[str] | None = None,
+                             sources: Mapping[str, str] | None = None) -> Path:
     """``results/<zone>/`` from the blocks that completed, the failed ones listed.
 
     Written after a failed run (``--keep-going``): the QA index names each failed
-    block and why, and ``INCOMPLETE.txt`` says the zone is not complete, so the
-    directory can never be taken for a finished one.
+    block and why, and ``INCOMPLETE.txt`` (written before the zone is swapped in) says
+    the zone is not complete, so the directory can never be taken for a finished one.
+    Only blocks whose products are current (:func:`current_blocks`, when ``caches`` and
+    ``fingerprints`` are given) are published; the others are listed with the reason.
+    Works when no block completed (a QA index of failures, no ``towers.gpkg``).
     """
-    have = {rel: src for rel, src in files.items() if Path(src).exists()}
-    ok_blocks = {Path(rel).stem for rel in have if rel.startswith("qa/") and rel.endswith(".json")}
-    have = {rel: src for rel, src in have.items() if Path(rel).stem in ok_blocks}
+    if caches is not None and fingerprints is not None:
+        ok, stale = current_blocks(files, caches, fingerprints, neighbours)
+    else:
+        have = {Path(rel).stem for rel, src in files.items() if rel.startswith("qa/") and rel.endswith(".json")
+                and Path(src).exists()}
+        ok, stale = have, {}
+    failures = {**{b: r for b, r in stale.items() if b not in failures}, **failures}
+    ok -= set(failures)
+    have = {rel: src for rel, src in files.items() if Path(rel).stem in ok}
     gpkgs = [src for rel, src in have.items() if rel.startswith("towers/")]
     qa = [src for rel, src in have.items() if rel.startswith("qa/") and rel.endswith(".json")]
-    out = zone_step(zone, out_dir, have, tower_gpkgs=gpkgs, qa_jsons=qa, failures=failures, run_cfg=run_cfg)
-    (out / "INCOMPLETE.txt").write_text(
-        "This zone is INCOMPLETE: the run failed for these blocks (see qa/index.html):\n"
-        + "".join(f"  {b}: {r}\n" for b, r in sorted(failures.items()))
-        + "Fix the inputs (or remove them) and rerun the same snakemake command.\n")
-    return out
+    return zone_step(zone, out_dir, have, tower_gpkgs=gpkgs, qa_jsons=qa, failures=failures, run_cfg=run_cfg,
+                     stage_dir=stage_dir, sources=sources)

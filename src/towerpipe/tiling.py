@@ -113,3 +113,84 @@ def blocks_for_tile(block_bounds: Bounds, tile: str, tile_size: float, buffer: f
 def box_mask(x: np.ndarray, y: np.ndarray, box: Bounds) -> np.ndarray:
     """Points inside a closed box."""
     return (x >= box[0]) & (x <= box[2]) & (y >= box[1]) & (y <= box[3])
+
+
+def occupied_tiles(grid: TileGrid, x: np.ndarray, y: np.ndarray, chunk: int = 4_000_000) -> list[str]:
+    """Ids of the tiles of ``grid`` that hold at least one of the points (row-major).
+
+    A stray point far from the others widens the grid but adds one tile, not the
+    thousands of empty ones between.
+    """
+    nx, _ = grid.shape
+    cells: set[int] = set()
+    for start in range(0, len(x), chunk):
+        ix, iy = grid.index(x[start:start + chunk], y[start:start + chunk])
+        cells.update(np.unique(iy.astype(np.int64) * nx + ix).tolist())
+    return [f"{c % nx}_{c // nx}" for c in sorted(cells)]
+
+
+def plan_zone(blocks: Mapping[str, Mapping], tile_size: float, buffer: float) -> dict:
+    """The zone's jobs from what the split measured (never from the headers).
+
+    Parameters
+    ----------
+    blocks
+        Block id → split metadata: ``bounds`` (of the points) and ``tiles`` (occupied
+        tile ids), or ``error`` for a block that could not be split (it gets no tiles;
+        its ``header_bounds``, when known, only name it as a missing neighbour).
+    tile_size, buffer
+        The preprocessing's tile size and buffer (m).
+
+    Returns
+    -------
+    dict
+        ``{"blocks": {id: {"tiles", "points", "bounds", "neighbours", "tile_blocks":
+        {tile: [ids]}, "missing_neighbours": [ids]}}}``; ``tile_blocks`` lists the block
+        itself first, then the blocks with an occupied tile within ``buffer`` of the
+        tile's core.
+    """
+    from shapely import box as shp_box
+    from shapely.strtree import STRtree
+
+    boxes, owners = [], []
+    grids = {}
+    for b, m in blocks.items():
+        if m.get("error") or not m.get("tiles"):
+            continue
+        grids[b] = TileGrid(tuple(m["bounds"]), tile_size)
+        for t in m["tiles"]:
+            boxes.append(grids[b].core_box(t))
+            owners.append(b)
+    tree = STRtree([shp_box(*bx) for bx in boxes]) if boxes else None
+    failed = {b: m.get("header_bounds") for b, m in blocks.items() if m.get("error")}
+    out: dict[str, dict] = {}
+    for b, m in blocks.items():
+        if b not in grids:
+            out[b] = {"tiles": [], "points": 0, "bounds": None, "neighbours": [], "tile_blocks": {},
+                      "missing_neighbours": []}
+            continue
+        tile_blocks = {}
+        for t in m["tiles"]:
+            near = expand(grids[b].core_box(t), buffer)
+            hits = {owners[i] for i in tree.query(shp_box(*near))} - {b}
+            tile_blocks[t] = [b, *sorted(hits)]
+        reach = expand(tuple(m["bounds"]), buffer)
+        out[b] = {
+            "tiles": list(m["tiles"]), "points": int(m.get("points", 0)), "bounds": list(m["bounds"]),
+            "neighbours": sorted({n for v in tile_blocks.values() for n in v[1:]}), "tile_blocks": tile_blocks,
+            "missing_neighbours": sorted(f for f, hb in failed.items() if hb and intersects(reach, tuple(hb))),
+        }
+    return {"tile_size": tile_size, "buffer": buffer, "blocks": out}
+
+
+def plan_zone_step(cache_dirs: Mapping[str, str], out_json: str, *, tile_size: float, buffer: float) -> dict:
+    """:func:`plan_zone` from the split caches' ``meta.json`` → ``out_json`` (written atomically)."""
+    import json
+    from pathlib import Path
+
+    from towerpipe.assemble import write_text_atomic
+
+    metas = {b: json.loads((Path(d) / "meta.json").read_text()) for b, d in cache_dirs.items()}
+    plan = plan_zone(metas, tile_size, buffer)
+    write_text_atomic(out_json, json.dumps(plan, indent=0, sort_keys=True))
+    return {"blocks": len(metas), "tiles": sum(len(v["tiles"]) for v in plan["blocks"].values())}

@@ -22,9 +22,12 @@ points around a candidate, with no model:
    such a point. The support is the best sector's share: 1.0 means a conductor runs
    out of the candidate over the whole ring, 0.0 that nothing does.
 
-Radial bins outside the data (the tile's core plus buffer) are left out of a sector's
-share; a sector needs ``min_bins`` bins in the data, and where no sector has them the
-support is ``nan`` (unknown: a candidate is never dropped for lack of data).
+Radial bins outside the data are left out of a sector's share: "the data" is where
+points exist (:class:`Coverage`: 10 m cells holding any point of the tile, ground
+included), not the tile's box, so a tower in a corridor strip a few tens of metres wide,
+or at the edge of a survey, is not scored on the empty land beside it. A sector needs
+``min_bins`` bins in the data, and where no sector has them the support is ``nan``
+(unknown: a candidate is never dropped for lack of data; the QA flags it).
 
 On the `calib` zone, with the defaults, all 17 true towers score 1.0 and the cranes,
 masts, chimneys and turbines at most 0.38 (see ``towers.min_wire_support``).
@@ -38,7 +41,65 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
 
-__all__ = ["TileContext", "wire_points", "wire_support"]
+__all__ = ["Coverage", "TileContext", "wire_points", "wire_support"]
+
+
+class Coverage:
+    """Where a set of points exists: the occupied cells of a square grid.
+
+    Parameters
+    ----------
+    x, y
+        The points (all of them: ground too).
+    cell
+        Cell size (m).
+    grow
+        Cells added around the occupied ones: a location within about ``grow * cell``
+        of a point counts as covered (the radial bins are tested at their centres).
+    survey, min_ring_share
+        The surveyed area around (boxes: the measured bounds of the block and its
+        neighbours, beyond the points loaded here) and the share of a tower's ring that
+        must lie in it for a support to be judged (see :func:`wire_support`).
+    """
+
+    def __init__(self, x: np.ndarray, y: np.ndarray, cell: float = 10.0, grow: int = 1,
+                 survey: Sequence[Sequence[float]] = (), min_ring_share: float = 0.0):
+        x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+        self.cell = float(cell)
+        self.survey = [tuple(map(float, b)) for b in survey]
+        self.min_ring_share = float(min_ring_share)
+        if len(x) == 0:
+            self.origin, self.mask = (0.0, 0.0), np.zeros((0, 0), dtype=bool)
+            return
+        self.origin = (float(np.floor(x.min())), float(np.floor(y.min())))
+        ix = ((x - self.origin[0]) // self.cell).astype(np.int64)
+        iy = ((y - self.origin[1]) // self.cell).astype(np.int64)
+        self.origin = (self.origin[0] - grow * self.cell, self.origin[1] - grow * self.cell)
+        ix, iy = ix + grow, iy + grow
+        mask = np.zeros((int(iy.max()) + 1 + grow, int(ix.max()) + 1 + grow), dtype=bool)
+        mask[iy, ix] = True
+        if grow:
+            from scipy.ndimage import binary_dilation
+
+            mask = binary_dilation(mask, iterations=grow)
+        self.mask = mask
+
+    def contains(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Whether each location lies in an occupied cell."""
+        ix = np.floor((np.asarray(x) - self.origin[0]) / self.cell).astype(np.int64)
+        iy = np.floor((np.asarray(y) - self.origin[1]) / self.cell).astype(np.int64)
+        ny, nx = self.mask.shape
+        ok = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+        out = np.zeros(np.shape(ix), dtype=bool)
+        out[ok] = self.mask[iy[ok], ix[ok]]
+        return out
+
+    def surveyed(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Whether each location lies in the surveyed area (every location when none is given)."""
+        x, y = np.asarray(x), np.asarray(y)
+        if not self.survey:
+            return np.ones(np.shape(x), dtype=bool)
+        return np.any([(x >= b[0]) & (x <= b[2]) & (y >= b[1]) & (y <= b[3]) for b in self.survey], axis=0)
 
 
 def wire_points(x: np.ndarray, y: np.ndarray, z: np.ndarray, *, radius: float = 1.0, max_neighbours: int = 20,
@@ -110,9 +171,9 @@ def wire_points(x: np.ndarray, y: np.ndarray, z: np.ndarray, *, radius: float = 
 
 
 def wire_support(x: np.ndarray, y: np.ndarray, z: np.ndarray, hag: np.ndarray, cx: float, cy: float, *,
-                 extent: Sequence[float] | None = None, r_min: float = 80.0, r_max: float = 160.0,
+                 extent: Sequence[float] | Coverage | None = None, r_min: float = 80.0, r_max: float = 160.0,
                  step: float = 10.0, sector: float = 20.0, max_offset: float = 12.0, min_hag: float = 5.0,
-                 min_bins: int = 4) -> float:
+                 min_bins: int = 4, min_ring_coverage: float = 0.0) -> float:
     """Share of the ring ``[r_min, r_max)`` m around ``(cx, cy)`` reached by a conductor.
 
     Parameters
@@ -122,8 +183,8 @@ def wire_support(x: np.ndarray, y: np.ndarray, z: np.ndarray, hag: np.ndarray, c
     cx, cy
         Candidate centre (the tower's footprint centroid).
     extent
-        ``(xmin, ymin, xmax, ymax)`` of the area the points cover; radial bins whose
-        centre lies outside are not counted. ``None``: everything is covered.
+        Where data exists: a :class:`Coverage`, or ``(xmin, ymin, xmax, ymax)``; radial
+        bins whose centre lies outside are not counted. ``None``: everything is covered.
     r_min, r_max, step
         The ring and its radial bins (m). ``r_min`` is beyond a crane's jib (<= 80 m).
     sector
@@ -134,6 +195,12 @@ def wire_support(x: np.ndarray, y: np.ndarray, z: np.ndarray, hag: np.ndarray, c
         Height floor (m) of wire points.
     min_bins
         Radial bins a sector needs inside ``extent`` to be scored.
+    min_ring_coverage
+        Share of the ring's bins (all sectors) that must lie in the data for the support
+        to be known: below it, where the conductors go may be outside the data (a
+        corridor strip crossing the line, the corner of a survey) and the support is
+        ``nan``. 0 scores any ring with one scored sector. A :class:`Coverage` with a
+        ``survey`` judges this on the surveyed area with its own ``min_ring_share``.
 
     Returns
     -------
@@ -154,12 +221,16 @@ def wire_support(x: np.ndarray, y: np.ndarray, z: np.ndarray, hag: np.ndarray, c
     by = cy + np.sin(mid)[:, None] * rc[None, :]
     if extent is None:
         inside = np.ones((len(starts), nbins), dtype=bool)
+    elif isinstance(extent, Coverage):
+        inside = extent.contains(bx, by)
+        if extent.survey and extent.surveyed(bx, by).mean() < extent.min_ring_share:
+            return float("nan")
     else:
         xmin, ymin, xmax, ymax = extent
         inside = (bx >= xmin) & (bx < xmax) & (by >= ymin) & (by < ymax)
     avail = inside.sum(axis=1)
     scored = avail >= min_bins
-    if not scored.any():
+    if not scored.any() or inside.mean() < min_ring_coverage:
         return float("nan")
     idx = np.flatnonzero(sel)
     wire, u = wire_points(x[idx], y[idx], np.asarray(z, dtype=np.float64)[idx])
@@ -181,7 +252,11 @@ def wire_support(x: np.ndarray, y: np.ndarray, z: np.ndarray, hag: np.ndarray, c
 
 class TileContext:
     """``context(cx, cy)`` for :func:`towerpipe.towers.extract_towers`: the model-input
-    points of the tile whose core holds ``(cx, cy)``, and the area they cover.
+    points of the tile whose core holds ``(cx, cy)``, and where the tile has points
+    (:class:`Coverage` of all its points, ground included).
+
+    Tiles without points (a block whose split failed) are skipped, so they never hide the
+    tile of a neighbour that holds the same place.
 
     Tiles are read lazily (only ``x, y, z, hag, model_input``) and the last one is kept,
     so towers of the same tile cost one read.
@@ -190,29 +265,36 @@ class TileContext:
     ----------
     tile_paths
         Tile files (:mod:`towerpipe.tilefile`) of the block.
+    survey, min_ring_share
+        See :class:`Coverage`: a tower whose conductor ring lies mostly outside the
+        surveyed boxes gets an unknown support (kept, and flagged by the QA).
     """
 
     _COLUMNS = ["x", "y", "z", "hag", "model_input"]
 
-    def __init__(self, tile_paths: Sequence[str]):
+    def __init__(self, tile_paths: Sequence[str], *, survey: Sequence[Sequence[float]] = (),
+                 min_ring_share: float = 0.0):
         from towerpipe.columnfile import read_meta
 
+        self._survey, self._min_ring_share = [b for b in survey if b], min_ring_share
         self._tiles = []
         for p in tile_paths:
             meta = read_meta(p)
-            core, buf = meta.get("core_bounds"), float(meta.get("buffer") or 0.0)
-            if core:
-                self._tiles.append((str(p), core, (core[0] - buf, core[1] - buf, core[2] + buf, core[3] + buf)))
-        self._cached: tuple[str, dict[str, np.ndarray]] | None = None
+            core = meta.get("core_bounds")
+            if core and meta.get("failed") is None and (meta.get("counts") or {}).get("points", 1) > 0:
+                self._tiles.append((str(p), core))
+        self._cached: tuple[str, dict[str, np.ndarray], Coverage] | None = None
 
-    def __call__(self, cx: float, cy: float) -> tuple[dict[str, np.ndarray], tuple[float, ...]] | None:
+    def __call__(self, cx: float, cy: float) -> tuple[dict[str, np.ndarray], Coverage] | None:
         from towerpipe.tilefile import load_tile
 
-        for path, (xmin, ymin, xmax, ymax), extent in self._tiles:
+        for path, (xmin, ymin, xmax, ymax) in self._tiles:
             if xmin <= cx < xmax and ymin <= cy < ymax:
                 if self._cached is None or self._cached[0] != path:
                     arrays = load_tile(path, columns=self._COLUMNS).arrays
                     keep = np.asarray(arrays.pop("model_input"), dtype=bool)
-                    self._cached = (path, {k: v[keep] for k, v in arrays.items()})
-                return self._cached[1], extent
+                    self._cached = (path, {k: v[keep] for k, v in arrays.items()},
+                                    Coverage(arrays["x"], arrays["y"], survey=self._survey,
+                                             min_ring_share=self._min_ring_share))
+                return self._cached[1], self._cached[2]
         return None

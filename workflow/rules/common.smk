@@ -1,14 +1,15 @@
 # Helpers shared by the rules: zones, blocks, tiles and neighbours.
 # Logic lives in src/towerpipe; this file only maps config and files to paths.
 import functools
+import json
 import os
 from pathlib import Path
 
 from snakemake.exceptions import WorkflowError
 
-from towerpipe import tiling
 from towerpipe.errors import PdalError, TowerpipeError
-from towerpipe.lasio import find_blocks, read_header
+from towerpipe import runlock
+from towerpipe.inputs import describe, scan_zone
 from towerpipe.pdal import pdal_version
 
 WORK = config["workdir"]
@@ -17,7 +18,8 @@ PREP = config["preprocess"]
 
 wildcard_constraints:
     zone=r"[A-Za-z0-9][A-Za-z0-9_.-]*",
-    block=r"[^/]+",
+    # block ids are safe file names (towerpipe.inputs), whatever the input files are called
+    block=r"[A-Za-z0-9_][A-Za-z0-9_.-]*",
     tile=r"-?\d+_-?\d+",
 
 
@@ -39,9 +41,18 @@ def zone_config(zone):
 
 
 def zone_input(zone):
-    """The zone's input directory; generated first when the zone is synthetic."""
+    """The zone's input directory; generated first when the zone is synthetic.
+
+    A run that will execute jobs (not a dry run, not a cluster job) holds the zone's run
+    lock from here to its end: one run per zone, whatever started it.
+    """
     zc = zone_config(zone)
     path = zc["input"]
+    if workflow.is_main_process and workflow.executor_plugin is not None and not workflow.dryrun:
+        try:
+            runlock.hold_zone(zone)
+        except TowerpipeError as exc:
+            raise WorkflowError(str(exc))
     if "synth" in zc:
         if os.path.normpath(path) != os.path.normpath(f"data/{zone}"):
             raise WorkflowError(f"zones.{zone}.input must be data/{zone} for a synthetic zone (got {path})")
@@ -52,68 +63,86 @@ def zone_input(zone):
 
 
 @functools.cache
-def _blocks(zone, path):
-    blocks = find_blocks(path)
-    if not blocks:
+def _inputs(zone, path):
+    found = scan_zone(path, cache=f"{WORK}/{zone}/inputs.json")
+    if not found:
         raise WorkflowError(f"zones.{zone}.input: no .las/.laz files under {path!r}")
-    return blocks
+    return found
+
+
+def inputs(zone):
+    """Block id -> towerpipe.inputs.BlockInput (file, original name, fingerprint), sorted by id."""
+    return _inputs(zone, zone_input(zone))
 
 
 def blocks(zone):
-    """Block name -> file, sorted by name."""
-    return _blocks(zone, zone_input(zone))
+    """Block id -> file, sorted by id."""
+    return {b: i.path for b, i in inputs(zone).items()}
 
 
-def block_path(zone, block):
+def block_input(zone, block):
     try:
-        return blocks(zone)[block]
+        return inputs(zone)[block]
     except KeyError:
         raise WorkflowError(f"block {block!r} is not in zone {zone!r}")
 
 
-@functools.cache
-def _headers(zone, path):
-    out = {}
-    for name, p in _blocks(zone, path).items():
-        try:
-            out[name] = read_header(p)
-        except TowerpipeError:
-            out[name] = None  # the block's split_block job reports the error
-    return out
-
-
-def headers(zone):
-    return _headers(zone, zone_input(zone))
+def block_path(zone, block):
+    return block_input(zone, block).path
 
 
 def zone_crs(zone):
     """The CRS most blocks of a zone have (WKT), or None: a block in another CRS is refused."""
     from collections import Counter
 
-    wkts = [h.crs_wkt for h in headers(zone).values() if h is not None and h.crs_wkt]
+    wkts = [i.header["crs_wkt"] for i in inputs(zone).values() if i.header and i.header["crs_wkt"]]
     return Counter(wkts).most_common(1)[0][0] if wkts else None
 
 
-def bounds(zone):
-    """Header bounds of every readable block."""
-    return {b: h.bounds for b, h in headers(zone).items() if h is not None and h.point_count > 0}
+def plan_file(zone):
+    return f"{WORK}/{zone}/plan.json"
+
+
+@functools.cache
+def _read_plan(path, mtime_ns):
+    with open(path) as fh:
+        return json.load(fh)["blocks"]
+
+
+def plan(zone):
+    """The zone's tiles and neighbours, from the points the split measured (checkpoint plan_zone).
+
+    Nothing in the job graph comes from a block's header: until every block is split,
+    the jobs after the split are not known (a dry run lists the splits and the plan).
+    """
+    path = checkpoints.plan_zone.get(zone=zone).output[0]
+    return _read_plan(path, os.stat(path).st_mtime_ns)
+
+
+def plan_or_none(zone):
+    """The zone's plan when it exists (no checkpoint: for resources and the error handler)."""
+    path = plan_file(zone)
+    return _read_plan(path, os.stat(path).st_mtime_ns) if os.path.exists(path) else None
+
+
+def planned(zone, block):
+    return plan(zone).get(block) or {"tiles": [], "neighbours": [], "tile_blocks": {}, "points": 0,
+                                     "missing_neighbours": []}
 
 
 def tiles(zone, block):
-    b = bounds(zone).get(block)
-    return [] if b is None else tiling.tile_ids(b, PREP["tile_size"])
+    return planned(zone, block)["tiles"]
 
 
 def tile_blocks(zone, block, tile):
     """Blocks whose points may fall in the tile's core or buffer (the block itself first)."""
-    b = bounds(zone)
-    others = tiling.blocks_for_tile(b[block], tile, PREP["tile_size"], PREP["buffer"], b)
-    return [block] + [b for b in others if b != block]
+    return planned(zone, block)["tile_blocks"][tile]
 
 
 def block_points(zone, block):
-    h = headers(zone).get(block)
-    return h.point_count if h is not None else 0
+    """Points of a block for sizing resources: measured once split, else bounded by the file size."""
+    n = ((plan_or_none(zone) or {}).get(block) or {}).get("points")
+    return n or block_input(zone, block).points_estimate
 
 
 def cache_dir(zone, block):
@@ -141,6 +170,16 @@ def zone_products(zone):
         files[f"qa/{b}.html"] = f"{WORK}/{zone}/qa/{b}.html"
         files[f"qa/{b}.json"] = f"{WORK}/{zone}/qa/{b}.json"
     return files
+
+
+def planned_products(zone):
+    """The zone's per-block products, once its plan exists: until then the job graph holds
+    the splits and the plan only, so a dry run of a new zone of thousands of blocks stays small.
+    The blocks come first: a synthetic zone's generation is the checkpoint waited for before
+    the plan (the rule's parameters need the blocks)."""
+    products = list(zone_products(zone).values())
+    plan(zone)
+    return products
 
 
 INFER = config["inference"]
@@ -179,10 +218,7 @@ def block_preds(zone, block):
 
 
 def block_neighbours(zone, block):
-    b = bounds(zone)
-    if block not in b:
-        return []
-    return tiling.neighbours(block, b, PREP["buffer"])
+    return planned(zone, block)["neighbours"]
 
 
 def run_params():

@@ -58,7 +58,6 @@ rule infer_tile:
 
 rule merge_block:
     input:
-        block=lambda wc: block_path(wc.zone, wc.block),
         preds=lambda wc: block_preds(wc.zone, wc.block),
         summary=f"{WORK}/{{zone}}/prep/{{block}}.json",
         # the split's copy of the point records: the merge does not decode the LAZ again
@@ -68,6 +67,8 @@ rule merge_block:
     output:
         laz=f"{WORK}/{{zone}}/out/{{block}}.laz",
     params:
+        # the file, not an input: the cache (from its split) is, and its fingerprint reruns the split
+        block=lambda wc: block_path(wc.zone, wc.block),
         threshold=INFER["threshold"],
         crs=lambda wc: zone_config(wc.zone).get("crs"),
     log:

@@ -1,12 +1,15 @@
 # Preprocessing (paper 3.1): decode once per block, then ground/DTM/HAG/noise per tile.
 
 
+# The block file is a parameter, not an input: its fingerprint (towerpipe.inputs) reruns the
+# split when its content changes, whatever its mtime, and any file name works (Snakemake reads
+# braces in an input path as wildcards).
 rule split_block:
-    input:
-        block=lambda wc: block_path(wc.zone, wc.block),
     output:
         cache=directory(f"{WORK}/{{zone}}/cache/{{block}}"),
     params:
+        block=lambda wc: block_path(wc.zone, wc.block),
+        source=lambda wc: describe(block_input(wc.zone, wc.block)),
         crs=lambda wc: zone_config(wc.zone).get("crs"),
         zone_crs=lambda wc: zone_crs(wc.zone),
         preprocess=PREP,
@@ -24,6 +27,30 @@ rule split_block:
         "../scripts/split_block.py"
 
 
+# The zone's tiles and neighbours from the bounds the split measured: the jobs after the
+# split are planned from the points, never from the headers.
+checkpoint plan_zone:
+    input:
+        caches=lambda wc: [cache_dir(wc.zone, b) for b in blocks(wc.zone)],
+    output:
+        plan=f"{WORK}/{{zone}}/plan.json",
+    params:
+        blocks=lambda wc: list(blocks(wc.zone)),
+        preprocess=PREP,
+    log:
+        f"{WORK}/{{zone}}/logs/plan_zone.log",
+    benchmark:
+        f"{WORK}/{{zone}}/benchmarks/plan_zone.tsv"
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 1
+    resources:
+        mem_mb=lambda wc: 500 + len(blocks(wc.zone)) // 10,
+        runtime=10,
+    script:
+        "../scripts/plan_zone.py"
+
+
 rule preprocess_tile:
     input:
         caches=lambda wc: [cache_dir(wc.zone, b) for b in tile_blocks(wc.zone, wc.block, wc.tile)],
@@ -32,6 +59,8 @@ rule preprocess_tile:
         dtm=f"{WORK}/{{zone}}/dtm/{{block}}/{{tile}}.tif",
     params:
         blocks=lambda wc: tile_blocks(wc.zone, wc.block, wc.tile),
+        # blocks nearby that could not be split: named in the tile's warnings
+        missing=lambda wc: {b: cache_dir(wc.zone, b) for b in planned(wc.zone, wc.block)["missing_neighbours"]},
         preprocess=PREP,
     log:
         f"{WORK}/{{zone}}/logs/preprocess_tile/{{block}}/{{tile}}.log",

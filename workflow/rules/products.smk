@@ -20,7 +20,9 @@ rule towers_block:
         neighbours=f"{WORK}/{{zone}}/towers/{{block}}.neighbours.json",
         members=f"{WORK}/{{zone}}/towers/{{block}}.points.npz",
     params:
-        bounds=lambda wc: bounds(wc.zone).get(wc.block),
+        bounds=lambda wc: planned(wc.zone, wc.block)["bounds"],
+        # where data exists around the block (a tower's ring outside it: support unknown)
+        survey=lambda wc: [planned(wc.zone, b)["bounds"] for b in [wc.block, *block_neighbours(wc.zone, wc.block)]],
         source_files=lambda wc: blocks(wc.zone),
         towers=TOWERS,
         threshold=INFER["threshold"],

@@ -1,15 +1,23 @@
 # Zone assembly: results/<zone>/ from per-block products (hard links), zone GeoPackage, QA index.
-
-
+#
+# Snakemake deletes a directory() output before rerunning its rule, which would leave no
+# results/<zone>/ while the zone is rebuilt (and only a half-built one after a kill). So the
+# assembly's output is a manifest; towerpipe.steps.zone_step builds the zone in
+# work/<zone>/published/ and swaps results/<zone>/ in atomically (never deleting it first).
+# zone_results only recreates results/<zone>/ when it is missing (its input is ancient).
 rule assemble_zone:
     input:
-        lambda wc: list(zone_products(wc.zone).values()),
+        lambda wc: planned_products(wc.zone),
     output:
-        directory("results/{zone}/"),
+        manifest=f"{WORK}/{{zone}}/published.json",
     params:
+        results="results/{zone}",
+        # the published zone is kept beside its manifest: work/<zone>/published/
+        stage=lambda wc, output: os.path.splitext(output.manifest)[0],
         files=lambda wc: zone_products(wc.zone),
         gpkgs=lambda wc: [f"{WORK}/{wc.zone}/towers/{b}.gpkg" for b in blocks(wc.zone)],
         qa=lambda wc: [f"{WORK}/{wc.zone}/qa/{b}.json" for b in blocks(wc.zone)],
+        sources=lambda wc: {b: i.relpath for b, i in inputs(wc.zone).items()},
         run=run_params(),
     log:
         f"{WORK}/{{zone}}/logs/assemble_zone.log",
@@ -23,3 +31,25 @@ rule assemble_zone:
         runtime=10,
     script:
         "../scripts/assemble_zone.py"
+
+
+rule zone_results:
+    input:
+        ancient(f"{WORK}/{{zone}}/published.json"),
+    output:
+        directory("results/{zone}/"),
+    params:
+        stage=lambda wc, input: os.path.splitext(input[0])[0],
+    log:
+        f"{WORK}/{{zone}}/logs/zone_results.log",
+    benchmark:
+        f"{WORK}/{{zone}}/benchmarks/zone_results.tsv"
+    localrule: True
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 1
+    resources:
+        mem_mb=500,
+        runtime=5,
+    script:
+        "../scripts/zone_results.py"

@@ -1,6 +1,7 @@
 from towerpipe.smk import run_step
 from towerpipe.steps import zone_step
 
+p = snakemake.params
 run_step(snakemake, lambda: zone_step(
-    snakemake.wildcards.zone, snakemake.output[0], snakemake.params.files,
-    tower_gpkgs=snakemake.params.gpkgs, qa_jsons=snakemake.params.qa, run_cfg=snakemake.params.run))
+    snakemake.wildcards.zone, p.results, p.files, tower_gpkgs=p.gpkgs, qa_jsons=p.qa, run_cfg=p.run,
+    stage_dir=p.stage, manifest=snakemake.output.manifest, sources=p.sources))

@@ -5,6 +5,6 @@ from towerpipe.lasio import RECORDS_FILE
 from towerpipe.smk import run_step
 
 run_step(snakemake, lambda: merge_block(
-    snakemake.input.block, snakemake.input.preds, snakemake.output.laz,
+    snakemake.params.block, snakemake.input.preds, snakemake.output.laz,
     threshold=snakemake.params.threshold, crs=snakemake.params.crs, block=snakemake.wildcards.block,
     records=os.path.join(snakemake.input.cache, RECORDS_FILE), tower_points=[snakemake.input.members]))

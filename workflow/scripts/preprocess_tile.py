@@ -4,4 +4,5 @@ from towerpipe.smk import run_step
 run_step(snakemake, lambda: preprocess_tile(
     snakemake.wildcards.zone, snakemake.wildcards.block, snakemake.wildcards.tile,
     dict(zip(snakemake.params.blocks, snakemake.input.caches)), snakemake.output.tile,
-    dtm_path=snakemake.output.dtm, config=snakemake.params.preprocess))
+    dtm_path=snakemake.output.dtm, config=snakemake.params.preprocess,
+    missing=snakemake.params.missing))

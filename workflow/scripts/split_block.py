@@ -2,6 +2,7 @@ from towerpipe.preprocess import PreprocessConfig, split_block
 from towerpipe.smk import run_step
 
 run_step(snakemake, lambda: split_block(
-    snakemake.input.block, snakemake.output.cache, block=snakemake.wildcards.block,
+    snakemake.params.block, snakemake.output.cache, block=snakemake.wildcards.block,
     zone=snakemake.wildcards.zone, crs=snakemake.params.crs, zone_crs=snakemake.params.zone_crs,
-    config=PreprocessConfig.from_dict(snakemake.params.preprocess), record_errors=True))
+    config=PreprocessConfig.from_dict(snakemake.params.preprocess), record_errors=True,
+    source=snakemake.params.source))

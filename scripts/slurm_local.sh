@@ -1,0 +1,72 @@
+#!/usr/bin/env bash
+# A single-node SLURM cluster on this machine, for the cluster test and for trying the
+# SLURM profile: munged, slurmctld and slurmd started directly (no systemd in containers),
+# cgroup-free settings, one partition `cpu` holding this host.
+#
+#   scripts/slurm_local.sh start    start (idempotent); exit 0 once the node takes jobs
+#   scripts/slurm_local.sh stop     stop the daemons this script started
+#
+# Exit status 3 with a one-line reason on stderr when SLURM cannot start here.
+set -euo pipefail
+state=${SLURM_LOCAL_STATE:-/var/lib/towerpipe-slurm}
+conf=/etc/slurm/slurm.conf
+why() { echo "slurm_local: $*" >&2; exit 3; }
+alive() { [ -s "$state/$1.pid" ] && kill -0 "$(cat "$state/$1.pid")" 2>/dev/null; }
+ready() { scontrol ping >/dev/null 2>&1 && sinfo -h -o %t 2>/dev/null | grep -qE '^(idle|mix|alloc)'; }
+
+start() {
+  for b in munged slurmctld slurmd sinfo; do command -v "$b" >/dev/null || why "$b is not installed (scripts/install_slurm.sh)"; done
+  [ "$(id -u)" = 0 ] || why "needs root to start munged, slurmctld and slurmd"
+  if alive slurmctld && alive slurmd && ready; then return 0; fi
+  mkdir -p "$state"/{ctld,d} /run/munge /var/log/munge /var/lib/munge
+  chown munge:munge /run/munge /var/log/munge /var/lib/munge
+  [ -s /etc/munge/munge.key ] || { mungekey -c -k /etc/munge/munge.key && chown munge:munge /etc/munge/munge.key; }
+  if ! pgrep -u munge -x munged >/dev/null; then
+    runuser -u munge -- /usr/sbin/munged || why "munged did not start"
+  fi
+  host=$(hostname -s)
+  cpus=$(nproc)
+  mem=$(awk '/MemTotal/ {printf "%d", $2 / 1024 * 0.8}' /proc/meminfo)
+  cat > "$conf" <<CONF
+# written by scripts/slurm_local.sh: a single-node cluster without cgroups or accounting
+ClusterName=towerpipe
+SlurmctldHost=$host
+SlurmUser=root
+SlurmdUser=root
+AuthType=auth/munge
+StateSaveLocation=$state/ctld
+SlurmdSpoolDir=$state/d
+SlurmctldPidFile=$state/slurmctld.pid
+SlurmdPidFile=$state/slurmd.pid
+SlurmctldLogFile=$state/slurmctld.log
+SlurmdLogFile=$state/slurmd.log
+ProctrackType=proctrack/linuxproc
+TaskPlugin=task/none
+JobAcctGatherType=jobacct_gather/none
+AccountingStorageType=accounting_storage/none
+SchedulerType=sched/backfill
+SelectType=select/cons_tres
+SelectTypeParameters=CR_Core_Memory
+ReturnToService=2
+MinJobAge=600
+NodeName=$host CPUs=$cpus RealMemory=$mem State=UNKNOWN
+PartitionName=cpu Nodes=$host Default=YES MaxTime=INFINITE State=UP
+CONF
+  alive slurmctld || slurmctld || why "slurmctld did not start (see $state/slurmctld.log)"
+  alive slurmd || slurmd || why "slurmd did not start (see $state/slurmd.log)"
+  for _ in $(seq 60); do
+    if alive slurmd && ready; then return 0; fi
+    sleep 1
+  done
+  why "the node did not become idle in 60 s: $(sinfo -h -o '%t %E' 2>&1 | head -1)"
+}
+
+stop() {
+  for p in slurmd slurmctld; do [ -s "$state/$p.pid" ] && kill "$(cat "$state/$p.pid")" 2>/dev/null || true; done
+}
+
+case "${1:-}" in
+  start) start ;;
+  stop) stop ;;
+  *) echo "usage: scripts/slurm_local.sh start|stop" >&2; exit 2 ;;
+esac

@@ -1,0 +1,6 @@
+from towerpipe.smk import run_step
+from towerpipe.tiling import plan_zone_step
+
+run_step(snakemake, lambda: plan_zone_step(
+    dict(zip(snakemake.params.blocks, snakemake.input.caches)), snakemake.output.plan,
+    tile_size=snakemake.params.preprocess["tile_size"], buffer=snakemake.params.preprocess["buffer"]))
