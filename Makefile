@@ -7,12 +7,16 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 CORES ?= 2
 
-.PHONY: setup pdal demo test lint bench train ship-models clean-demo
+.PHONY: setup pdal chromium demo test lint bench train ship-models clean-demo docs-img
 
-setup: pdal $(VENV)/.installed
+setup: pdal chromium $(VENV)/.installed
 
 pdal:
 	@bash scripts/install_pdal.sh
+
+# headless Chromium: the QA pages' browser test and the screenshots of docs/img
+chromium:
+	@bash scripts/install_chromium.sh
 
 $(VENV)/.installed: requirements.txt pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -47,6 +51,11 @@ train: setup
 ship-models:
 	for m in $(MODELS); do mkdir -p models/$$m && \
 	  cp results/models/$$m/{classifier.pt,segmenter.pt,model_card.json,MODEL_CARD.md,metrics.json,classifier_curves.png,segmenter_curves.png} models/$$m/; done
+
+# Screenshots of the QA pages in docs/img (after `make demo`), taken with headless Chromium at 1,280 px.
+docs-img: setup
+	$(BIN)/python -m towerpipe.qa.browser results/demo/qa/index.html results/demo/qa/400250_4600250.html \
+	  --screenshot docs/img/qa_index.png --screenshot docs/img/qa_block.png
 
 clean-demo:
 	rm -rf results/demo work/demo data/demo

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from snakemake.exceptions import WorkflowError
 
-from towerpipe import tiling
+from towerpipe import layout, tiling
 from towerpipe.errors import PdalError, TowerpipeError
 from towerpipe.lasio import find_blocks, read_header
 from towerpipe.pdal import pdal_version
@@ -136,10 +136,10 @@ def zone_products(zone):
     """Relative path in results/<zone>/ -> per-block product."""
     files = {}
     for b in blocks(zone):
-        files[f"blocks/{b}.laz"] = f"{WORK}/{zone}/out/{b}.laz"
-        files[f"towers/{b}.gpkg"] = f"{WORK}/{zone}/towers/{b}.gpkg"
-        files[f"qa/{b}.html"] = f"{WORK}/{zone}/qa/{b}.html"
-        files[f"qa/{b}.json"] = f"{WORK}/{zone}/qa/{b}.json"
+        files[layout.block_product(layout.BLOCK_LAZ, b)] = f"{WORK}/{zone}/out/{b}.laz"
+        files[layout.block_product(layout.BLOCK_GPKG, b)] = f"{WORK}/{zone}/towers/{b}.gpkg"
+        files[layout.block_product(layout.QA_PAGE, b)] = f"{WORK}/{zone}/qa/{b}.html"
+        files[layout.block_product(layout.QA_JSON, b)] = f"{WORK}/{zone}/qa/{b}.json"
     return files
 
 

@@ -5,12 +5,20 @@ rule assemble_zone:
     input:
         lambda wc: list(zone_products(wc.zone).values()),
     output:
-        directory("results/{zone}/"),
+        # `snakemake --report` shows the zone's QA index and its GeoPackage
+        report(
+            directory("results/{zone}/"),
+            patterns=["qa/{page,index}.html", "{name,towers}.gpkg"],
+            caption="../report/zone.rst",
+            category="Zone",
+            subcategory="{zone}",
+        ),
     params:
         files=lambda wc: zone_products(wc.zone),
         gpkgs=lambda wc: [f"{WORK}/{wc.zone}/towers/{b}.gpkg" for b in blocks(wc.zone)],
         qa=lambda wc: [f"{WORK}/{wc.zone}/qa/{b}.json" for b in blocks(wc.zone)],
         run=run_params(),
+        block_bounds=lambda wc: bounds(wc.zone),
     log:
         f"{WORK}/{{zone}}/logs/assemble_zone.log",
     benchmark:
