@@ -30,13 +30,24 @@ rule all:
         "results/demo/",
 
 
+onsuccess:
+    # one line per zone assembled by this run: towers, failed blocks, the QA index
+    from towerpipe.summary import print_summary, zones_in_log
+
+    print_summary(zones_in_log(log))
+
+
 onerror:
     # With --keep-going the other blocks completed: publish them, and the failures, in an
     # explicitly INCOMPLETE zone directory whose QA index names each failed block and why.
     from towerpipe.steps import assemble_incomplete_zone, failures_from_log
+    from towerpipe.summary import print_summary, zones_in_log
 
-    for _zone, _failed in failures_from_log(log, WORK).items():
+    _failures = failures_from_log(log, WORK)
+    for _zone, _failed in _failures.items():
         if _zone in config["zones"]:
             assemble_incomplete_zone(_zone, f"results/{_zone}", zone_products(_zone), _failed,
                                      run_cfg=run_params(), block_bounds=bounds(_zone))
             print(f"towerpipe: results/{_zone}/ is INCOMPLETE; failed blocks: {', '.join(sorted(_failed))}")
+    # then, as on success, one line per zone (the failed blocks counted)
+    print_summary(sorted(set(zones_in_log(log)) | (set(_failures) & set(config["zones"]))))

@@ -32,7 +32,9 @@ LOG_INTERVAL_S = 10.0
 
 
 def _count(n: float, scale: bool) -> str:
-    return tqdm.format_sizeof(n, divisor=1000).strip() if scale else f"{int(n):,}"
+    if scale:
+        return tqdm.format_sizeof(n, divisor=1000).strip()
+    return f"{n:,.1f}" if isinstance(n, float) and n < 100 else f"{int(n):,}"
 
 
 class Progress:
