@@ -1,7 +1,9 @@
 # towerpipe: power transmission towers in airborne LiDAR (Carós et al. 2022).
 #   snakemake --cores 2 results/<zone>/          one zone, raw blocks in -> products out
 #   snakemake --cores 2 results/models/<name>/   train the models on a training zone
-from snakemake.utils import min_version, validate
+from snakemake.utils import min_version
+
+from towerpipe.config import validate_or_exit
 
 min_version("9.0")
 
@@ -9,7 +11,8 @@ min_version("9.0")
 configfile: "config/config.yaml"
 
 
-validate(config, "config/schema.yaml")
+# every default is in the schema; a bad config stops here with one line per problem
+validate_or_exit(config, "config/schema.yaml")
 
 
 report: "workflow/report/workflow.rst"

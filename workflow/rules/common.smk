@@ -7,6 +7,7 @@ from pathlib import Path
 from snakemake.exceptions import WorkflowError
 
 from towerpipe import layout, tiling
+from towerpipe.config import exit_with as config_exit
 from towerpipe.errors import PdalError, TowerpipeError
 from towerpipe.lasio import find_blocks, read_header
 from towerpipe.pdal import pdal_version
@@ -32,7 +33,7 @@ def zone_config(zone):
         return config["zones"][zone]
     except KeyError:
         known = ", ".join(sorted(config["zones"]))
-        raise WorkflowError(
+        config_exit(
             f"zone {zone!r} is not configured (known: {known}); add "
             f"`zones: {{{zone}: {{input: DIR}}}}` to a YAML file and pass it with --configfile"
         )
@@ -44,10 +45,10 @@ def zone_input(zone):
     path = zc["input"]
     if "synth" in zc:
         if os.path.normpath(path) != os.path.normpath(f"data/{zone}"):
-            raise WorkflowError(f"zones.{zone}.input must be data/{zone} for a synthetic zone (got {path})")
+            config_exit(f"zones.{zone}.input must be data/{zone} for a synthetic zone (got {path})")
         checkpoints.synth_zone.get(zone=zone)
     elif not os.path.isdir(path):
-        raise WorkflowError(f"zones.{zone}.input: directory {path!r} does not exist")
+        config_exit(f"zones.{zone}.input: directory {path!r} does not exist")
     return path
 
 
@@ -55,7 +56,7 @@ def zone_input(zone):
 def _blocks(zone, path):
     blocks = find_blocks(path)
     if not blocks:
-        raise WorkflowError(f"zones.{zone}.input: no .las/.laz files under {path!r}")
+        config_exit(f"zones.{zone}.input: no .las/.laz files under {path!r}")
     return blocks
 
 
@@ -203,7 +204,7 @@ def model_spec(name):
         return TRAIN["models"][name]
     except KeyError:
         known = ", ".join(sorted(TRAIN["models"]))
-        raise WorkflowError(f"model {name!r} is not in training.models (known: {known})")
+        config_exit(f"model {name!r} is not in training.models (known: {known})")
 
 
 def init_bundle_files(name):

@@ -25,25 +25,25 @@ log = logging.getLogger(__name__)
 LINES_LAYER = "lines"
 
 
-def _gpkg_features(gpkg: str | os.PathLike[str] | None) -> tuple[list[tuple[float, float]], list[np.ndarray]]:
-    """Tower centroids and line vertices of a zone GeoPackage (empty when absent)."""
+def _gpkg_lines(gpkg: str | os.PathLike[str] | None) -> list[np.ndarray]:
+    """Vertices of each line of a zone GeoPackage's ``lines`` layer (none without the layer)."""
     if gpkg is None or not Path(gpkg).exists():
-        return [], []
-    import pyogrio
+        return []
+    import sqlite3
+
     import shapely
 
     from towerpipe.gpkg import read_towers
 
-    t = read_towers(gpkg)
-    towers = list(zip(t["centroid_x"].astype(float), t["centroid_y"].astype(float)))
+    with sqlite3.connect(f"file:{Path(gpkg).resolve()}?mode=ro", uri=True) as db:
+        has = db.execute("SELECT 1 FROM gpkg_contents WHERE table_name = ?", (LINES_LAYER,)).fetchone()
+    if not has:
+        return []
     lines: list[np.ndarray] = []
-    if LINES_LAYER in {str(name) for name, _ in pyogrio.list_layers(gpkg)}:
-        for geom in pyogrio.read_dataframe(gpkg, layer=LINES_LAYER).geometry:
-            if geom is None or geom.is_empty:
-                continue
-            for part in shapely.get_parts(geom):
-                lines.append(np.asarray(part.coords)[:, :2])
-    return towers, lines
+    for geom in read_towers(gpkg, layer=LINES_LAYER).geometry:
+        if geom is not None and not geom.is_empty:
+            lines += [np.asarray(part.coords)[:, :2] for part in shapely.get_parts(geom)]
+    return lines
 
 
 def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.PathLike[str]], *,
@@ -68,8 +68,8 @@ def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.
     out_json
         Optional JSON with the index numbers.
     gpkg
-        The zone's tower GeoPackage: its towers (and its ``lines`` layer, when it has one)
-        are drawn on the overview map.
+        The zone's tower GeoPackage: its ``lines`` layer, when it has one, is drawn on the
+        overview map (the towers come from the block JSONs).
     block_bounds
         Block → ``(xmin, ymin, xmax, ymax)``, for the blocks without a QA JSON (failed) on
         the map; the others take theirs from their JSON.
@@ -84,6 +84,7 @@ def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.
     failures = dict(failures or {})
     block_bounds = dict(block_bounds or {})
     blocks: list[dict[str, Any]] = []
+    block_docs: dict[str, dict[str, Any]] = {}
     for p in block_jsons:
         p = Path(p)
         try:
@@ -95,6 +96,7 @@ def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.
         name = d.get("block", p.stem)
         if name in failures:
             continue
+        block_docs[name] = d
         href = os.path.relpath(p.parent / d.get("html", p.stem + ".html"), out_html.parent)
         products = [{"label": label, "href": layout.link(layout.QA_INDEX, layout.block_product(pattern, name))}
                     for label, pattern in (("LAZ", layout.BLOCK_LAZ), ("GeoPackage", layout.BLOCK_GPKG))]
@@ -135,7 +137,8 @@ def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.
     if not totals["failed"] and not totals["look"]:
         s += "; nothing to check"
     totals["summary"] = s + "."
-    tower_xy, lines = _gpkg_features(gpkg)
+    tower_xy = [(t["x"], t["y"]) for b in block_docs.values() for t in b.get("towers") or []]
+    lines = _gpkg_lines(gpkg)
     doc = jsonable({"zone": zone, "blocks": blocks, "totals": totals, "n_lines": len(lines),
                     "generated_at": datetime.now(timezone.utc).replace(microsecond=0).isoformat()})
     if out_json is not None:
