@@ -55,7 +55,7 @@ ship-models:
 # Screenshots of the QA pages in docs/img (after `make demo`), taken with headless Chromium at 1,280 px.
 docs-img: setup
 	$(BIN)/python -m towerpipe.qa.browser results/demo/qa/index.html results/demo/qa/400250_4600250.html \
-	  --screenshot docs/img/qa_index.png --screenshot docs/img/qa_block.png
+	  --screenshot docs/img/qa_index.png --height 1200 --screenshot docs/img/qa_block.png --height 2100
 
 clean-demo:
 	rm -rf results/demo work/demo data/demo

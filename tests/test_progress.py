@@ -46,3 +46,15 @@ def test_no_eta_before_any_time_passed(caplog):
     p = Progress("qa b1", 3, "towers", clock=lambda: 0.0)
     p.update()
     assert caplog.records[0].getMessage() == "qa b1: 1/3 towers (33 %), ? towers/s, ETA ?"
+
+
+def test_steps_without_rate_but_with_what_was_done(caplog):
+    clock = Clock()
+    caplog.set_level(logging.INFO, logger="towerpipe")
+    p = Progress("preprocess z/b/0_0", 4, "stages", interval=0.0, show_rate=False, clock=clock)
+    clock.t += 3.0
+    p.update(detail="ground took 3.0 s")
+    p.close()
+    assert [r.getMessage() for r in caplog.records] == [
+        "preprocess z/b/0_0: 1/4 stages (25 %), ETA 00:09, ground took 3.0 s",
+        "preprocess z/b/0_0: 1 stages in 3.0 s"]

@@ -538,7 +538,7 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
         work = Path(tmpd)
         if n:
             progress = Progress(f"preprocess {what} ({n:,} points)", len(TILE_STAGES), "stages", logger=log,
-                                interval=0.0)
+                                interval=0.0, show_rate=False)
             x, y, z, cls = t["x"], t["y"], t["z"], t["classification"]
             noise_cls = np.isin(cls, NOISE_CLASSES)
             s = time.perf_counter()
@@ -547,18 +547,18 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
             else:
                 ground = classify_ground(x, y, z, work, method=t.meta["ground_source"], what=what) & ~noise_cls
             timings["ground"] = time.perf_counter() - s
-            progress.update()
+            progress.update(detail=f"ground took {timings['ground']:.1f} s")
             s = time.perf_counter()
             box = tiling.expand(tuple(t.meta["core_bounds"]), cfg.buffer)
             dtm_file = Path(dtm_path) if dtm_path else work / "dtm.tif"
             dtm_info = build_dtm(x[ground], y[ground], z[ground], box, dtm_file, work,
                                  resolution=cfg.dtm_resolution, crs_wkt=t.meta["crs_wkt"], what=what)
             timings["dtm"] = time.perf_counter() - s
-            progress.update()
+            progress.update(detail=f"dtm took {timings['dtm']:.1f} s")
             s = time.perf_counter()
             hag = height_above_ground(x, y, z, dtm_file, work, what=what)
             timings["hag"] = time.perf_counter() - s
-            progress.update()
+            progress.update(detail=f"hag took {timings['hag']:.1f} s")
             s = time.perf_counter()
             noise_hag = (hag > cfg.hag_max) | (hag < cfg.hag_min)
             outlier = np.zeros(n, bool)
@@ -570,7 +570,7 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
                                                         multiplier=cfg.outlier_multiplier, what=what)
             model_input = ~ground & ~noise_cls & ~noise_hag & ~outlier
             timings["noise"] = time.perf_counter() - s
-            progress.update()
+            progress.update(detail=f"noise took {timings['noise']:.1f} s")
             progress.close()
             t.arrays["hag"] = hag
             t.arrays["model_input"] = model_input

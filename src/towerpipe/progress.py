@@ -54,18 +54,22 @@ class Progress:
         Seconds between two lines at least.
     scale
         Counts as ``2.00M`` rather than ``2,000,000`` (default: when ``total`` ≥ 10,000).
+    show_rate
+        Put the rate in the lines (off for a few uneven steps, e.g. the stages of a tile:
+        the ETA still comes from the average step).
     clock
         Time source (monotonic seconds).
     """
 
     def __init__(self, what: str, total: int | None = None, unit: str = "items", *,
                  logger: logging.Logger | None = None, interval: float = LOG_INTERVAL_S,
-                 scale: bool | None = None, clock: Callable[[], float] = time.monotonic):
+                 scale: bool | None = None, show_rate: bool = True, clock: Callable[[], float] = time.monotonic):
         self.what, self.total, self.unit = what, total, unit
         self.log = logger or logging.getLogger("towerpipe")
         self.interval = interval
         self.scale = (total or 0) >= 10_000 if scale is None else scale
         self.clock = clock
+        self.show_rate = show_rate
         self.n = 0
         self.start = clock()
         self._last: float | None = None
@@ -76,24 +80,28 @@ class Progress:
         elapsed = self.clock() - self.start
         return self.n / elapsed if elapsed > 0 else float("nan")
 
-    def line(self) -> str:
-        """The progress line for now."""
+    def line(self, detail: str = "") -> str:
+        """The progress line for now (``detail`` appended, e.g. the step just done)."""
         rate = self.rate()
-        rate_s = f"{_count(rate, self.scale)} {self.unit}/s" if rate == rate else f"? {self.unit}/s"
+        parts = []
+        if self.show_rate:
+            parts.append(f"{_count(rate, self.scale)} {self.unit}/s" if rate == rate else f"? {self.unit}/s")
         if self.total:
             eta = (self.total - self.n) / rate if rate and rate == rate else None
-            return (f"{self.what}: {_count(self.n, self.scale)}/{_count(self.total, self.scale)} {self.unit} "
-                    f"({100.0 * self.n / self.total:.0f} %), {rate_s}, "
-                    f"ETA {tqdm.format_interval(eta) if eta is not None else '?'}")
-        return f"{self.what}: {_count(self.n, self.scale)} {self.unit}, {rate_s}"
+            parts.append(f"ETA {tqdm.format_interval(eta) if eta is not None else '?'}")
+            head = (f"{self.what}: {_count(self.n, self.scale)}/{_count(self.total, self.scale)} {self.unit} "
+                    f"({100.0 * self.n / self.total:.0f} %)")
+        else:
+            head = f"{self.what}: {_count(self.n, self.scale)} {self.unit}"
+        return ", ".join([head, *parts, *([detail] if detail else [])])
 
-    def update(self, n: int = 1) -> None:
+    def update(self, n: int = 1, detail: str = "") -> None:
         """Count ``n`` more; logs a line when ``interval`` has passed since the last one."""
         self.n += int(n)
         now = self.clock()
         if self._last is None or now - self._last >= self.interval:
             self._last = now
-            self.log.info("%s", self.line())
+            self.log.info("%s", self.line(detail))
 
     def close(self) -> None:
         """Log the final line: the count, the time taken and the rate."""
@@ -101,7 +109,8 @@ class Progress:
             return
         self.closed = True
         elapsed = self.clock() - self.start
-        rate = f" ({_count(self.n / elapsed, self.scale)} {self.unit}/s)" if elapsed > 0 and self.n else ""
+        rate = (f" ({_count(self.n / elapsed, self.scale)} {self.unit}/s)"
+                if self.show_rate and elapsed > 0 and self.n else "")
         self.log.info("%s: %s %s in %.1f s%s", self.what, _count(self.n, self.scale), self.unit, elapsed, rate)
 
     def __enter__(self) -> "Progress":

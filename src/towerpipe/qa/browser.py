@@ -254,9 +254,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m towerpipe.qa.browser", description=main.__doc__)
     ap.add_argument("pages", nargs="+", help="HTML files")
     ap.add_argument("--width", type=int, default=PAGE_WIDTH)
-    ap.add_argument("--height", type=int, default=1400, help="screenshot height (px)")
+    ap.add_argument("--height", type=int, action="append", default=[],
+                    help="screenshot height (px) per page, in order (default 1400)")
     ap.add_argument("--screenshot", action="append", default=[], help="PNG per page, in order")
     args = ap.parse_args(argv)
+    heights = args.height or [1400]
     bad = 0
     with Browser() as b:
         for i, page in enumerate(args.pages):
@@ -265,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{page}: {line}")
             bad += not check.ok
             if i < len(args.screenshot):
-                b.screenshot(page, args.screenshot[i], args.width, args.height)
+                b.screenshot(page, args.screenshot[i], args.width, heights[min(i, len(heights) - 1)])
     return 1 if bad else 0
 
 
