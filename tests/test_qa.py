@@ -374,6 +374,7 @@ def test_zone_index_map_with_lines_and_failed_block(tmp_path):
     svg = page[page.index("<svg"):page.index("</svg>")]
     assert 'xlink:href="a.html"' in svg or 'href="a.html"' in svg  # the map's block links to its page
     assert "<!-- block: failed -->" in svg and "<!-- line -->" in svg  # matplotlib keeps each text as a comment
+    assert "http" not in svg and "_blank" not in svg  # no namespace or metadata addresses; links open in place
     for href in ('href="../blocks/a.laz"', 'href="../towers/a.gpkg"', 'href="../towers.gpkg"', 'href="a.html"'):
         assert href in page
     assert "incomplete" in page

@@ -318,7 +318,7 @@ def block_report(
     extent = data_extent(data_bounds if data_bounds is not None else ([bounds] if bounds else []))
     tower_rows = []
     views: dict[int, str] = {}
-    progress = Progress("side views", len(gdf), "towers", logger=log)
+    progress = Progress(f"qa {block_name}: side views", len(gdf), "towers", logger=log)
     for i, r in enumerate(gdf.itertuples(index=False), 1):
         tflags = []
         to_edge = distance_to_data_edge(r.geometry, extent)
@@ -336,7 +336,8 @@ def block_report(
                            "height_m": r.height_m, "base_z": r.base_z, "n_points": int(r.n_points),
                            "prob_mean": r.prob_mean, "prob_max": r.prob_max,
                            "wire_support": support, "blocks": r.blocks,
-                           "edge_distance_m": r.edge_distance_m, "data_edge_m": to_edge, "flags": tflags})
+                           "edge_distance_m": r.edge_distance_m,
+                           "data_edge_m": round(to_edge, 2) if math.isfinite(to_edge) else None, "flags": tflags})
         hood = (neighbourhoods or {}).get(r.tower_id)
         if hood is not None and len(hood["x"]):
             views[i] = plots.tower_elevations(hood, (r.centroid_x, r.centroid_y),

@@ -46,6 +46,11 @@ def svg(fig: Any) -> str:
     plt.close(fig)
     text = buf.getvalue()
     text = text[text.index("<svg"):]
+    # inline in HTML the parser knows the SVG and XLink namespaces: no namespace URLs, and no
+    # RDF metadata block, so the page names no address at all
+    text = re.sub(r"<metadata>.*?</metadata>\s*", "", text, flags=re.S)
+    text = re.sub(r'\s+xmlns(:\w+)?="[^"]*"', "", text)
+    text = text.replace(' target="_blank"', "")  # a block's page opens in place of the index
     # keep the viewBox, drop the fixed size: the page's CSS sizes it
     return re.sub(r'<svg([^>]*?) width="[^"]*" height="[^"]*"', r'<svg\1 class="map"', text, count=1)
 
