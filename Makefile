@@ -7,9 +7,9 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 CORES ?= 2
 
-.PHONY: setup pdal slurm demo test lint bench train benchmark-realshape ship-models clean-demo
+.PHONY: setup pdal slurm chromium demo test lint bench train benchmark-realshape ship-models clean-demo docs-img
 
-setup: pdal $(VENV)/.installed
+setup: pdal chromium $(VENV)/.installed
 
 pdal:
 	@bash scripts/install_pdal.sh
@@ -17,6 +17,10 @@ pdal:
 # A single-node SLURM for the cluster test (tests/test_slurm.py starts it with scripts/slurm_local.sh).
 slurm:
 	@bash scripts/install_slurm.sh
+
+# headless Chromium: the QA pages' browser test and the screenshots of docs/img
+chromium:
+	@bash scripts/install_chromium.sh
 
 $(VENV)/.installed: requirements.txt pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -56,6 +60,11 @@ ship-models:
 	for m in $(MODELS); do mkdir -p models/$$m && \
 	  cp results/models/$$m/{classifier.pt,segmenter.pt,model_card.json,MODEL_CARD.md,metrics.json,classifier_curves.png,segmenter_curves.png} models/$$m/; done
 	$(BIN)/towerpipe realshape-stamp --scores results/benchmark/realshape/scores.json
+
+# Screenshots of the QA pages in docs/img (after `make demo`), taken with headless Chromium at 1,280 px.
+docs-img: setup
+	$(BIN)/python -m towerpipe.qa.browser results/demo/qa/index.html results/demo/qa/400250_4600250.html \
+	  --screenshot docs/img/qa_index.png --height 1200 --screenshot docs/img/qa_block.png --height 2100
 
 clean-demo:
 	rm -rf results/demo work/demo data/demo

@@ -1,7 +1,9 @@
 # towerpipe: power transmission towers in airborne LiDAR (Carós et al. 2022).
 #   snakemake --cores 2 results/<zone>/          one zone, raw blocks in -> products out
 #   snakemake --cores 2 results/models/<name>/   train the models on a training zone
-from snakemake.utils import min_version, validate
+from snakemake.utils import min_version
+
+from towerpipe.config import validate_or_exit
 
 min_version("9.0")
 
@@ -10,7 +12,8 @@ configfile: "config/config.yaml"
 configfile: "config/models.yaml"
 
 
-validate(config, "config/schema.yaml")
+# every default is in the schema; a bad config stops here with one line per problem
+validate_or_exit(config, "config/schema.yaml")
 
 
 report: "workflow/report/workflow.rst"
@@ -31,13 +34,24 @@ rule all:
         "results/demo/",
 
 
+onsuccess:
+    # one line per zone assembled by this run: towers, failed blocks, the QA index
+    from towerpipe.summary import print_summary, zones_in_log
+
+    print_summary(zones_in_log(log))
+
+
 onerror:
     # With --keep-going the other blocks completed: publish them, and the failures, in an
     # explicitly INCOMPLETE zone directory whose QA index names each failed block and why.
     from towerpipe.steps import assemble_incomplete_zone, failures_from_log
+    from towerpipe.summary import print_summary, zones_in_log
 
-    for _zone, _failed in failures_from_log(log, WORK).items():
+    _failures = failures_from_log(log, WORK)
+    for _zone, _failed in _failures.items():
         if _zone in config["zones"]:
             assemble_incomplete_zone(_zone, f"results/{_zone}", zone_products(_zone), _failed,
-                                     run_cfg=run_params())
+                                     run_cfg=run_params(), block_bounds=bounds(_zone))
             print(f"towerpipe: results/{_zone}/ is INCOMPLETE; failed blocks: {', '.join(sorted(_failed))}")
+    # then, as on success, one line per zone (the failed blocks counted)
+    print_summary(sorted(set(zones_in_log(log)) | (set(_failures) & set(config["zones"]))))

@@ -37,7 +37,7 @@ def pdal_cli():
     return "pdal"
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")  # tests/ is no package: one per test run
 def random_model_factory(tmp_path_factory):
     """``make(feature_set)`` -> a randomly initialised model bundle directory (plumbing tests)."""
     from towerpipe.features import FEATURE_SETS

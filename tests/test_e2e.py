@@ -128,6 +128,8 @@ def test_snakemake_report_holds_the_qa_pages(zone_run, tmp_path):
         qa = [n for n in names if n.endswith(".html") and not n.endswith("report.html")]
         blocks = {p.stem for p in (REPO / "results" / ZONE / "blocks").glob("*.laz")}
         assert {n.rsplit("/", 1)[-1][:-5] for n in qa} >= blocks, names
-        page = z.read(qa[0]).decode()
+        page = z.read(next(n for n in qa if n.rsplit("/", 1)[-1][:-5] in blocks)).decode()
         assert "data:image/png;base64," in page  # the QA plots are embedded in the report's pages
+        # the zone's QA index and GeoPackage are in the report too
+        assert any(n.endswith("qa/index.html") for n in qa) and any(n.endswith("towers.gpkg") for n in names)
         assert any(n.endswith("report.html") for n in names)

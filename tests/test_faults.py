@@ -69,7 +69,7 @@ def runs(tmp_path_factory):
         # the same blocks (no regeneration) in a fresh work directory, killed in the middle
         cfg = _config(tmp, zone, "w_kill", synth=False)
         proc = subprocess.Popen(_cmd(zone, cfg), cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                start_new_session=True)
+                                process_group=0)  # its own process group: killpg ends snakemake and its jobs
         pred = tmp / "w_kill" / zone / "pred"
         deadline = time.monotonic() + 600
         while time.monotonic() < deadline and proc.poll() is None:

@@ -125,7 +125,7 @@ def test_block_flags(tmp_path):
     codes = {f["code"] for f in doc["flags"]}
     assert {"ground_classified", "low_density", "many_windows_gated", "tower"} <= codes
     reasons = " ".join(f["reason"] for f in doc["flags"])
-    assert "from block edge" in reasons and "low mean probability" in reasons
+    assert "from the edge of the data" in reasons and "low mean probability" in reasons
     assert "no conductors found (support 0.25)" in reasons
     assert doc["towers"][0]["flags"] and "1 needs a look" in doc["summary"]
 
@@ -210,7 +210,7 @@ def test_zone_index(tmp_path):
     assert (t["blocks"], t["failed"], t["look"], t["ok"], t["towers"]) == (4 - 1, 1, 1, 1, 2)
     assert t["summary"] == "2 towers found in 3 blocks; 1 failed; 1 needs a look."
     page = (tmp_path / "index.html").read_text()
-    assert "href='qa/a.html'" in page and "merge_block failed" in page and "ground classified" in page
+    assert 'href="qa/a.html"' in page and "merge_block failed" in page and "ground classified" in page
     assert json.loads((tmp_path / "index.json").read_text())["totals"]["towers"] == 2
 
 
@@ -240,3 +240,155 @@ def test_edge_tower_reported_by_the_neighbour_counts_as_found(tmp_path):
     assert acc["recall"] == 1.0 and acc["precision"] == 1.0 and acc["fn"] == 0
     assert any(m.get("owner") == "neighbour" for m in acc["matches"])
     assert not any(f["code"] == "missed_towers" for f in doc["flags"])
+
+
+# --------------------------------------------------------------------------- the edge of the data
+def seam_setup():
+    """A tower straddling the east edge of block b1 (BOUNDS) and its east neighbour b2."""
+    east = (X0 + SIZE, Y0, X0 + 2 * SIZE, Y0 + SIZE)
+    pts = make_block(towers_at=((X0 + SIZE - 0.5, Y0 + 100),))
+    gdf = towers_of(pts)  # built from all its points, as the towers step does with the neighbour's
+    assert len(gdf) == 1 and gdf.geometry.iloc[0].bounds[2] > X0 + SIZE
+    return pts, gdf, east
+
+
+def test_seam_tower_handled_whole_is_not_flagged(tmp_path):
+    pts, gdf, east = seam_setup()
+    tiles, preds = metas()
+    # the neighbour gave points: the tower is whole, its centroid 0.5 m from the seam does not matter
+    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", block_name="b1", block_bounds=BOUNDS,
+                       tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts, data_bounds=[BOUNDS, east])
+    t = doc["towers"][0]
+    assert t["edge_distance_m"] == pytest.approx(0.5, abs=0.2)
+    assert t["flags"] == [] and doc["status"] == "ok"
+    assert t["data_edge_m"] > 90
+
+
+def test_tower_at_the_zone_edge_or_a_failed_neighbour_is_flagged(tmp_path):
+    pts, gdf, _ = seam_setup()
+    tiles, preds = metas()
+    # no block east of b1 (zone edge), or its neighbour could not be read: the tower may be cut
+    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", block_name="b1", block_bounds=BOUNDS,
+                       tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts, data_bounds=[BOUNDS])
+    t = doc["towers"][0]
+    assert t["data_edge_m"] == 0.0
+    assert len(t["flags"]) == 1 and "may be cut" in t["flags"][0]
+
+
+def test_data_edge_joins_adjoining_blocks_without_a_slit():
+    import shapely
+
+    from towerpipe.qa.metrics import data_extent, distance_to_data_edge
+
+    # header bounds end at the last point, 1 cm before the next block starts
+    extent = data_extent([(0, 0, 99.99, 100), (100, 0, 200, 100)])
+    on_seam = shapely.box(97, 40, 103, 46)
+    assert distance_to_data_edge(on_seam, extent) == pytest.approx(40 + 1.0)  # to the grown south edge
+    assert distance_to_data_edge(shapely.box(195, 40, 203, 46), extent) == 0.0
+
+
+# --------------------------------------------------------------------------- side views
+def test_side_views_see_a_seam_tower_whole(tmp_path):
+    from towerpipe.qa import tower_neighbourhoods
+    from towerpipe.tilefile import Tile, empty_arrays, save_tile
+    from towerpipe.towers import save_members
+
+    pts, gdf, _ = seam_setup()
+    tid = gdf["tower_id"].iloc[0]
+    # two blocks split at the seam: b1's tile holds its core and b2's points as buffer
+    in_b1 = pts["x"] < X0 + SIZE
+    idx = {b: np.flatnonzero(m) for b, m in (("b1", in_b1), ("b2", ~in_b1))}
+    arrays = empty_arrays(len(pts["x"]))
+    for k in ("x", "y", "z", "classification"):
+        arrays[k] = pts[k].astype(arrays[k].dtype)
+    arrays["block_id"] = np.where(in_b1, 0, 1).astype(np.int32)
+    arrays["point_index"] = np.zeros(len(in_b1), np.int64)
+    for b, i in idx.items():
+        arrays["point_index"][i] = np.arange(len(i))
+    arrays["core"] = in_b1
+    tile = tmp_path / "t.npz"
+    save_tile(tile, Tile(arrays, {"blocks": ["b1", "b2"], "core_bounds": list(BOUNDS)}))
+    is_tower = pts["classification"] == 15
+    members = tmp_path / "b1.points.npz"
+    save_members(members, {tid: (np.where(in_b1[is_tower], "b1", "b2"), arrays["point_index"][is_tower])})
+    # the same tile given twice (a buffer point is in several tiles): each point once
+    hoods = tower_neighbourhoods([tile, tile], [members], gdf)
+    hood = hoods[tid]
+    assert hood["tower"].sum() == is_tower.sum()
+    assert hood["x"][hood["tower"]].max() > X0 + SIZE  # the neighbour's half of the tower is there
+    assert len(hood["x"]) == len(np.unique(np.column_stack([hood["x"], hood["y"], hood["z"]]), axis=0))
+    tiles, preds = metas()
+    block_report(tmp_path / "b.html", tmp_path / "b.json", block_name="b1", block_bounds=BOUNDS, tile_metas=tiles,
+                 pred_metas=preds, towers=gdf, classified=pts, neighbourhoods=hoods)
+    page = (tmp_path / "b.html").read_text()
+    assert 'id="tower-1"' in page and 'href="#tower-1"' in page and "Side views" in page
+
+
+# --------------------------------------------------------------------------- contracts with the split and the model
+ATTRIBUTES = {"intensity": {"valid": True, "reason": "2,471 distinct values"},
+              "returns": {"valid": False, "reason": "return numbers all 0"},
+              "rgb": {"valid": True, "reason": "16-bit colour"}, "nir": {"valid": True, "reason": "varies"}}
+
+
+def test_sensor_attributes_and_model_choice(tmp_path):
+    tiles, preds = metas()
+    preds[0]["model"] = dict(MODEL, choice={"mode": "auto", "reason": "the zone's return numbers are all 0"})
+    summary = {"attributes": ATTRIBUTES, "degenerate_attributes": ["returns"], "crs_wkt": 'PROJCRS["x" ' * 80}
+    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", block_name="b1", block_bounds=BOUNDS,
+                       tile_metas=tiles, pred_metas=preds, classified=make_block(towers_at=()), stats=summary)
+    assert {"code": "degenerate_attributes", "reason": "sensor attributes unusable: returns (return numbers all 0)"} \
+        in doc["flags"]
+    assert doc["model"]["choice"]["mode"] == "auto"
+    page = (tmp_path / "b.html").read_text()
+    assert "Sensor attributes" in page and "2,471 distinct values" in page
+    assert "Model used and why</b> (auto): the zone&#39;s return numbers are all 0" in page
+    # raw metadata (WKT, JSON) is folded away, not in a table
+    details = page[page.index("<details>"):page.index("</details>")]
+    assert "PROJCRS" in details and "PROJCRS" not in page.replace(details, "")
+
+
+def test_page_of_an_older_run_without_attributes_or_choice(tmp_path):
+    tiles, preds = metas()
+    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", block_name="b1", block_bounds=BOUNDS,
+                       tile_metas=tiles, pred_metas=preds, classified=make_block(towers_at=()))
+    page = (tmp_path / "b.html").read_text()
+    assert doc["attributes"] == {} and "Sensor attributes" not in page and "Model used and why" not in page
+
+
+def test_block_page_links_to_index_and_products(tmp_path):
+    tiles, preds = metas()
+    block_report(tmp_path / "qa" / "b1.html", tmp_path / "qa" / "b1.json", block_name="b1", block_bounds=BOUNDS,
+                 tile_metas=tiles, pred_metas=preds, classified=make_block(towers_at=()))
+    page = (tmp_path / "qa" / "b1.html").read_text()
+    for href in ("index.html", "../blocks/b1.laz", "../towers/b1.gpkg", "../towers.gpkg"):
+        assert f'href="{href}"' in page
+
+
+# --------------------------------------------------------------------------- zone index
+def test_zone_index_map_with_lines_and_failed_block(tmp_path):
+    import geopandas as gpd
+    import shapely
+
+    from towerpipe.gpkg import write_towers_gpkg
+
+    qa = tmp_path / "qa"
+    tiles, preds = metas()
+    pts = make_block()
+    block_report(qa / "a.html", qa / "a.json", block_name="a", zone="z1", block_bounds=BOUNDS, tile_metas=tiles,
+                 pred_metas=preds, towers=towers_of(pts), classified=pts)
+    gpkg = write_towers_gpkg(tmp_path / "towers.gpkg", towers_of(pts), crs_wkt="EPSG:25831")
+    line = shapely.LineString([(X0 + 60, Y0 + 60), (X0 + 150, Y0 + 120)])
+    gpd.GeoDataFrame({"line_id": ["L1"]}, geometry=[line], crs="EPSG:25831").to_file(gpkg, layer="lines")
+    failed_box = (X0 + SIZE, Y0, X0 + 2 * SIZE, Y0 + SIZE)
+    doc = zone_index(tmp_path / "qa" / "index.html", [qa / "a.json"], failures={"c": "split_block: InputError: c.laz"},
+                     zone="z1", gpkg=gpkg, block_bounds={"c": failed_box})
+    assert doc["n_lines"] == 1
+    assert [b["bounds"] for b in doc["blocks"]] == [list(failed_box), list(BOUNDS)]
+    page = (qa / "index.html").read_text()
+    svg = page[page.index("<svg"):page.index("</svg>")]
+    assert 'xlink:href="a.html"' in svg or 'href="a.html"' in svg  # the map's block links to its page
+    assert "<!-- block: failed -->" in svg and "<!-- line -->" in svg  # matplotlib keeps each text as a comment
+    assert "http" not in svg and "_blank" not in svg  # no namespace or metadata addresses; links open in place
+    for href in ('href="../blocks/a.laz"', 'href="../towers/a.gpkg"', 'href="../towers.gpkg"', 'href="a.html"'):
+        assert href in page
+    assert "incomplete" in page

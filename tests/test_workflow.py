@@ -103,6 +103,11 @@ def test_zone_runs_and_adding_a_block_reruns_only_it(zone, random_model):
     assert sorted(p.name for p in (out / "towers").iterdir()) == ["b0.gpkg", "b1.gpkg"]
     assert {"b0.html", "b1.html", "index.html"} <= {p.name for p in (out / "qa").iterdir()}
     assert (out / "towers.gpkg").is_file()
+    # `snakemake --report` holds the zone's QA index and its GeoPackage
+    report = tmp / "report.html"
+    snakemake("--report", str(report), f"results/{name}/", f"--configfile={cfg}")
+    html = report.read_text()
+    assert f"results/{name}/qa/index.html" in html and f"results/{name}/towers.gpkg" in html
     # nothing changed: nothing to do
     assert planned_jobs(snakemake("-n", "--cores", "2", f"results/{name}/", f"--configfile={cfg}")) == 0
     # a new block: its split, its tiles, its summary, the neighbours' edge tiles and the assembly.
@@ -138,6 +143,9 @@ def test_bad_block_costs_only_itself(zone, random_model):
     cfg = write_config(tmp, name, indir, random_model)
     proc = snakemake("--cores", "2", "--keep-going", f"results/{name}/", f"--configfile={cfg}", check=False)
     assert proc.returncode != 0
+    # the end-of-run line counts the failed block and says where the QA index is
+    assert re.search(rf"towerpipe: zone {name}: 0 towers in 3 blocks, 1 failed.*QA index: results/{name}/qa/index.html",
+                     proc.stdout + proc.stderr), proc.stdout[-2000:] + proc.stderr[-2000:]
     work = tmp / "work" / name
     assert sorted(p.name for p in (work / "out").iterdir()) == sorted(f"{b.stem}.laz" for b in blocks)
     # the split records the error (neighbours go on without the block), the block's own

@@ -17,6 +17,7 @@ from towerpipe.errors import TowerpipeError
 
 #: Modules that add sub-commands, in --help order.
 COMMAND_MODULES = [
+    "towerpipe.run",
     "towerpipe.synth.cli",
     "towerpipe.train",
     "towerpipe.evaluate",

@@ -68,7 +68,7 @@ class BlockInput:
     fingerprint
         Content fingerprint (:func:`fingerprint`).
     header
-        ``point_count``, ``version``, ``point_format``, ``crs_wkt`` from the header, or
+        ``point_count``, ``version``, ``point_format``, ``crs_wkt``, ``bounds`` from the header, or
         ``None`` when the header is unreadable (the split reports why). Header values
         never shape the job graph; they only size job resources and pick the zone's CRS.
     clash
@@ -159,7 +159,7 @@ def _header(path: str) -> dict[str, Any] | None:
     except TowerpipeError:
         return None
     return {"point_count": h.point_count, "version": h.version, "point_format": h.point_format,
-            "crs_wkt": h.crs_wkt}
+            "crs_wkt": h.crs_wkt, "bounds": [float(v) for v in h.bounds]}
 
 
 def scan_zone(input_dir: str | os.PathLike[str], cache: str | os.PathLike[str] | None = None

@@ -42,6 +42,7 @@ from laspy.vlrs.vlrlist import VLRList
 
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.predfile import load_pred
+from towerpipe.progress import Progress
 from towerpipe.resources import peak_rss_mb
 
 log = logging.getLogger(__name__)
@@ -350,6 +351,7 @@ def merge_block(
             with laspy.open(tmp, mode="w", header=out_header, do_compress=True,
                             laz_backend=backends or None) as writer:
                 start = 0
+                progress = Progress(f"merge {block or block_path.stem}, written", n, "points", logger=log)
                 it = _raw_chunks(reader, records, n, in_size, int(chunk_size))
                 while True:
                     ta = time.perf_counter()
@@ -383,6 +385,8 @@ def merge_block(
                     writer.write_points(PackedPointRecord(out, out_pf))
                     t_write += time.perf_counter() - tc
                     start += m
+                    progress.update(m)
+                progress.close()
                 if start != n:
                     raise InputError(block_path, f"header says {n} points but {start} were read; the file is truncated")
                 # the points are the input points: keep the input's point statistics as they

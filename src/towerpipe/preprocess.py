@@ -45,6 +45,7 @@ from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.lasio import (BLOCK_COLUMNS, RECORDS_FILE, BlockHeader, check_metric_crs, color_info, iter_block,
                              read_header)
 from towerpipe.pdal import run_pipeline
+from towerpipe.progress import Progress
 from towerpipe.resources import peak_rss_mb
 from towerpipe.tilefile import Tile, empty_arrays, save_tile
 
@@ -54,6 +55,8 @@ NOISE_CLASSES = (7, 18)
 GROUND_CLASS = 2
 CACHE_META = "meta.json"
 NODATA = -9999.0
+#: The stages of a tile after gathering its points (each logged as done, with the time left).
+TILE_STAGES = ("ground", "dtm", "hag", "noise")
 
 
 @dataclass
@@ -290,8 +293,10 @@ def _stream_block(it, tmp: Path, header: BlockHeader, n: int, cfg: PreprocessCon
     stats = AttributeStats(header.dimensions)
     mins, maxs = np.full(3, np.inf), np.full(3, -np.inf)
     class_counts = np.zeros(256, np.int64)
+    progress = Progress(f"split {block}, read", n, "points", logger=log)
     try:
         for chunk in it:
+            progress.update(len(chunk["x"]))
             for c in BLOCK_COLUMNS:
                 cols[c].write(chunk[c])
             if records is None:
@@ -306,6 +311,7 @@ def _stream_block(it, tmp: Path, header: BlockHeader, n: int, cfg: PreprocessCon
     finally:
         for stream in [*cols.values(), *([] if records is None else [records])]:
             stream.close()
+    progress.close()
     t_read = time.perf_counter() - t0
     _, _, color_bits = color_info(header.dimensions, maxima)
     attributes = stats.result()
@@ -653,6 +659,8 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
     with tempfile.TemporaryDirectory(prefix="towerpipe-") as tmpd:
         work = Path(tmpd)
         if n:
+            progress = Progress(f"preprocess {what} ({n:,} points)", len(TILE_STAGES), "stages", logger=log,
+                                interval=0.0, show_rate=False)
             x, y, z, cls = t["x"], t["y"], t["z"], t["classification"]
             noise_cls = np.isin(cls, NOISE_CLASSES)
             s = time.perf_counter()
@@ -661,15 +669,18 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
             else:
                 ground = classify_ground(x, y, z, work, method=t.meta["ground_source"], what=what) & ~noise_cls
             timings["ground"] = time.perf_counter() - s
+            progress.update(detail=f"ground took {timings['ground']:.1f} s")
             s = time.perf_counter()
             box = tiling.expand(tuple(t.meta["core_bounds"]), cfg.buffer)
             dtm_file = Path(dtm_path) if dtm_path else work / "dtm.tif"
             dtm_info = build_dtm(x[ground], y[ground], z[ground], box, dtm_file, work,
                                  resolution=cfg.dtm_resolution, crs_wkt=t.meta["crs_wkt"], what=what)
             timings["dtm"] = time.perf_counter() - s
+            progress.update(detail=f"dtm took {timings['dtm']:.1f} s")
             s = time.perf_counter()
             hag = height_above_ground(x, y, z, dtm_file, work, what=what)
             timings["hag"] = time.perf_counter() - s
+            progress.update(detail=f"hag took {timings['hag']:.1f} s")
             s = time.perf_counter()
             noise_hag = (hag > cfg.hag_max) | (hag < cfg.hag_min)
             outlier = np.zeros(n, bool)
@@ -684,6 +695,8 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
                 geometry_only = [t.meta["blocks"].index(b) for b in t.meta["geometry_only_blocks"]]
                 model_input &= ~np.isin(t["block_id"], geometry_only)
             timings["noise"] = time.perf_counter() - s
+            progress.update(detail=f"noise took {timings['noise']:.1f} s")
+            progress.close()
             t.arrays["hag"] = hag
             t.arrays["model_input"] = model_input
             core = t["core"]

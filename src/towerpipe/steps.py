@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from towerpipe import __version__
+from towerpipe import __version__, layout
 from towerpipe.assemble import assemble_directory, publish_copy, write_text_atomic
 from towerpipe.columnfile import read_meta
 from towerpipe.modelcard import config_hash
@@ -160,9 +160,16 @@ def classified_points(cache_dir: str | os.PathLike[str], pred_files: Sequence[st
 def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_files: Sequence[str],
             pred_files: Sequence[str], towers_gpkg: str, dtm_files: Sequence[str],
             benchmarks: Mapping[str, Sequence[str]], out_html: str, out_json: str, threshold: float = 0.5,
-            neighbours_json: str | None = None, member_files: Sequence[str] | None = None) -> dict[str, Any]:
-    """The block's QA page: preprocessing summary, gate counts, towers, labels if any."""
-    from towerpipe.qa import block_report, read_benchmark
+            neighbours_json: str | None = None, member_files: Sequence[str] | None = None,
+            block_bounds: Mapping[str, Sequence[float]] | None = None) -> dict[str, Any]:
+    """The block's QA page: preprocessing summary, gate counts, towers, side views, labels if any.
+
+    ``block_bounds`` (block → header bounds, the block's and its neighbours') gives the
+    edge of the data: a tower reaching it may be cut. Only the neighbours that gave
+    points to the block's tiles count (a neighbour that failed did not).
+    """
+    from towerpipe.qa import block_report, read_benchmark, tower_neighbourhoods
+    from towerpipe.qa.metrics import read_towers
 
     summary = _json(summary_json)
     truth = None
@@ -175,12 +182,20 @@ def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_fi
         if rows:
             timings[stage] = {"seconds": sum(r.get("seconds", 0.0) for r in rows),
                               "max_rss_mb": max(r.get("max_rss_mb", 0.0) for r in rows), "jobs": len(rows)}
+    tile_metas = [read_meta(p) for p in tile_files]
+    data_bounds = None
+    if block_bounds is not None:
+        gave_points = {block} | {b for m in tile_metas for b in m.get("blocks") or []}
+        data_bounds = [bb for b, bb in block_bounds.items() if b in gave_points and bb is not None]
+    towers = read_towers(towers_gpkg)
+    hoods = tower_neighbourhoods(tile_files, member_files or [], towers)
     with tempfile.TemporaryDirectory(prefix="towerpipe-qa-") as tmp:
         raster = _block_dtm(dtm_files, Path(tmp) / "dtm.tif")
         return block_report(
             out_html, out_json, block_name=block, zone=zone, block_bounds=summary["bounds"], stats=summary,
-            tile_metas=[read_meta(p) for p in tile_files], pred_metas=[read_meta(p) for p in pred_files],
-            towers=towers_gpkg, classified=classified_points(cache_dir, pred_files, block, threshold, member_files),
+            tile_metas=tile_metas, pred_metas=[read_meta(p) for p in pred_files], data_bounds=data_bounds,
+            neighbourhoods=hoods,
+            towers=towers, classified=classified_points(cache_dir, pred_files, block, threshold, member_files),
             raster=str(raster) if raster else None, truth=truth,
             timings=timings, warnings=summary.get("warnings", []),
             neighbour_towers=_json(neighbours_json)["towers_owned_by_neighbours"] if neighbours_json else None,
@@ -190,7 +205,8 @@ def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_fi
 def zone_step(zone: str, out_dir: str, files: Mapping[str, str], *, tower_gpkgs: Sequence[str],
               qa_jsons: Sequence[str], failures: Mapping[str, str] | None = None,
               run_cfg: Mapping[str, Any] | None = None, stage_dir: str | os.PathLike[str] | None = None,
-              manifest: str | os.PathLike[str] | None = None, sources: Mapping[str, str] | None = None) -> Path:
+              manifest: str | os.PathLike[str] | None = None, sources: Mapping[str, str] | None = None,
+              block_bounds: Mapping[str, Sequence[float] | None] | None = None) -> Path:
     """Publish ``results/<zone>/``: per-block links, zone GeoPackage, QA index (+ ``INCOMPLETE.txt``).
 
     The zone is built in ``stage_dir`` (the last published zone, kept so that a deleted
@@ -199,7 +215,8 @@ def zone_step(zone: str, out_dir: str, files: Mapping[str, str], *, tower_gpkgs:
     deleted first and exists at every moment. With ``failures`` the zone is INCOMPLETE:
     ``INCOMPLETE.txt`` is written before the swap. ``manifest`` (JSON, the workflow's
     record of the publication) lists the blocks, their original files and the failures.
-    A zone where no block completed gets no ``towers.gpkg`` (nothing to merge, no CRS).
+    A zone where no block completed gets no GeoPackage (nothing to merge, no CRS).
+    ``block_bounds`` (block → header bounds) places the failed blocks on the index's map.
     """
     from towerpipe.gpkg import merge_gpkgs
     from towerpipe.qa import zone_index
@@ -207,14 +224,17 @@ def zone_step(zone: str, out_dir: str, files: Mapping[str, str], *, tower_gpkgs:
     failures = dict(failures or {})
 
     def build(tmp: Path) -> None:
+        gpkg = tmp / layout.ZONE_GPKG
         if tower_gpkgs:
-            merge_gpkgs(list(tower_gpkgs), tmp / "towers.gpkg",
+            merge_gpkgs(list(tower_gpkgs), gpkg,
                         metadata={"zone": zone, "towerpipe_version": __version__,
                                   "assembled_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                                   "config_hash": config_hash(run_cfg or {})})
-        (tmp / "qa").mkdir(exist_ok=True)
-        zone_index(tmp / "qa" / "index.html", [str(tmp / "qa" / Path(j).name) for j in qa_jsons],
-                   failures=failures, zone=zone, out_json=tmp / "qa" / "index.json")
+        index = tmp / layout.QA_INDEX
+        index.parent.mkdir(parents=True, exist_ok=True)
+        zone_index(index, [str(index.parent / Path(j).name) for j in qa_jsons],
+                   failures=failures, zone=zone, out_json=tmp / layout.QA_INDEX_JSON,
+                   gpkg=gpkg if tower_gpkgs else None, block_bounds=block_bounds)
         if failures:
             (tmp / "INCOMPLETE.txt").write_text(
                 "This zone is INCOMPLETE: the run failed for these blocks (see qa/index.html):\n"
@@ -325,7 +345,8 @@ def assemble_incomplete_zone(zone: str, out_dir: str, files: Mapping[str, str], 
                              fingerprints: Mapping[str, str] | None = None,
                              neighbours: Mapping[str, Sequence[str]] | None = None,
                              stage_dir: str | os.PathLike[str] | None = None,
-                             sources: Mapping[str, str] | None = None) -> Path:
+                             sources: Mapping[str, str] | None = None,
+                             block_bounds: Mapping[str, Sequence[float] | None] | None = None) -> Path:
     """``results/<zone>/`` from the blocks that completed, the failed ones listed.
 
     Written after a failed run (``--keep-going``): the QA index names each failed
@@ -347,4 +368,4 @@ def assemble_incomplete_zone(zone: str, out_dir: str, files: Mapping[str, str], 
     gpkgs = [src for rel, src in have.items() if rel.startswith("towers/")]
     qa = [src for rel, src in have.items() if rel.startswith("qa/") and rel.endswith(".json")]
     return zone_step(zone, out_dir, have, tower_gpkgs=gpkgs, qa_jsons=qa, failures=failures, run_cfg=run_cfg,
-                     stage_dir=stage_dir, sources=sources)
+                     stage_dir=stage_dir, sources=sources, block_bounds=block_bounds)

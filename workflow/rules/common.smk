@@ -7,6 +7,8 @@ from pathlib import Path
 
 from snakemake.exceptions import WorkflowError
 
+from towerpipe import layout
+from towerpipe.config import exit_with as config_exit
 from towerpipe.errors import PdalError, TowerpipeError
 from towerpipe import runlock
 from towerpipe.inputs import describe, scan_zone
@@ -34,7 +36,7 @@ def zone_config(zone):
         return config["zones"][zone]
     except KeyError:
         known = ", ".join(sorted(config["zones"]))
-        raise WorkflowError(
+        config_exit(
             f"zone {zone!r} is not configured (known: {known}); add "
             f"`zones: {{{zone}: {{input: DIR}}}}` to a YAML file and pass it with --configfile"
         )
@@ -55,10 +57,10 @@ def zone_input(zone):
             raise WorkflowError(str(exc))
     if "synth" in zc:
         if os.path.normpath(path) != os.path.normpath(f"data/{zone}"):
-            raise WorkflowError(f"zones.{zone}.input must be data/{zone} for a synthetic zone (got {path})")
+            config_exit(f"zones.{zone}.input must be data/{zone} for a synthetic zone (got {path})")
         checkpoints.synth_zone.get(zone=zone)
     elif not os.path.isdir(path):
-        raise WorkflowError(f"zones.{zone}.input: directory {path!r} does not exist")
+        config_exit(f"zones.{zone}.input: directory {path!r} does not exist")
     return path
 
 
@@ -66,7 +68,7 @@ def zone_input(zone):
 def _inputs(zone, path):
     found = scan_zone(path, cache=f"{WORK}/{zone}/inputs.json")
     if not found:
-        raise WorkflowError(f"zones.{zone}.input: no .las/.laz files under {path!r}")
+        config_exit(f"zones.{zone}.input: no .las/.laz files under {path!r}")
     return found
 
 
@@ -78,6 +80,11 @@ def inputs(zone):
 def blocks(zone):
     """Block id -> file, sorted by id."""
     return {b: i.path for b, i in inputs(zone).items()}
+
+
+def bounds(zone):
+    """Header bounds of every block with points (the QA index's map places failed blocks with them)."""
+    return {b: i.header.get("bounds") for b, i in inputs(zone).items() if i.header and i.header.get("point_count")}
 
 
 def block_input(zone, block):
@@ -165,10 +172,10 @@ def zone_products(zone):
     """Relative path in results/<zone>/ -> per-block product."""
     files = {}
     for b in blocks(zone):
-        files[f"blocks/{b}.laz"] = f"{WORK}/{zone}/out/{b}.laz"
-        files[f"towers/{b}.gpkg"] = f"{WORK}/{zone}/towers/{b}.gpkg"
-        files[f"qa/{b}.html"] = f"{WORK}/{zone}/qa/{b}.html"
-        files[f"qa/{b}.json"] = f"{WORK}/{zone}/qa/{b}.json"
+        files[layout.block_product(layout.BLOCK_LAZ, b)] = f"{WORK}/{zone}/out/{b}.laz"
+        files[layout.block_product(layout.BLOCK_GPKG, b)] = f"{WORK}/{zone}/towers/{b}.gpkg"
+        files[layout.block_product(layout.QA_PAGE, b)] = f"{WORK}/{zone}/qa/{b}.html"
+        files[layout.block_product(layout.QA_JSON, b)] = f"{WORK}/{zone}/qa/{b}.json"
     return files
 
 

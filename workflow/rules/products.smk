@@ -71,6 +71,10 @@ rule qa_block:
     params:
         benchmarks=lambda wc: block_benchmarks(wc.zone, wc.block),
         threshold=INFER["threshold"],
+        # the edge of the data: a tower reaching it may be cut (a seam tower is not)
+        block_bounds=lambda wc: {
+            b: bounds(wc.zone).get(b) for b in [wc.block, *block_neighbours(wc.zone, wc.block)]
+        },
     log:
         f"{WORK}/{{zone}}/logs/qa_block/{{block}}.log",
     benchmark:

@@ -19,6 +19,7 @@ rule assemble_zone:
         qa=lambda wc: [f"{WORK}/{wc.zone}/qa/{b}.json" for b in blocks(wc.zone)],
         sources=lambda wc: {b: i.relpath for b, i in inputs(wc.zone).items()},
         run=run_params(),
+        block_bounds=lambda wc: bounds(wc.zone),
     log:
         f"{WORK}/{{zone}}/logs/assemble_zone.log",
     benchmark:
@@ -37,7 +38,14 @@ rule zone_results:
     input:
         ancient(f"{WORK}/{{zone}}/published.json"),
     output:
-        directory("results/{zone}/"),
+        # `snakemake --report` shows the zone's QA index and its GeoPackage
+        report(
+            directory("results/{zone}/"),
+            patterns=["qa/{page,index}.html", "{name,towers}.gpkg"],
+            caption="../report/zone.rst",
+            category="Zone",
+            subcategory="{zone}",
+        ),
     params:
         stage=lambda wc, input: os.path.splitext(input[0])[0],
     log:

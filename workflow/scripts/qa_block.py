@@ -7,4 +7,4 @@ run_step(snakemake, lambda: qa_step(
     tile_files=i.tiles, pred_files=i.preds, towers_gpkg=i.towers, threshold=snakemake.params.threshold,
     dtm_files=i.dtms, benchmarks=snakemake.params.benchmarks, out_html=snakemake.output.html,
     out_json=snakemake.output.json, neighbours_json=i.neighbours,
-    member_files=[i.members]))
+    member_files=[i.members], block_bounds=snakemake.params.block_bounds))

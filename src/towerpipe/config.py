@@ -1,0 +1,161 @@
+"""The configuration: loading, validating against ``config/schema.yaml``, one line per problem.
+
+The schema holds every default; :func:`validate_config` fills them in (as Snakemake's
+``validate(..., set_default=True)`` does) and reports each problem on a line of its own,
+naming the key and, for an unknown key, the closest valid one::
+
+    config: infrence: unknown key; did you mean 'inference'?
+    config: inference.gate: 1.5 is greater than the maximum of 1
+
+The Snakefile calls :func:`validate_or_exit`, so a bad config stops ``snakemake`` with
+those lines only (no traceback, no schema dump).
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import os
+import sys
+from collections.abc import Iterable, Mapping, MutableMapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from towerpipe.errors import ConfigError
+
+#: The shipped configuration and its schema, relative to the repository root.
+CONFIG_FILE = "config/config.yaml"
+SCHEMA_FILE = "config/schema.yaml"
+
+#: Longest message of one problem (a value printed in full could be a whole section).
+MAX_PROBLEM_CHARS = 240
+
+
+def load_yaml(path: str | os.PathLike[str], what: str = "config file") -> dict[str, Any]:
+    """A YAML mapping from a file; a missing or malformed file is a one-line :class:`ConfigError`."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"{what} {p}: no such file")
+    try:
+        data = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(f"{what} {p}: not valid YAML{where}: {problem}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{what} {p}: must be a mapping of keys to values, not {type(data).__name__}")
+    return data
+
+
+def update_config(base: MutableMapping[str, Any], overrides: Mapping[str, Any]) -> MutableMapping[str, Any]:
+    """Merge ``overrides`` into ``base`` recursively, as Snakemake merges ``--configfile`` files."""
+    for k, v in overrides.items():
+        if isinstance(v, Mapping) and isinstance(base.get(k), MutableMapping):
+            update_config(base[k], v)
+        else:
+            base[k] = copy.deepcopy(v)
+    return base
+
+
+def load_config(configfiles: Sequence[str | os.PathLike[str]] = (), *, root: str | os.PathLike[str] = ".",
+                schema: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+    """The shipped config with ``configfiles`` merged over it, validated, defaults filled in."""
+    root = Path(root)
+    config = load_yaml(root / CONFIG_FILE)
+    for f in configfiles:
+        update_config(config, load_yaml(f))
+    return validate_config(config, schema or root / SCHEMA_FILE)
+
+
+def _validator_class() -> Any:
+    """A draft 2020-12 validator that fills in the schema's defaults while it validates."""
+    from jsonschema import Draft202012Validator, validators
+
+    check_properties = Draft202012Validator.VALIDATORS["properties"]
+
+    def properties_with_defaults(validator: Any, properties: Mapping[str, Any], instance: Any, schema: Any):
+        if isinstance(instance, dict):
+            for name, sub in properties.items():
+                if isinstance(sub, Mapping) and "default" in sub:
+                    instance.setdefault(name, copy.deepcopy(sub["default"]))
+        yield from check_properties(validator, properties, instance, schema)
+
+    return validators.extend(Draft202012Validator, {"properties": properties_with_defaults})
+
+
+def _key_path(path: Iterable[Any]) -> str:
+    return ".".join(str(p) for p in path)
+
+
+def _closest(key: str, valid: Sequence[str]) -> str:
+    close = difflib.get_close_matches(key, list(valid), n=1, cutoff=0.6)
+    if close:
+        return f"did you mean '{close[0]}'?"
+    return f"valid keys: {', '.join(valid)}" if valid else "no keys are allowed here"
+
+
+def _problems(error: Any) -> list[str]:
+    """One line per problem of a jsonschema error (an unknown key each on its own line)."""
+    where = _key_path(error.absolute_path)
+    if error.validator == "additionalProperties" and isinstance(error.instance, Mapping):
+        props = list((error.schema.get("properties") or {}).keys())
+        patterns = list((error.schema.get("patternProperties") or {}).keys())
+        import re
+
+        extra = [k for k in error.instance if k not in props and not any(re.search(p, str(k)) for p in patterns)]
+        return [f"{_key_path([*error.absolute_path, k])}: unknown key; {_closest(str(k), props)}" for k in extra]
+    message = " ".join(error.message.split())
+    if len(message) > MAX_PROBLEM_CHARS:
+        message = message[:MAX_PROBLEM_CHARS - 1] + "…"
+    return [f"{where or '(top level)'}: {message}"]
+
+
+def config_problems(config: MutableMapping[str, Any], schema: Mapping[str, Any]) -> list[str]:
+    """Every problem of ``config`` against ``schema``, one line each (defaults are filled in)."""
+    validator = _validator_class()(schema)
+    lines: list[str] = []
+    for error in sorted(validator.iter_errors(config), key=lambda e: [str(p) for p in e.absolute_path]):
+        for line in _problems(error):
+            if line not in lines:
+                lines.append(line)
+    return lines
+
+
+def validate_config(config: MutableMapping[str, Any], schema: str | os.PathLike[str] | Mapping[str, Any]
+                    ) -> MutableMapping[str, Any]:
+    """Validate ``config`` in place (defaults filled in) and return it.
+
+    Raises
+    ------
+    ConfigError
+        With one line per problem, each ``key.path: what is wrong``.
+    """
+    schema = load_yaml(schema, "schema") if isinstance(schema, (str, os.PathLike)) else schema
+    problems = config_problems(config, schema)
+    if problems:
+        raise ConfigError("\n".join(f"config: {p}" for p in problems))
+    return config
+
+
+def exit_with(message: str) -> None:
+    """Stop with status 1 printing ``config: <message>`` only.
+
+    For configuration errors found while Snakemake builds the DAG (a zone that is not
+    configured, an input directory that does not exist): raised as an exception, they
+    would come with Snakemake's traceback of the input function.
+    """
+    print(message if message.startswith("config: ") else f"config: {message}", file=sys.stderr, flush=True)
+    raise SystemExit(1)
+
+
+def validate_or_exit(config: MutableMapping[str, Any], schema: str | os.PathLike[str]) -> None:
+    """:func:`validate_config`, or exit with status 1 printing only the problems (for the Snakefile)."""
+    try:
+        validate_config(config, schema)
+    except ConfigError as exc:
+        exit_with(str(exc))
