@@ -38,5 +38,5 @@ onerror:
     for _zone, _failed in failures_from_log(log, WORK).items():
         if _zone in config["zones"]:
             assemble_incomplete_zone(_zone, f"results/{_zone}", zone_products(_zone), _failed,
-                                     run_cfg=run_params())
+                                     run_cfg=run_params(), registry=registry_file(_zone))
             print(f"towerpipe: results/{_zone}/ is INCOMPLETE; failed blocks: {', '.join(sorted(_failed))}")

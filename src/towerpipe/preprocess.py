@@ -41,6 +41,7 @@ from towerpipe.assemble import write_text_atomic
 from towerpipe.columnfile import read_meta
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.lasio import BLOCK_COLUMNS, RECORDS_FILE, color_info, iter_block, read_header
+from towerpipe.merge import own_dimensions
 from towerpipe.pdal import run_pipeline
 from towerpipe.resources import peak_rss_mb
 from towerpipe.tilefile import Tile, empty_arrays, save_tile
@@ -196,6 +197,7 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
     t0 = time.perf_counter()
     it = iter_block(path, crs=crs, zone=zone, records=True)
     header, crs_wkt = next(it)
+    own = own_dimensions(path)  # towerpipe output is reprocessed; a foreign dimension of that name is refused
     if zone_crs and not crs and not _same_crs(crs_wkt, zone_crs):
         raise InputError(path, f"its CRS ({_crs_name(crs_wkt)}) differs from the rest of zone {zone!r} "
                                f"({_crs_name(zone_crs)}); reproject it or put it in a zone of its own")
@@ -242,6 +244,7 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
         "las_version": header.version,
         "point_format": header.point_format,
         "dimensions": header.dimensions,
+        "towerpipe_dimensions": own,
         "has_rgb": has_rgb,
         "has_nir": has_nir,
         "color_bits": color_bits,

@@ -751,7 +751,8 @@ def _block_html(d: Mapping[str, Any], map_png: str | None, figures: list[str]) -
 # --------------------------------------------------------------------------- zone index
 def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.PathLike[str]], *,
                failures: Mapping[str, str] | None = None, zone: str = "",
-               out_json: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+               out_json: str | os.PathLike[str] | None = None,
+               vanished: Sequence[Mapping[str, Any]] = ()) -> dict[str, Any]:
     """Write the zone's QA index: every block, totals, and the blocks that need a look.
 
     Parameters
@@ -768,6 +769,10 @@ def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.
         Zone name for the title.
     out_json
         Optional JSON with the index numbers.
+    vanished
+        Registered towers the run did not find again (``tower_id``, ``block``,
+        ``centroid_x``, ``centroid_y``, ``height_m``, ``last_seen``, ``vanished_since``,
+        ``review_status``; the zone's ``vanished_towers`` layer), listed under the blocks.
 
     Returns
     -------
@@ -822,7 +827,8 @@ def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.
     if not totals["failed"] and not totals["look"]:
         s += "; nothing to check"
     totals["summary"] = s + "."
-    doc = _jsonable({"zone": zone, "blocks": blocks, "totals": totals,
+    totals["vanished_towers"] = len(vanished)
+    doc = _jsonable({"zone": zone, "blocks": blocks, "totals": totals, "vanished_towers": list(vanished),
                      "generated_at": datetime.now(timezone.utc).replace(microsecond=0).isoformat()})
     if out_json is not None:
         write_text_atomic(out_json, json.dumps(doc, indent=1))
@@ -867,5 +873,13 @@ def _index_html(d: Mapping[str, Any]) -> str:
     parts.append(_table(["block", "status", "towers", "points", "density (pts/m²)", "ground",
                          "windows gated / total", "mean tower prob", "why it needs a look"], rows,
                         [False, False, True, True, True, True, True, True, False], classes))
+    if d.get("vanished_towers"):
+        parts.append("<h2>Towers no longer found</h2><p>Towers of the registry this run did not find again "
+                     "(layer <code>vanished_towers</code> of towers.gpkg); a tower found again keeps its id.</p>")
+        parts.append(_table(["tower id", "block", "x", "y", "height (m)", "last seen", "missing since", "review"],
+                            [[f"<code>{_esc(v['tower_id'])}</code>", _esc(v["block"]), _fmt(v["centroid_x"]),
+                              _fmt(v["centroid_y"]), _fmt(v["height_m"]), _esc(v["last_seen"]),
+                              _esc(v["vanished_since"]), _esc(v["review_status"])] for v in d["vanished_towers"]],
+                            [False, False, True, True, True, False, False, False]))
     parts.append("<footer>towerpipe QA index · click a block for its page</footer></main></body></html>")
     return "".join(parts)

@@ -13,7 +13,7 @@ import tempfile
 from collections.abc import Mapping, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -21,6 +21,9 @@ from towerpipe import __version__
 from towerpipe.assemble import assemble_directory, write_text_atomic
 from towerpipe.columnfile import read_meta
 from towerpipe.modelcard import config_hash
+
+if TYPE_CHECKING:  # geopandas is imported by the steps that need it: the DAG does not
+    import geopandas as gpd
 
 log = logging.getLogger(__name__)
 
@@ -45,40 +48,51 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
                 out_gpkg: str | os.PathLike[str], *, towers_cfg: Mapping[str, Any],
                 source_files: Mapping[str, str], run_cfg: Mapping[str, Any],
                 out_neighbours: str | os.PathLike[str] | None = None, point_threshold: float | None = None,
-                tile_files: Sequence[str] = (), out_members: str | os.PathLike[str] | None = None
-                ) -> dict[str, Any]:
+                tile_files: Sequence[str] = (), out_members: str | os.PathLike[str] | None = None,
+                registry: Sequence[str] = ()) -> dict[str, Any]:
     """Towers owned by ``block`` (from its and its neighbours' predictions) → GeoPackage.
 
     ``out_neighbours`` (JSON) receives the towers with points in the block that a
     neighbour owns (see :func:`towerpipe.towers.extract_towers`), for the block's QA.
     ``tile_files`` (the block's and its neighbours' tiles) give the conductor support of
-    each tower (:class:`towerpipe.wires.TileContext`); ``out_members`` receives the points
-    of every accepted tower with points in the block, owned or not
-    (:func:`towerpipe.towers.save_members`): the merge classifies them 15.
+    each tower (:class:`towerpipe.wires.TileContext`) and the block's conductor points
+    (layer ``conductor_points``, from which the zone builds its lines); ``out_members``
+    receives the points of every accepted tower with points in the block, owned or not
+    (:func:`towerpipe.towers.save_members`): the merge classifies them 15 and writes
+    their tower id. ``registry`` lists where the zone's tower registry may be, first
+    found first (:func:`towerpipe.registry.read_registry`): matched towers keep their ids.
     """
+    import geopandas as gpd
+
     from towerpipe.gpkg import run_metadata, write_towers_gpkg
     from towerpipe.predfile import load_pred
+    from towerpipe.registry import read_registry
     from towerpipe.towers import extract_towers, save_members
-    from towerpipe.wires import TileContext
+    from towerpipe.wires import TileContext, conductor_points
 
     loaded = [load_pred(p) for p in preds]
     own = [p for p in loaded if p.meta.get("block") == block] or loaded
     model_meta = own[0].meta.get("model") if own else None
     crs_wkt = own[0].meta.get("crs_wkt") if own else None
     neighbours: list[dict[str, Any]] = []
-    members: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    members: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     gdf = extract_towers(loaded, block, block_bounds, zone=zone, model_meta=model_meta,
                          source_files=source_files, crs=crs_wkt, neighbours=neighbours, point_threshold=point_threshold,
                          context=TileContext(tile_files) if tile_files else None, members=members,
-                         **dict(towers_cfg))
+                         registry=read_registry(*registry), **dict(towers_cfg))
     if out_members is not None:
         save_members(out_members, members)
-    meta = run_metadata(model_meta=model_meta, config=run_cfg, zone=zone, block=block)
-    write_towers_gpkg(out_gpkg, gdf, crs_wkt=crs_wkt, metadata=meta)
+    wires = conductor_points(tile_files, block)
+    conductors = gpd.GeoDataFrame({"block": [block] * len(wires["x"]), **{k: wires[k] for k in
+                                   ("z", "hag", "direction_deg", "clearance_m")}},
+                                  geometry=gpd.points_from_xy(wires["x"], wires["y"]), crs=crs_wkt)
+    meta = run_metadata(model_meta=model_meta, config=run_cfg, zone=zone, block=block,
+                        bounds=[float(v) for v in block_bounds])
+    write_towers_gpkg(out_gpkg, gdf, crs_wkt=crs_wkt, metadata=meta, conductors=conductors)
     if out_neighbours is not None:
         write_text_atomic(out_neighbours, json.dumps({"block": block, "towers_owned_by_neighbours": neighbours},
                                                      indent=1))
-    return {"towers": len(gdf), "towers_owned_by_neighbours": len(neighbours)}
+    return {"towers": len(gdf), "towers_owned_by_neighbours": len(neighbours), "conductor_points": len(conductors)}
 
 
 def _block_dtm(dtm_paths: Sequence[str], out: Path) -> Path | None:
@@ -160,23 +174,93 @@ def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_fi
         )
 
 
+def zone_towers(tower_gpkgs: Sequence[str], *, registry: gpd.GeoDataFrame, run_time: Any,
+                keep_blocks: Sequence[str] = (), published: str | os.PathLike[str] | None = None,
+                crs_wkt: str | None = None) -> dict[str, Any]:
+    """The content of a zone's ``towers.gpkg`` and its new registry, from the blocks' GeoPackages.
+
+    Towers of all blocks (each id once, :func:`towerpipe.registry.unique_ids`), linked into
+    lines by the blocks' conductor points (:func:`towerpipe.lines.build_lines`, judged
+    inside the blocks' bounds), the registry updated (:func:`towerpipe.registry.update_registry`,
+    with the review statuses analysts set in the ``published`` file) and its vanished towers.
+
+    Returns
+    -------
+    dict
+        ``towers``, ``lines``, ``spans``, ``vanished``, ``registry`` (GeoDataFrames), ``crs``
+        and ``metadata`` (the first block's model fields).
+    """
+    import shapely
+
+    from towerpipe.gpkg import LAYER_CONDUCTORS, concat_towers, list_layers, read_metadata
+    from towerpipe.lines import build_lines
+    from towerpipe.registry import published_reviews, unique_ids, update_registry, vanished
+
+    towers = unique_ids(concat_towers(tower_gpkgs, crs_wkt=crs_wkt))
+    crs = towers.crs if towers.crs is not None else crs_wkt
+    with_wires = [p for p in tower_gpkgs if LAYER_CONDUCTORS in list_layers(p)]
+    wires = concat_towers(with_wires, LAYER_CONDUCTORS, crs_wkt=crs)
+    conductors = {k: wires[k].to_numpy(float) for k in ("hag", "direction_deg", "clearance_m")} if len(wires) else {}
+    if len(wires):
+        conductors.update(x=wires.geometry.x.to_numpy(), y=wires.geometry.y.to_numpy())
+    metas = [read_metadata(p) for p in tower_gpkgs]
+    boxes = [shapely.box(*json.loads(m["bounds"])) for m in metas if m.get("bounds")]
+    extent = shapely.union_all(boxes) if boxes and len(boxes) == len(metas) else None
+    if len(towers):
+        towers, lines, spans = build_lines(towers, conductors, extent=extent)
+    else:
+        lines = spans = None
+    reviews = published_reviews(published, registry)
+    new_registry = update_registry(registry, towers, run_time=run_time, keep_blocks=keep_blocks, reviews=reviews)
+    if len(towers):
+        status = dict(zip(new_registry["tower_id"], new_registry["review_status"]))
+        towers["review_status"] = [status.get(t, r) for t, r in zip(towers["tower_id"], towers["review_status"])]
+    model = {k: v for k, v in (metas[0] if metas else {}).items() if k.startswith("model_")}
+    return {"towers": towers, "lines": lines, "spans": spans, "vanished": vanished(new_registry),
+            "registry": new_registry, "crs": crs, "metadata": model}
+
+
 def zone_step(zone: str, out_dir: str, files: Mapping[str, str], *, tower_gpkgs: Sequence[str],
               qa_jsons: Sequence[str], failures: Mapping[str, str] | None = None,
-              run_cfg: Mapping[str, Any] | None = None) -> Path:
-    """Assemble ``results/<zone>/``: per-block links, zone GeoPackage and QA index, atomically."""
-    from towerpipe.gpkg import merge_gpkgs
+              run_cfg: Mapping[str, Any] | None = None, registry: str | os.PathLike[str] | None = None) -> Path:
+    """Assemble ``results/<zone>/``: per-block links, zone GeoPackage and QA index, atomically.
+
+    ``registry`` is the zone's tower registry file: read (or, when it is missing, the
+    published ``towers.gpkg``), updated with this assembly's towers and written back
+    once the directory is in place. Towers of ``failures`` blocks are left as they were.
+    """
+    from towerpipe.gpkg import write_towers_gpkg
     from towerpipe.qa import zone_index
+    from towerpipe.registry import read_registry, write_registry
+
+    run_time = datetime.now(timezone.utc).replace(microsecond=0)
+    published = Path(str(out_dir).rstrip("/")) / "towers.gpkg"
+    content = zone_towers(tower_gpkgs, registry=read_registry(registry, published), run_time=run_time,
+                          keep_blocks=list(failures or {}), published=published)
+    vanished_rows = [{"tower_id": int(r.tower_id), "block": r.block, "centroid_x": r.centroid_x,
+                      "centroid_y": r.centroid_y, "height_m": r.height_m, "last_seen": r.last_seen.isoformat(),
+                      "vanished_since": r.vanished_since.isoformat(), "review_status": r.review_status}
+                     for r in content["vanished"].itertuples()]
 
     def build(tmp: Path) -> None:
-        merge_gpkgs(list(tower_gpkgs), tmp / "towers.gpkg",
-                    metadata={"zone": zone, "towerpipe_version": __version__,
-                              "assembled_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-                              "config_hash": config_hash(run_cfg or {})})
+        crs = content["crs"]
+        write_towers_gpkg(tmp / "towers.gpkg", content["towers"] if len(content["towers"]) else None,
+                          crs_wkt=crs.to_wkt() if hasattr(crs, "to_wkt") else crs,
+                          lines=content["lines"], spans=content["spans"], vanished=content["vanished"],
+                          metadata={"zone": zone, "towerpipe_version": __version__, **content["metadata"],
+                                    "assembled_at": run_time.isoformat(), "config_hash": config_hash(run_cfg or {}),
+                                    "blocks": str(len(tower_gpkgs)), "n_towers": str(len(content["towers"])),
+                                    "n_lines": str(0 if content["lines"] is None else len(content["lines"]))})
         (tmp / "qa").mkdir(exist_ok=True)
         zone_index(tmp / "qa" / "index.html", [str(tmp / "qa" / Path(j).name) for j in qa_jsons],
-                   failures=dict(failures or {}), zone=zone, out_json=tmp / "qa" / "index.json")
+                   failures=dict(failures or {}), zone=zone, out_json=tmp / "qa" / "index.json",
+                   vanished=vanished_rows)
 
-    return assemble_directory(out_dir, files, build)
+    out = assemble_directory(out_dir, files, build)
+    if registry is not None and content["crs"] is not None:
+        crs = content["crs"]
+        write_registry(registry, content["registry"], crs.to_wkt() if hasattr(crs, "to_wkt") else crs)
+    return out
 
 
 def model_results_step(bundle_dir: str, ablation_dirs: Sequence[str], out_dir: str) -> Path:
@@ -224,7 +308,8 @@ def failures_from_log(snakemake_log: str | os.PathLike[str] | Sequence[str], wor
 
 
 def assemble_incomplete_zone(zone: str, out_dir: str, files: Mapping[str, str], failures: Mapping[str, str],
-                             *, run_cfg: Mapping[str, Any] | None = None) -> Path:
+                             *, run_cfg: Mapping[str, Any] | None = None,
+                             registry: str | os.PathLike[str] | None = None) -> Path:
     """``results/<zone>/`` from the blocks that completed, the failed ones listed.
 
     Written after a failed run (``--keep-going``): the QA index names each failed
@@ -236,7 +321,8 @@ def assemble_incomplete_zone(zone: str, out_dir: str, files: Mapping[str, str], 
     have = {rel: src for rel, src in have.items() if Path(rel).stem in ok_blocks}
     gpkgs = [src for rel, src in have.items() if rel.startswith("towers/")]
     qa = [src for rel, src in have.items() if rel.startswith("qa/") and rel.endswith(".json")]
-    out = zone_step(zone, out_dir, have, tower_gpkgs=gpkgs, qa_jsons=qa, failures=failures, run_cfg=run_cfg)
+    out = zone_step(zone, out_dir, have, tower_gpkgs=gpkgs, qa_jsons=qa, failures=failures, run_cfg=run_cfg,
+                    registry=registry)
     (out / "INCOMPLETE.txt").write_text(
         "This zone is INCOMPLETE: the run failed for these blocks (see qa/index.html):\n"
         + "".join(f"  {b}: {r}\n" for b, r in sorted(failures.items()))

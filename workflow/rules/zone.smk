@@ -11,6 +11,8 @@ rule assemble_zone:
         gpkgs=lambda wc: [f"{WORK}/{wc.zone}/towers/{b}.gpkg" for b in blocks(wc.zone)],
         qa=lambda wc: [f"{WORK}/{wc.zone}/qa/{b}.json" for b in blocks(wc.zone)],
         run=run_params(),
+        # the tower registry: updated by each assembly (state kept across runs, not an output)
+        registry=lambda wc: registry_file(wc.zone),
     log:
         f"{WORK}/{{zone}}/logs/assemble_zone.log",
     benchmark:
