@@ -7,12 +7,16 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 CORES ?= 2
 
-.PHONY: setup pdal demo test lint bench train ship-models clean-demo
+.PHONY: setup pdal gdal36 demo test lint bench train ship-models clean-demo
 
-setup: pdal $(VENV)/.installed
+setup: pdal gdal36 $(VENV)/.installed
 
 pdal:
 	@bash scripts/install_pdal.sh
+
+# GDAL 3.6 (QGIS LTR of Debian 12) unpacked in build/gdal36: the tests open the GeoPackages with it
+gdal36:
+	@bash scripts/gdal36_tools.sh
 
 $(VENV)/.installed: requirements.txt pyproject.toml
 	$(PYTHON) -m venv $(VENV)

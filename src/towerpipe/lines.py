@@ -185,15 +185,16 @@ def _corridor(tree: cKDTree, xy: np.ndarray, cond: Mapping[str, np.ndarray], a: 
     span_az = float(_azimuth(unit[0], unit[1]))
     axis_dev = np.minimum(_angle_diff(cond["direction_deg"][idx], span_az),
                           _angle_diff(cond["direction_deg"][idx] + 180.0, span_az))
-    inner = (t >= p.r_min) & (t <= length - p.r_min)
+    end = min(p.r_min, length / 4.0)  # the towers' own points near each end (less on a short span)
+    inner = (t >= end) & (t <= length - end)
     sel = (t >= 0) & (t <= length) & (lat <= p.corridor) & (axis_dev <= p.parallel)
-    nbins = max(int(np.ceil((length - 2 * p.r_min) / p.bin)), 0)
+    nbins = max(int(np.ceil((length - 2 * end) / p.bin)), 0)
     if nbins:
-        centres = a + unit * (p.r_min + p.bin * (np.arange(nbins) + 0.5))[:, None]
+        centres = a + unit * (end + p.bin * (np.arange(nbins) + 0.5))[:, None]
         in_data = np.ones(nbins, bool) if extent is None else shapely.contains_xy(extent, centres[:, 0],
                                                                                   centres[:, 1])
         hit = np.zeros(nbins, bool)
-        k = np.floor((t[sel & inner] - p.r_min) / p.bin).astype(np.int64)
+        k = np.floor((t[sel & inner] - end) / p.bin).astype(np.int64)
         hit[np.clip(k, 0, nbins - 1)] = True
         judged = int(in_data.sum())
         coverage = float((hit & in_data).sum() / judged) if judged else float("nan")

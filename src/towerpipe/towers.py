@@ -51,7 +51,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from towerpipe.errors import InputError
-from towerpipe.fields import DATETIME, Field, conform, dtypes, empty_frame, join_values
+from towerpipe.fields import DATETIME, GEOMETRY_GRID, Field, conform, dtypes, empty_frame, join_values
 from towerpipe.registry import REVIEW_STATUSES, assign_ids
 
 #: Fields of a tower record (besides the footprint geometry), in order: the GeoPackage
@@ -468,7 +468,7 @@ def extract_towers(
         if hag.min() > max_base_ratio * hag.max():
             continue  # floating: a piece of conductor or crossarm, not a tower standing on the ground
         xy = xyz[g, :2]
-        foot = _footprint(xy, min_width)
+        foot = shapely.set_precision(_footprint(xy, min_width), GEOMETRY_GRID)  # as written: 1 cm
         c = foot.centroid
         touched = sorted(set(pts["block"][g].tolist()))
         owned = bool(_in_bounds(np.array([c.x]), np.array([c.y]), block_bounds)[0])

@@ -97,12 +97,15 @@ def wire_points(x: np.ndarray, y: np.ndarray, z: np.ndarray, *, radius: float = 
     tree = cKDTree(xy)
     count = tree.query_ball_point(xy, radius, return_length=True)
     ok = count <= max_neighbours
-    pairs = tree.query_pairs(radius, output_type="ndarray")
-    if len(pairs):
-        dz = np.abs(z[pairs[:, 0]] - z[pairs[:, 1]])
-        steep = (dz >= max_dz) & (dz < min_gap)
-        ok[pairs[steep, 0]] = False
-        ok[pairs[steep, 1]] = False
+    # a sparse point with a neighbour between max_dz and min_gap above or below is in a crown;
+    # only the sparse points' neighbourhoods are looked at (in a forest most points are dense:
+    # the pairs of all points would be ~15 per point)
+    sparse_idx = np.flatnonzero(ok)
+    if len(sparse_idx):
+        near = cKDTree(xy[sparse_idx]).sparse_distance_matrix(tree, radius, output_type="coo_matrix")
+        rows, cols = sparse_idx[near.row], near.col
+        dz = np.abs(z[rows] - z[cols])
+        ok[rows[(dz >= max_dz) & (dz < min_gap)]] = False
     cand = np.flatnonzero(ok)
     if len(cand) == 0:
         return mask, direction
