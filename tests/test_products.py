@@ -147,3 +147,22 @@ def test_rerun_with_other_thresholds_keeps_ids_and_lists_vanished(demo):
     back = layer(demo["out"], "towers")
     assert sorted(back["tower_id"]) == sorted(first["tower_id"])
     assert len(layer(demo["out"], "vanished_towers")) == 0
+
+
+def test_lines_across_zones(demo, tmp_path):
+    """The demo zone cut into two zones (west and east blocks, one block in both): `towerpipe
+    lines` gives the zone's lines, the line crossing the cut included, each tower once."""
+    from towerpipe.cli import main
+
+    blocks = sorted((demo["out"] / "towers").glob("*.gpkg"))
+    west, east = tmp_path / "west" / "towers", tmp_path / "east" / "towers"
+    for d in (west, east):
+        d.mkdir(parents=True)
+    for b in blocks:
+        shutil.copy(b, (west if b.name.startswith("400000_") else east) / b.name)
+    shutil.copy(blocks[-1], west / blocks[-1].name)  # an overlap: its towers come from both zones
+    assert main(["lines", str(west.parent), str(east.parent), "-o", str(tmp_path / "towers.gpkg")]) == 0
+    spans, towers = layer(tmp_path, "spans"), layer(tmp_path, "towers")
+    zone = layer(demo["out"], "spans")
+    assert sorted(zip(spans["from_tower"], spans["to_tower"])) == sorted(zip(zone["from_tower"], zone["to_tower"]))
+    assert towers["tower_id"].is_unique and len(towers) == len(layer(demo["out"], "towers"))

@@ -21,6 +21,7 @@ COMMAND_MODULES = [
     "towerpipe.train",
     "towerpipe.evaluate",
     "towerpipe.calibrate",
+    "towerpipe.lines",
     "towerpipe.bench",
 ]
 

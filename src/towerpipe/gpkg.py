@@ -45,8 +45,10 @@ from pathlib import Path
 from typing import Any
 
 import geopandas as gpd
+import numpy as np
 import pandas as pd
 import pyogrio
+import shapely
 
 from towerpipe.errors import InputError
 from towerpipe.fields import Field, conform
@@ -441,8 +443,8 @@ def concat_towers(paths: Sequence[str | os.PathLike[str]], layer: str = LAYER_TO
                   crs_wkt: Any = None) -> gpd.GeoDataFrame:
     """One layer of several tower GeoPackages, concatenated (one CRS, else :class:`InputError`).
 
-    A tower reported by two blocks (only possible when blocks overlap: the footprints
-    intersect) is kept once, with a warning.
+    A tower reported by two blocks or zones (only possible when they overlap: the
+    footprints intersect) is kept once, from the first file, with a warning.
     """
     frames, crs = [], None
     for p in paths:
@@ -459,16 +461,20 @@ def concat_towers(paths: Sequence[str | os.PathLike[str]], layer: str = LAYER_TO
         return gpd.GeoDataFrame(geometry=gpd.GeoSeries([], crs=crs), crs=crs)
     merged = gpd.GeoDataFrame(pd.concat(frames, ignore_index=True), crs=crs)
     if layer in (LAYER_TOWERS, LAYER_POINTS):
-        # the same tower twice (blocks that overlap): kept once. Two towers with one id
-        # (not overlapping) are both kept, for towerpipe.registry.unique_ids to tell apart
-        first = merged.drop_duplicates("tower_id", keep="first").set_index("tower_id").geometry
-        later = merged["tower_id"].duplicated(keep="first")
-        same = later & merged.geometry.intersects(gpd.GeoSeries(first.reindex(merged["tower_id"]).values,
-                                                                index=merged.index, crs=crs))
-        if same.any():
-            log.warning("%d tower(s) reported by more than one block, kept once: %s", int(same.sum()),
-                        ", ".join(merged.loc[same, "tower_id"].astype(str).tolist()[:10]))
-            merged = merged.loc[~same]
+        # one tower reported twice (blocks or zones that overlap: the footprints intersect) is
+        # kept once, from the first file; two towers with one id that do not overlap are both
+        # kept, for towerpipe.registry.unique_ids to tell apart
+        foot = merged.geometry.values if layer == LAYER_TOWERS else merged.geometry.buffer(0.5).values
+        tree = shapely.STRtree(foot)
+        a, b = tree.query(foot, predicate="intersects")
+        later = np.zeros(len(merged), bool)
+        for i, j in sorted(zip(a.tolist(), b.tolist())):
+            if i < j and not later[i]:
+                later[j] = True
+        if later.any():
+            log.warning("%d tower(s) reported by more than one block or zone, kept once: %s", int(later.sum()),
+                        ", ".join(merged.loc[later, "tower_id"].astype(str).tolist()[:10]))
+            merged = merged.loc[~later]
         merged = merged.sort_values("tower_id", kind="stable")
     return merged.reset_index(drop=True)
 
