@@ -7,9 +7,9 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 CORES ?= 2
 
-.PHONY: setup pdal slurm chromium demo test lint bench train benchmark-realshape ship-models clean-demo docs-img
+.PHONY: setup pdal slurm chromium gdal36 demo test lint bench train benchmark-realshape ship-models clean-demo docs-img
 
-setup: pdal chromium $(VENV)/.installed
+setup: pdal chromium gdal36 $(VENV)/.installed
 
 pdal:
 	@bash scripts/install_pdal.sh
@@ -21,6 +21,10 @@ slurm:
 # headless Chromium: the QA pages' browser test and the screenshots of docs/img
 chromium:
 	@bash scripts/install_chromium.sh
+
+# GDAL 3.6 (QGIS LTR of Debian 12) unpacked in build/gdal36: the tests open the GeoPackages with it
+gdal36:
+	@bash scripts/gdal36_tools.sh
 
 $(VENV)/.installed: requirements.txt pyproject.toml
 	$(PYTHON) -m venv $(VENV)

@@ -51,7 +51,12 @@ onerror:
     for _zone, _failed in _failures.items():
         if _zone in config["zones"]:
             assemble_incomplete_zone(_zone, f"results/{_zone}", zone_products(_zone), _failed,
-                                     run_cfg=run_params(), block_bounds=bounds(_zone))
+                                     run_cfg=run_params(), block_bounds=bounds(_zone), registry=registry_file(_zone),
+                                     caches={b: cache_dir(_zone, b) for b in blocks(_zone)},
+                                     fingerprints={b: i.fingerprint for b, i in inputs(_zone).items()},
+                                     neighbours={b: p["neighbours"] for b, p in (plan_or_none(_zone) or {}).items()},
+                                     stage_dir=f"{WORK}/{_zone}/published",
+                                     sources={b: i.relpath for b, i in inputs(_zone).items()})
             print(f"towerpipe: results/{_zone}/ is INCOMPLETE; failed blocks: {', '.join(sorted(_failed))}")
     # then, as on success, one line per zone (the failed blocks counted)
     print_summary(sorted(set(zones_in_log(log)) | (set(_failures) & set(config["zones"]))))

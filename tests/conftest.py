@@ -23,11 +23,36 @@ TS40K = TOWERS / "ts40k"
 UTILITY_STRUCTURES = TOWERS / "utility_structures"
 
 
+#: GDAL 3.6 (QGIS LTR of Debian 12), unpacked by scripts/gdal36_tools.sh (make setup).
+GDAL36 = REPO / "build" / "gdal36"
+GDAL36_OGRINFO = GDAL36 / "usr" / "bin" / "ogrinfo"
+GDAL36_PYTHON = GDAL36 / "usr" / "lib" / "python3" / "dist-packages"
+GDAL36_VALIDATOR = GDAL36_PYTHON / "osgeo_utils" / "samples" / "validate_gpkg.py"
+
+
 def need(path: Path) -> Path:
     """Skip the test when a file of ../shared/data/real is absent."""
     if not path.exists():
         pytest.skip(f"{path} is absent (the real data lives in ../shared/data/real beside the repo)")
     return path
+
+
+@pytest.fixture
+def gdal36():
+    """``run(*args)`` -> CompletedProcess of a GDAL 3.6 tool (``ogrinfo`` or ``validate_gpkg``)."""
+    import os
+    import subprocess
+
+    if not (GDAL36_OGRINFO.exists() and GDAL36_VALIDATOR.exists()):
+        pytest.skip(f"GDAL 3.6 is not unpacked in {GDAL36} (bash scripts/gdal36_tools.sh, Debian 12 only)")
+    env = dict(os.environ, LD_LIBRARY_PATH=f"{GDAL36}/usr/lib/x86_64-linux-gnu:{GDAL36}/usr/lib",
+               PYTHONPATH=str(GDAL36_PYTHON))
+
+    def run(tool: str, *args: str) -> subprocess.CompletedProcess:
+        cmd = [str(GDAL36_OGRINFO)] if tool == "ogrinfo" else ["python3", str(GDAL36_VALIDATOR)]
+        return subprocess.run(cmd + list(args), capture_output=True, text=True, env=env)
+
+    return run
 
 
 @pytest.fixture

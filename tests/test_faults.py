@@ -52,7 +52,7 @@ def _run(cmd):
 
 def _features(path, layer):
     df = pyogrio.read_dataframe(path, layer=layer)
-    return df.drop(columns=["processed_at"]).sort_values("tower_id").reset_index(drop=True)
+    return df.drop(columns=["processed_at", "first_seen"]).sort_values("tower_id").reset_index(drop=True)
 
 
 @pytest.fixture(scope="module")

@@ -170,3 +170,97 @@ def test_geometry_roundtrip_exact(tmp_path):
     back = read_towers(path)
     assert shapely.equals_exact(back.geometry.iloc[0], t.geometry.iloc[0], 1e-9)
     assert back["n_points"].dtype == np.int64 and back["height_m"].iloc[0] == t["height_m"].iloc[0]
+
+
+# --------------------------------------------------------------------------- hygiene
+def zone_file(tmp_path):
+    """A zone-like GeoPackage with every layer: towers, lines, spans, vanished towers."""
+    from towerpipe.lines import build_lines
+    from towerpipe.registry import read_registry, update_registry, vanished
+
+    towers = towers_for("b1", (X0, Y0, X0 + 500, Y0 + 500), [(X0 + 50, Y0 + 50), (X0 + 350, Y0 + 50)])
+    u = np.linspace(0, 300, 600)
+    cond = {"x": np.r_[X0 + 50 + u, X0 + 50 + u], "y": np.r_[np.full(600, Y0 + 47), np.full(600, Y0 + 53)],
+            "hag": np.full(1200, 14.0), "direction_deg": np.full(1200, 90.0), "clearance_m": np.full(1200, 7.5)}
+    towers, lines, spans = build_lines(towers, cond)
+    gone = towers_for("b1", (X0, Y0, X0 + 500, Y0 + 500), [(X0 + 200, Y0 + 300)])
+    reg = update_registry(read_registry(), gone, run_time="2024-04-01T00:00:00Z")
+    reg = update_registry(reg, towers, run_time="2024-05-01T00:00:00Z")
+    path = write_towers_gpkg(tmp_path / "towers.gpkg", towers, lines=lines, spans=spans, vanished=vanished(reg),
+                             metadata=run_metadata(model_meta=dict(MODEL, choice={"mode": "auto", "reason": "rgb"})))
+    return path, towers, lines, spans
+
+
+def test_geopackage_version_and_fields(tmp_path):
+    """GeoPackage 1.2, DATETIME fields, values to the cm, height = top - base, descriptions with units."""
+    from towerpipe.lines import LINE_FIELDS, SPAN_FIELDS
+    from towerpipe.registry import REGISTRY_FIELDS
+    from towerpipe.towers import TOWER_FIELDS
+
+    path, towers, lines, spans = zone_file(tmp_path)
+    assert dict(pyogrio.list_layers(path)) == {"towers": "Polygon", "tower_points": "Point", "lines": "LineString",
+                                               "spans": "LineString", "vanished_towers": "Polygon",
+                                               "layer_styles": None}
+    with sqlite3.connect(path) as con:
+        assert con.execute("PRAGMA user_version").fetchone()[0] == 10200 < 10400
+        types = {r[1]: r[2] for r in con.execute("PRAGMA table_info(towers)")}
+        assert types["processed_at"] == types["first_seen"] == "DATETIME" and types["tower_id"] == "INTEGER"
+        stamp = con.execute("SELECT processed_at FROM towers").fetchone()[0]
+        assert stamp == "2024-05-01T12:00:00.000Z"
+        rows = con.execute("SELECT height_m, top_z, base_z, centroid_x, footprint_area_m2, prob_mean FROM towers")
+        for height, top, base, cx, area, prob in rows:
+            assert height == pytest.approx(top - base, abs=0.005)
+            for v in (height, top, base, cx, area):
+                assert v == round(v, 2)
+            assert prob == round(prob, 3)
+        cols = {(t, c): (title, desc, cname) for t, c, title, desc, cname in con.execute(
+            "SELECT table_name, column_name, title, description, constraint_name FROM gpkg_data_columns")}
+        enum = [r[0] for r in con.execute("SELECT value FROM gpkg_data_column_constraints "
+                                          "WHERE constraint_name = 'review_status_values' ORDER BY value")]
+        ext = con.execute("SELECT count(*) FROM gpkg_extensions WHERE extension_name = 'gpkg_schema'").fetchone()[0]
+    for table, fields in (("towers", TOWER_FIELDS), ("tower_points", TOWER_FIELDS), ("lines", LINE_FIELDS),
+                          ("spans", SPAN_FIELDS), ("vanished_towers", REGISTRY_FIELDS)):
+        for name, f in fields.items():
+            assert cols[(table, name)][:2] == (f.title, f.description)
+    assert cols[("towers", "height_m")][0] == "Height (m)" and "(m)" in cols[("towers", "top_z")][1]
+    assert cols[("towers", "review_status")][2] == "review_status_values"
+    assert enum == ["confirmed", "rejected", "unreviewed"] and ext == 2
+    back = read_towers(path)
+    assert set(back["review_status"]) == {"unreviewed"}
+    assert back["line_id"].dtype.kind == "i" and (back["line_id"] == lines["line_id"].iloc[0]).all()
+    assert read_metadata(path)["model_choice"] == '{"mode": "auto", "reason": "rgb"}'
+    assert len(read_towers(path, "vanished_towers")) == 1 and len(read_towers(path, "spans")) == 1
+
+
+def test_gdal36_opens_without_warning_and_validates(tmp_path, gdal36):
+    """What QGIS LTR on Debian 12 sees: no warning, and GDAL's validator (Req 75: the R-tree
+    triggers of GeoPackage 1.2) passes. A GeoPackage 1.4 file, GDAL's default since 3.7, fails both."""
+    path, *_ = zone_file(tmp_path)
+    block = write_towers_gpkg(tmp_path / "block.gpkg", towers_for("b", (X0, Y0, X0 + 500, Y0 + 500),
+                                                                     [(X0 + 50, Y0 + 50)]))
+    for p in (path, block):
+        info = gdal36("ogrinfo", "-so", "-al", str(p))
+        assert info.returncode == 0 and "3.6" not in info.stderr and info.stderr.strip() == "", info.stderr
+        assert "Layer name: towers" in info.stdout
+        check = gdal36("validate_gpkg", "-k", str(p))
+        assert check.returncode == 0, check.stdout + check.stderr
+    newer = tmp_path / "v14.gpkg"
+    towers_for("b", (X0, Y0, X0 + 500, Y0 + 500), [(X0 + 50, Y0 + 50)]).to_file(newer, engine="pyogrio")
+    assert "user_version=0x000028A0" in gdal36("ogrinfo", "-so", str(newer)).stderr
+    assert "Req 75" in gdal36("validate_gpkg", "-k", str(newer)).stdout
+
+
+def test_every_layer_has_its_qgis_style(tmp_path):
+    path, *_ = zone_file(tmp_path)
+    with sqlite3.connect(path) as con:
+        rows = dict(con.execute("SELECT f_table_name, styleQML FROM layer_styles WHERE useAsDefault = 1"))
+    kinds = {"towers": ("fill", 2), "tower_points": ("marker", 0), "lines": ("line", 1), "spans": ("line", 1),
+             "vanished_towers": ("fill", 2)}
+    assert set(rows) == set(kinds)
+    for layer, (kind, gtype) in kinds.items():
+        root = ET.fromstring(rows[layer].split("\n", 1)[1])
+        assert root.find("renderer-v2/symbols/symbol").get("type") == kind
+        assert root.find("layerGeometryType").text == str(gtype)
+        fields = [c for c in pyogrio.read_info(path, layer=layer)["fields"]]
+        aliases = {a.get("field"): a.get("name") for a in root.iter("alias")}
+        assert set(fields) <= set(aliases) and all(aliases[f] for f in fields)

@@ -11,7 +11,15 @@ from laspy.vlrs.known import ExtraBytesVlr, LasZipVlr
 from laspy.vlrs.vlrlist import VLRList
 
 from towerpipe.errors import InputError, TowerpipeError
-from towerpipe.merge import PROB_DIMENSION, block_probabilities, merge_block, relabel
+from towerpipe.merge import (
+    OWN_DIMENSIONS,
+    PROB_DIMENSION,
+    TOWER_ID_DIMENSION,
+    block_probabilities,
+    merge_block,
+    own_dimensions,
+    relabel,
+)
 from towerpipe.predfile import PRED_META_KEYS, save_pred
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "backgrounds"
@@ -52,8 +60,9 @@ def vlr_key(v) -> tuple:
     return (v.user_id, v.record_id, v.description, bytes(v.record_data_bytes()))
 
 
-def assert_invariant(inp: Path, out: Path, expected_prob: np.ndarray, threshold: float = 0.5) -> None:
-    """Everything but Classification bit for bit; classes and probabilities as specified."""
+def assert_invariant(inp: Path, out: Path, expected_prob: np.ndarray, threshold: float = 0.5,
+                     expected_ids: np.ndarray | None = None) -> None:
+    """Everything but Classification bit for bit; classes, probabilities and tower ids as specified."""
     a = laspy.read(inp)
     b = laspy.read(out)
     ha, hb = a.header, b.header
@@ -69,10 +78,11 @@ def assert_invariant(inp: Path, out: Path, expected_prob: np.ndarray, threshold:
     assert hb.global_encoding.value | 16 == ha.global_encoding.value | 16
     assert hb.number_of_points_by_return.tolist() == ha.number_of_points_by_return.tolist()
 
-    # point records: the input bytes are a prefix of the output bytes, except classification
+    # point records: the input bytes are a prefix of the output bytes, except classification;
+    # then the probability (float32) and the tower id (uint64)
     ra, rb = raw_bytes(a), raw_bytes(b)
     size_a = ra.shape[1]
-    assert rb.shape[1] == size_a + 4
+    assert rb.shape[1] == size_a + 4 + 8
     co = class_offset(a)
     keep = np.ones(size_a, bool)
     keep[co] = False
@@ -85,10 +95,15 @@ def assert_invariant(inp: Path, out: Path, expected_prob: np.ndarray, threshold:
             continue
         assert np.array_equal(np.asarray(a[name]), np.asarray(b[name])), name
 
-    # classes and probability
+    # classes, probability and tower id (the two new dimensions, last, in this order)
+    assert list(b.point_format.extra_dimension_names)[-2:] == [PROB_DIMENSION, TOWER_ID_DIMENSION]
     prob = np.asarray(b[PROB_DIMENSION])
     assert prob.dtype == np.float32
     np.testing.assert_array_equal(prob, expected_prob.astype(np.float32))
+    ids = np.asarray(b[TOWER_ID_DIMENSION])
+    assert ids.dtype == np.uint64
+    np.testing.assert_array_equal(ids, np.zeros(len(ids), np.uint64) if expected_ids is None else expected_ids)
+    assert np.array_equal(rb[:, size_a:size_a + 4].copy().view(np.float32).ravel(), prob)
     cls_in = np.asarray(a.classification)
     want = np.where(expected_prob >= threshold, 15, np.where(cls_in == 15, 1, cls_in))
     np.testing.assert_array_equal(np.asarray(b.classification), want)
@@ -101,12 +116,13 @@ def assert_invariant(inp: Path, out: Path, expected_prob: np.ndarray, threshold:
     eb_b = [v for v in hb.vlrs if isinstance(v, ExtraBytesVlr)]
     assert len(eb_b) == 1
     data_b = bytes(eb_b[0].record_data_bytes())
-    assert data_b[: len(eb_a)] == eb_a and len(data_b) == len(eb_a) + 192
-    prob_struct = eb_b[0].extra_bytes_structs[-1]
-    assert prob_struct.name == PROB_DIMENSION.encode()
+    assert data_b[: len(eb_a)] == eb_a and len(data_b) == len(eb_a) + 2 * 192
+    prob_struct, id_struct = eb_b[0].extra_bytes_structs[-2:]
+    assert prob_struct.name == PROB_DIMENSION.encode() and id_struct.name == TOWER_ID_DIMENSION.encode()
     assert prob_struct.min_is_relevant() and prob_struct.max_is_relevant()
     assert float(prob_struct._raw_min()[0]) == pytest.approx(float(expected_prob.min()))
     assert float(prob_struct._raw_max()[0]) == pytest.approx(float(expected_prob.max()))
+    assert int(id_struct._raw_max()[0]) == int(ids.max())
     # EVLRs
     ea = [vlr_key(v) for v in (ha.evlrs or [])]
     eb = [vlr_key(v) for v in (hb.evlrs or [])]
@@ -219,14 +235,64 @@ def test_merge_adds_crs_when_missing(tmp_path):
     assert h.global_encoding.wkt
 
 
-def test_merge_rejects_bad_threshold_and_rerun_of_output(tmp_path):
+def test_merge_rejects_bad_threshold(tmp_path):
     src = make_las(tmp_path / "b.laz", version="1.4", point_format=6, n=1000)
     with pytest.raises(TowerpipeError):
         merge_block(src, [], tmp_path / "o.laz", threshold=0.0)
-    merge_block(src, [], tmp_path / "o.laz")
-    with pytest.raises(InputError, match=PROB_DIMENSION):
-        merge_block(tmp_path / "o.laz", [], tmp_path / "o2.laz")
-    assert not (tmp_path / "o2.laz").exists() and not (tmp_path / "o2.laz.part").exists()
+
+
+@pytest.mark.parametrize("version,pf", [("1.2", 3), ("1.4", 8)])
+def test_own_output_is_reprocessed_values_replaced(tmp_path, version, pf):
+    """A classified block as input: the same layout and descriptors, the values replaced; merging
+    it again with the same predictions and towers gives the same file, byte for byte."""
+    from towerpipe.towers import save_members
+
+    n = 6000
+    src = make_las(tmp_path / "b.laz", version=version, point_format=pf, n=n, extra=True)
+    rng = np.random.default_rng(4)
+    idx = rng.choice(n, 900, replace=False)
+    pred = write_pred(tmp_path / "t.npz", "b", idx, np.full(900, 0.9, np.float32))
+    save_members(tmp_path / "m.npz", {40000004600000: (np.array(["b"] * 400, dtype=object), idx[:400])})
+    first = merge_block(src, [pred], tmp_path / "o1.laz", tower_points=[tmp_path / "m.npz"])
+    assert not first["reprocessed"] and own_dimensions(tmp_path / "o1.laz") == list(OWN_DIMENSIONS)
+    again = merge_block(tmp_path / "o1.laz", [pred], tmp_path / "o2.laz", tower_points=[tmp_path / "m.npz"])
+    assert again["reprocessed"] and again["towers"] == 1
+    assert (tmp_path / "o2.laz").read_bytes() == (tmp_path / "o1.laz").read_bytes()
+    # new predictions and no towers: the values are replaced in place, nothing else changes
+    other = write_pred(tmp_path / "t2.npz", "b", idx[:10], np.full(10, 0.3, np.float32))
+    merge_block(tmp_path / "o1.laz", [other], tmp_path / "o3.laz")
+    expected = np.zeros(n, np.float32)
+    expected[idx[:10]] = 0.3
+    a, c = laspy.read(tmp_path / "o1.laz"), laspy.read(tmp_path / "o3.laz")
+    assert list(c.point_format.dimension_names) == list(a.point_format.dimension_names)
+    np.testing.assert_array_equal(np.asarray(c[PROB_DIMENSION]), expected)
+    assert not np.asarray(c[TOWER_ID_DIMENSION]).any()
+    assert not (np.asarray(c.classification) == 15).any()
+    for name in a.point_format.dimension_names:
+        if name not in ("classification", "raw_classification", PROB_DIMENSION, TOWER_ID_DIMENSION):
+            assert np.array_equal(np.asarray(a[name]), np.asarray(c[name])), name
+
+
+@pytest.mark.parametrize("name,dtype,scaled", [(PROB_DIMENSION, "int32", False), (TOWER_ID_DIMENSION, "uint32", False),
+                                               (PROB_DIMENSION, "float32", True)])
+def test_a_foreign_dimension_with_towerpipes_name_is_refused(tmp_path, name, dtype, scaled):
+    """Same name, another type (or scaled): somebody else's dimension, refused at the split."""
+    from towerpipe.preprocess import split_block
+
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    scale = {"scales": np.array([0.5]), "offsets": np.array([0.0])} if scaled else {}
+    header.add_extra_dims([laspy.ExtraBytesParams(name, dtype, **scale)])
+    import pyproj
+    header.add_crs(pyproj.CRS.from_epsg(25831))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = np.arange(10.0) + 4e5, np.arange(10.0) + 4.6e6, np.arange(10.0)
+    las.write(tmp_path / "f.laz")
+    with pytest.raises(InputError, match=rf"f\.laz.*{name}.*rename or remove"):
+        split_block(tmp_path / "f.laz", tmp_path / "cache", block="f", crs="EPSG:25831")
+    meta = split_block(tmp_path / "f.laz", tmp_path / "cache", block="f", crs="EPSG:25831", record_errors=True)
+    assert meta["error"]["type"] == "InputError" and name in meta["error"]["cause"]
+    with pytest.raises(InputError, match=name):
+        merge_block(tmp_path / "f.laz", [], tmp_path / "o.laz")
 
 
 @real
@@ -255,7 +321,7 @@ def test_merge_several_extra_byte_blocks_described_in_output(tmp_path):
     out = tmp_path / "out.laz"
     merge_block(src, [], out)
     names = list(laspy.open(out).header.point_format.extra_dimension_names)
-    assert names == ["Deviation", "confidence", PROB_DIMENSION]
+    assert names == ["Deviation", "confidence", PROB_DIMENSION, TOWER_ID_DIMENSION]
 
 
 @pytest.mark.parametrize("version,pf", [("1.2", 3), ("1.4", 8)])
@@ -295,9 +361,9 @@ def test_merge_with_tower_points_classifies_only_reported_towers(tmp_path):
     p = np.full(800, 0.95, np.float32)
     pred = write_pred(tmp_path / "t.npz", "b", idx, p)
     tower = idx[:300]                     # the reported tower; the other 500 points were dropped
-    save_members(tmp_path / "own.points.npz", {"T_z_1_1": (np.array(["b"] * 300, dtype=object), tower)})
+    save_members(tmp_path / "own.points.npz", {40000014600001: (np.array(["b"] * 300, dtype=object), tower)})
     # a neighbour's tower file naming other blocks only
-    save_members(tmp_path / "nb.points.npz", {"T_z_2_2": (np.array(["c"] * 5, dtype=object), np.arange(5))})
+    save_members(tmp_path / "nb.points.npz", {40000024600002: (np.array(["c"] * 5, dtype=object), np.arange(5))})
     out = tmp_path / "o.laz"
     stats = merge_block(src, [pred], out, tower_points=[tmp_path / "own.points.npz", tmp_path / "nb.points.npz"])
     las = laspy.read(out)
@@ -308,7 +374,10 @@ def test_merge_with_tower_points_classifies_only_reported_towers(tmp_path):
     prob = np.zeros(n, np.float32)
     prob[idx] = p
     np.testing.assert_array_equal(np.asarray(las[PROB_DIMENSION]), prob)
-    assert stats["tower_points"] == 300 and stats["points_above_threshold"] == 800
+    ids = np.zeros(n, np.uint64)
+    ids[tower] = 40000014600001  # joinable to the GeoPackage's tower_id
+    np.testing.assert_array_equal(np.asarray(las[TOWER_ID_DIMENSION]), ids)
+    assert stats["tower_points"] == 300 and stats["points_above_threshold"] == 800 and stats["towers"] == 1
 
 
 def test_every_las_version_and_point_format_is_accepted_at_split_and_merge():

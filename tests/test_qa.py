@@ -109,7 +109,7 @@ def test_block_report_page_and_json(tmp_path):
     assert {"code": "warnings", "reason": "1 warning(s) during processing"} in doc["flags"]
     assert doc["status"] == "look"
     assert doc["summary"].startswith("2 towers found")
-    for text in ("T_z1_400060_4600060", "tile t3: 2 holes filled", "Accuracy against", "peak memory (MB)"):
+    for text in ("40006004600060", "tile t3: 2 holes filled", "Accuracy against", "peak memory (MB)"):
         assert text in page
 
 

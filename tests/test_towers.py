@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 import shapely
 
@@ -15,9 +16,9 @@ from towerpipe.towers import (
     match_towers,
     member_mask,
     save_members,
-    tower_id,
     towers_from_labels,
 )
+from towerpipe.registry import location_id
 
 X0, Y0 = 400_000.0, 4_600_000.0
 CRS = "EPSG:25831"
@@ -84,14 +85,20 @@ def test_two_towers_records():
     np.testing.assert_allclose(gdf["centroid_y"], [Y0 + 50, Y0 + 60], atol=0.3)
     np.testing.assert_allclose(gdf["height_m"], [30.0, 42.0], atol=0.5)
     np.testing.assert_allclose(gdf["base_z"], [100.0, 110.0], atol=0.1)
+    # the height is the top above the base, to the cm; values are rounded to the cm
+    np.testing.assert_allclose(gdf["height_m"], gdf["top_z"] - gdf["base_z"], atol=0.005)
+    for col in ("height_m", "top_z", "base_z", "centroid_x", "centroid_y", "footprint_area_m2"):
+        np.testing.assert_array_equal(gdf[col], gdf[col].round(2))
     np.testing.assert_allclose(gdf["prob_mean"], 0.9, atol=1e-6)
     n_a = len(synthetic_tower(X0 + 50, Y0 + 50, seed=1)[0])
     assert gdf.loc[0, "n_points"] == n_a
-    assert gdf.loc[0, "tower_id"] == tower_id("z1", gdf.loc[0, "centroid_x"], gdf.loc[0, "centroid_y"])
-    assert gdf.loc[0, "tower_id"] == "T_z1_400050_4600050"
+    # a new tower's id: its centroid on a 1 m grid, easting then northing; no zone name in it
+    assert gdf.loc[0, "tower_id"] == location_id(gdf.loc[0, "centroid_x"], gdf.loc[0, "centroid_y"])
+    assert gdf.loc[0, "tower_id"] == 40005004600050
     assert set(gdf["source_files"]) == {"/data/b1.laz"}
     assert set(gdf["model_version"]) == {"1.2.0"}
-    assert set(gdf["processed_at"]) == {STAMP}
+    assert set(gdf["processed_at"]) == {pd.Timestamp(STAMP)} == set(gdf["first_seen"])
+    assert set(gdf["review_status"]) == {"unreviewed"}
     assert gdf.geometry.is_valid.all() and (gdf.geometry.geom_type == "Polygon").all()
     # footprint: legs 6 m apart, crossarm 14 m long
     assert gdf.loc[0, "footprint_length_m"] == pytest.approx(14.0, abs=0.5)
@@ -132,7 +139,7 @@ def test_tower_across_block_edge_reported_once():
     # the west block knows the tower it touches is the east block's (for its QA), the east one owns it
     assert [t["tower_id"] for t in west_nb] == [row["tower_id"]] and east_nb == []
     assert shapely.from_wkt(west_nb[0]["footprint_wkt"]).equals_exact(east_towers.geometry.iloc[0], 1e-6)
-    assert row["block"] == "be" and row["blocks"] == "be,bw"
+    assert row["block"] == "be" and row["blocks"] == "be;bw"
     assert row["n_points"] == len(xyz)
     assert 0 < row["edge_distance_m"] < 1.0
 

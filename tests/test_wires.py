@@ -148,3 +148,38 @@ def test_corridor_strip_scores_only_where_points_exist():
     assert np.isnan(support(inside, X0, Y0, extent=strip, min_ring_coverage=0.5))
     assert support(line, X0, Y0, extent=cover, min_ring_coverage=0.1) == 1.0
     assert support(inside, X0, Y0, extent=box) == 0.0
+
+
+def test_conductor_points_of_a_block_with_clearance(tmp_path):
+    """Each wire point of the block once (tile cores), with the gap down to the vegetation below it."""
+    from towerpipe.tilefile import Tile, empty_arrays, save_tile
+    from towerpipe.wires import conductor_points
+
+    rng = np.random.default_rng(5)
+    wires = line_through(X0 + 250, Y0 + 250, 0.0, rng=rng, length=240.0, z0=25.0)  # west-east, sag 6 m
+    trees = canopy(X0 + 250, Y0 + 250, 30.0, 20_000, rng)
+    trees[:, 2] = rng.uniform(3, 12, len(trees))                                     # up to 12 m under it
+    pts = np.concatenate([wires, trees])
+    paths = []
+    for k, (x0, block) in enumerate(((X0, "b"), (X0 + 250, "b"), (X0 + 500, "other"))):
+        # two tiles of block b (cores x0..x0+250), each with a 40 m buffer, and a tile of another block
+        inside = (pts[:, 0] >= x0 - 40) & (pts[:, 0] < x0 + 290)
+        a = empty_arrays(int(inside.sum()))
+        a["x"][:], a["y"][:], a["z"][:] = pts[inside, 0], pts[inside, 1], pts[inside, 2]
+        a["hag"][:] = pts[inside, 2]
+        a["classification"][:] = np.where(np.arange(len(pts))[inside] < len(wires), 1, 5)
+        a["core"][:] = (pts[inside, 0] >= x0) & (pts[inside, 0] < x0 + 250)
+        a["model_input"][:] = True
+        paths.append(tmp_path / f"t{k}.npz")
+        save_tile(paths[-1], Tile(a, {"block": block, "core_bounds": [x0, Y0, x0 + 250, Y0 + 500], "buffer": 40}))
+    c = conductor_points([str(p) for p in paths], "b")
+    is_wire = np.isin(np.round(c["x"], 6), np.round(wires[:, 0], 6))
+    assert is_wire.mean() > 0.99 and len(c["x"]) > 0.8 * (wires[:, 0] < X0 + 500).sum()
+    assert len(np.unique(np.c_[c["x"], c["y"]], axis=0)) == len(c["x"])  # no point twice
+    assert (c["x"] < X0 + 500).all()                                       # not the other block's
+    assert np.median(np.abs(c["direction_deg"] - 90.0)) < 2.0  # the wires run east (azimuth 90)
+    over = np.hypot(c["x"] - X0 - 250, c["y"] - Y0 - 250) < 25
+    assert np.isfinite(c["clearance_m"][over]).mean() > 0.9
+    low = c["z"][over] - 12.0  # a conductor's height over the crowns: the clearance is at most that
+    assert (c["clearance_m"][over] >= low - 1e-9).all() and (c["clearance_m"][over] < low + 2.0).mean() > 0.9
+    assert np.isnan(c["clearance_m"][np.abs(c["x"] - X0 - 250) > 40]).all()  # no vegetation below

@@ -23,6 +23,7 @@ COMMAND_MODULES = [
     "towerpipe.evaluate",
     "towerpipe.calibrate",
     "towerpipe.realshape",
+    "towerpipe.lines",
     "towerpipe.bench",
 ]
 

@@ -44,6 +44,7 @@ from towerpipe.columnfile import read_meta
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.lasio import (BLOCK_COLUMNS, RECORDS_FILE, BlockHeader, check_metric_crs, color_info, iter_block,
                              read_header)
+from towerpipe.merge import own_dimensions
 from towerpipe.pdal import run_pipeline
 from towerpipe.progress import Progress
 from towerpipe.resources import peak_rss_mb
@@ -233,6 +234,7 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
     header, crs_wkt = next(it)
     check_format(header.version, header.point_format, path)
     check_metric_crs(path, crs_wkt, zone=zone, from_config=bool(crs))
+    own = own_dimensions(path)  # towerpipe output is reprocessed; a foreign dimension of that name is refused
     if zone_crs and not crs and not _same_crs(crs_wkt, zone_crs):
         raise InputError(path, f"its CRS ({_crs_name(crs_wkt)}) differs from the rest of zone {zone!r} "
                                f"({_crs_name(zone_crs)}); reproject it or put it in a zone of its own")
@@ -247,7 +249,7 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
             tiles=tiling.occupied_tiles(grid, x, y), header_bounds=list(header.bounds),
             header_warnings=header_warnings(header, meta.pop("extent")),
             crs_wkt=crs_wkt, crs_from="config" if crs else "file", las_version=header.version,
-            point_format=header.point_format, dimensions=header.dimensions,
+            point_format=header.point_format, dimensions=header.dimensions, towerpipe_dimensions=own,
         )
         del x, y
         ground_source = meta["ground_source"]

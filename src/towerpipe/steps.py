@@ -13,7 +13,7 @@ import tempfile
 from collections.abc import Mapping, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -21,6 +21,9 @@ from towerpipe import __version__, layout
 from towerpipe.assemble import assemble_directory, publish_copy, write_text_atomic
 from towerpipe.columnfile import read_meta
 from towerpipe.modelcard import config_hash
+
+if TYPE_CHECKING:  # geopandas is imported by the steps that need it: the DAG does not
+    import geopandas as gpd
 
 log = logging.getLogger(__name__)
 
@@ -34,22 +37,29 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
                 source_files: Mapping[str, str], run_cfg: Mapping[str, Any],
                 out_neighbours: str | os.PathLike[str] | None = None, point_threshold: float | None = None,
                 tile_files: Sequence[str] = (), out_members: str | os.PathLike[str] | None = None,
-                survey: Sequence[Sequence[float]] = ()) -> dict[str, Any]:
+                survey: Sequence[Sequence[float]] = (), registry: Sequence[str] = ()) -> dict[str, Any]:
     """Towers owned by ``block`` (from its and its neighbours' predictions) → GeoPackage.
 
     ``out_neighbours`` (JSON) receives the towers with points in the block that a
     neighbour owns (see :func:`towerpipe.towers.extract_towers`), for the block's QA.
     ``tile_files`` (the block's and its neighbours' tiles) give the conductor support of
-    each tower (:class:`towerpipe.wires.TileContext`); ``out_members`` receives the points
-    of every accepted tower with points in the block, owned or not
-    (:func:`towerpipe.towers.save_members`): the merge classifies them 15. ``survey``
-    (measured bounds of the block and its neighbours) and ``towers_cfg["wire_ring_coverage"]``
-    leave the support of a tower whose conductor ring is mostly outside the data unknown.
+    each tower (:class:`towerpipe.wires.TileContext`) and the block's conductor points
+    (layer ``conductor_points``, from which the zone builds its lines); ``out_members``
+    receives the points of every accepted tower with points in the block, owned or not
+    (:func:`towerpipe.towers.save_members`): the merge classifies them 15 and writes
+    their tower id. ``survey`` (measured bounds of the block and its neighbours) and
+    ``towers_cfg["wire_ring_coverage"]`` leave the support of a tower whose conductor ring
+    is mostly outside the data unknown. ``registry`` lists where the zone's tower registry
+    may be, first found first (:func:`towerpipe.registry.read_registry`): matched towers
+    keep their ids.
     """
+    import geopandas as gpd
+
     from towerpipe.gpkg import run_metadata, write_towers_gpkg
     from towerpipe.predfile import load_pred
+    from towerpipe.registry import read_registry
     from towerpipe.towers import extract_towers, save_members
-    from towerpipe.wires import TileContext
+    from towerpipe.wires import TileContext, conductor_points
 
     from towerpipe.errors import ModelError
 
@@ -65,19 +75,24 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
     model_meta = own[0].meta.get("model") if own else None
     crs_wkt = own[0].meta.get("crs_wkt") if own else None
     neighbours: list[dict[str, Any]] = []
-    members: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    members: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     gdf = extract_towers(loaded, block, block_bounds, zone=zone, model_meta=model_meta,
                          source_files=source_files, crs=crs_wkt, neighbours=neighbours, point_threshold=point_threshold,
-                         context=TileContext(tile_files, survey=survey, min_ring_share=ring_share) if tile_files else None, members=members,
-                         **dict(towers_cfg))
+                         context=TileContext(tile_files, survey=survey, min_ring_share=ring_share) if tile_files else None,
+                         members=members, registry=read_registry(*registry), **dict(towers_cfg))
     if out_members is not None:
         save_members(out_members, members)
-    meta = run_metadata(model_meta=model_meta, config=run_cfg, zone=zone, block=block)
-    write_towers_gpkg(out_gpkg, gdf, crs_wkt=crs_wkt, metadata=meta)
+    wires = conductor_points(tile_files, block)
+    conductors = gpd.GeoDataFrame({"block": [block] * len(wires["x"]), **{k: wires[k] for k in
+                                   ("z", "hag", "direction_deg", "clearance_m")}},
+                                  geometry=gpd.points_from_xy(wires["x"], wires["y"]), crs=crs_wkt)
+    meta = run_metadata(model_meta=model_meta, config=run_cfg, zone=zone, block=block,
+                        bounds=[float(v) for v in block_bounds])
+    write_towers_gpkg(out_gpkg, gdf, crs_wkt=crs_wkt, metadata=meta, conductors=conductors)
     if out_neighbours is not None:
         write_text_atomic(out_neighbours, json.dumps({"block": block, "towers_owned_by_neighbours": neighbours},
                                                      indent=1))
-    return {"towers": len(gdf), "towers_owned_by_neighbours": len(neighbours)}
+    return {"towers": len(gdf), "towers_owned_by_neighbours": len(neighbours), "conductor_points": len(conductors)}
 
 
 def infer_step(tile_path: str | os.PathLike[str], model: str | os.PathLike[str], out_path: str | os.PathLike[str],
@@ -202,11 +217,58 @@ def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_fi
         )
 
 
+def zone_towers(tower_gpkgs: Sequence[str], *, registry: gpd.GeoDataFrame, run_time: Any,
+                keep_blocks: Sequence[str] = (), published: str | os.PathLike[str] | None = None,
+                crs_wkt: str | None = None) -> dict[str, Any]:
+    """The content of a zone's ``towers.gpkg`` and its new registry, from the blocks' GeoPackages.
+
+    Towers of all blocks (each id once, :func:`towerpipe.registry.unique_ids`), linked into
+    lines by the blocks' conductor points (:func:`towerpipe.lines.build_lines`, judged
+    inside the blocks' bounds), the registry updated (:func:`towerpipe.registry.update_registry`,
+    with the review statuses analysts set in the ``published`` file) and its vanished towers.
+
+    Returns
+    -------
+    dict
+        ``towers``, ``lines``, ``spans``, ``vanished``, ``registry`` (GeoDataFrames), ``crs``
+        and ``metadata`` (the first block's model fields).
+    """
+    import shapely
+
+    from towerpipe.gpkg import LAYER_CONDUCTORS, concat_towers, list_layers, read_metadata
+    from towerpipe.lines import build_lines
+    from towerpipe.registry import published_reviews, unique_ids, update_registry, vanished
+
+    towers = unique_ids(concat_towers(tower_gpkgs, crs_wkt=crs_wkt))
+    crs = towers.crs if towers.crs is not None else crs_wkt
+    with_wires = [p for p in tower_gpkgs if LAYER_CONDUCTORS in list_layers(p)]
+    wires = concat_towers(with_wires, LAYER_CONDUCTORS, crs_wkt=crs)
+    conductors = {k: wires[k].to_numpy(float) for k in ("hag", "direction_deg", "clearance_m")} if len(wires) else {}
+    if len(wires):
+        conductors.update(x=wires.geometry.x.to_numpy(), y=wires.geometry.y.to_numpy())
+    metas = [read_metadata(p) for p in tower_gpkgs]
+    boxes = [shapely.box(*json.loads(m["bounds"])) for m in metas if m.get("bounds")]
+    extent = shapely.union_all(boxes) if boxes and len(boxes) == len(metas) else None
+    if len(towers):
+        towers, lines, spans = build_lines(towers, conductors, extent=extent)
+    else:
+        lines = spans = None
+    reviews = published_reviews(published, registry)
+    new_registry = update_registry(registry, towers, run_time=run_time, keep_blocks=keep_blocks, reviews=reviews)
+    if len(towers):
+        status = dict(zip(new_registry["tower_id"], new_registry["review_status"]))
+        towers["review_status"] = [status.get(t, r) for t, r in zip(towers["tower_id"], towers["review_status"])]
+    model = {k: v for k, v in (metas[0] if metas else {}).items() if k.startswith("model_")}
+    return {"towers": towers, "lines": lines, "spans": spans, "vanished": vanished(new_registry),
+            "registry": new_registry, "crs": crs, "metadata": model}
+
+
 def zone_step(zone: str, out_dir: str, files: Mapping[str, str], *, tower_gpkgs: Sequence[str],
               qa_jsons: Sequence[str], failures: Mapping[str, str] | None = None,
               run_cfg: Mapping[str, Any] | None = None, stage_dir: str | os.PathLike[str] | None = None,
               manifest: str | os.PathLike[str] | None = None, sources: Mapping[str, str] | None = None,
-              block_bounds: Mapping[str, Sequence[float] | None] | None = None) -> Path:
+              block_bounds: Mapping[str, Sequence[float] | None] | None = None,
+              registry: str | os.PathLike[str] | None = None) -> Path:
     """Publish ``results/<zone>/``: per-block links, zone GeoPackage, QA index (+ ``INCOMPLETE.txt``).
 
     The zone is built in ``stage_dir`` (the last published zone, kept so that a deleted
@@ -217,24 +279,45 @@ def zone_step(zone: str, out_dir: str, files: Mapping[str, str], *, tower_gpkgs:
     record of the publication) lists the blocks, their original files and the failures.
     A zone where no block completed gets no GeoPackage (nothing to merge, no CRS).
     ``block_bounds`` (block → header bounds) places the failed blocks on the index's map.
-    """
-    from towerpipe.gpkg import merge_gpkgs
-    from towerpipe.qa import zone_index
 
+    ``registry`` is the zone's tower registry file: read (or, when it is missing, the
+    published GeoPackage), updated with this assembly's towers and written back once the
+    directory is in place. Towers of ``failures`` blocks are left as they were.
+    """
+    from towerpipe.gpkg import write_towers_gpkg
+    from towerpipe.qa import zone_index
+    from towerpipe.registry import read_registry, write_registry
+
+    run_time = datetime.now(timezone.utc).replace(microsecond=0)
     failures = dict(failures or {})
+    published = Path(str(out_dir).rstrip("/")) / layout.ZONE_GPKG
+    content = None
+    vanished_rows: list[dict[str, Any]] = []
+    if tower_gpkgs:
+        content = zone_towers(tower_gpkgs, registry=read_registry(registry, published), run_time=run_time,
+                              keep_blocks=list(failures), published=published)
+        vanished_rows = [{"tower_id": int(r.tower_id), "block": r.block, "centroid_x": r.centroid_x,
+                          "centroid_y": r.centroid_y, "height_m": r.height_m, "last_seen": r.last_seen.isoformat(),
+                          "vanished_since": r.vanished_since.isoformat(), "review_status": r.review_status}
+                         for r in content["vanished"].itertuples()]
 
     def build(tmp: Path) -> None:
         gpkg = tmp / layout.ZONE_GPKG
-        if tower_gpkgs:
-            merge_gpkgs(list(tower_gpkgs), gpkg,
-                        metadata={"zone": zone, "towerpipe_version": __version__,
-                                  "assembled_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-                                  "config_hash": config_hash(run_cfg or {})})
+        if content is not None:
+            crs = content["crs"]
+            write_towers_gpkg(gpkg, content["towers"] if len(content["towers"]) else None,
+                              crs_wkt=crs.to_wkt() if hasattr(crs, "to_wkt") else crs,
+                              lines=content["lines"], spans=content["spans"], vanished=content["vanished"],
+                              metadata={"zone": zone, "towerpipe_version": __version__, **content["metadata"],
+                                        "assembled_at": run_time.isoformat(),
+                                        "config_hash": config_hash(run_cfg or {}),
+                                        "blocks": str(len(tower_gpkgs)), "n_towers": str(len(content["towers"])),
+                                        "n_lines": str(0 if content["lines"] is None else len(content["lines"]))})
         index = tmp / layout.QA_INDEX
         index.parent.mkdir(parents=True, exist_ok=True)
         zone_index(index, [str(index.parent / Path(j).name) for j in qa_jsons],
                    failures=failures, zone=zone, out_json=tmp / layout.QA_INDEX_JSON,
-                   gpkg=gpkg if tower_gpkgs else None, block_bounds=block_bounds)
+                   gpkg=gpkg if content is not None else None, block_bounds=block_bounds, vanished=vanished_rows)
         if failures:
             (tmp / "INCOMPLETE.txt").write_text(
                 "This zone is INCOMPLETE: the run failed for these blocks (see qa/index.html):\n"
@@ -247,6 +330,9 @@ def zone_step(zone: str, out_dir: str, files: Mapping[str, str], *, tower_gpkgs:
     else:
         assemble_directory(stage, files, build)
         out = publish_copy(stage, out_dir)
+    if registry is not None and content is not None and content["crs"] is not None:
+        crs = content["crs"]
+        write_registry(registry, content["registry"], crs.to_wkt() if hasattr(crs, "to_wkt") else crs)
     if manifest is not None:
         blocks = sorted({Path(rel).stem for rel in files if rel.startswith("blocks/")})
         write_text_atomic(manifest, json.dumps({
@@ -346,7 +432,8 @@ def assemble_incomplete_zone(zone: str, out_dir: str, files: Mapping[str, str], 
                              neighbours: Mapping[str, Sequence[str]] | None = None,
                              stage_dir: str | os.PathLike[str] | None = None,
                              sources: Mapping[str, str] | None = None,
-                             block_bounds: Mapping[str, Sequence[float] | None] | None = None) -> Path:
+                             block_bounds: Mapping[str, Sequence[float] | None] | None = None,
+                             registry: str | os.PathLike[str] | None = None) -> Path:
     """``results/<zone>/`` from the blocks that completed, the failed ones listed.
 
     Written after a failed run (``--keep-going``): the QA index names each failed
@@ -368,4 +455,4 @@ def assemble_incomplete_zone(zone: str, out_dir: str, files: Mapping[str, str], 
     gpkgs = [src for rel, src in have.items() if rel.startswith("towers/")]
     qa = [src for rel, src in have.items() if rel.startswith("qa/") and rel.endswith(".json")]
     return zone_step(zone, out_dir, have, tower_gpkgs=gpkgs, qa_jsons=qa, failures=failures, run_cfg=run_cfg,
-                     stage_dir=stage_dir, sources=sources, block_bounds=block_bounds)
+                     stage_dir=stage_dir, sources=sources, block_bounds=block_bounds, registry=registry)

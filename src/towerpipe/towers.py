@@ -28,53 +28,87 @@ its cluster with ``prob >= point_threshold`` (a crown painted in one view is lef
    high with a support below ``min_wire_support`` are dropped: a transmission tower
    carries conductors to the next tower, a crane or a mast does not.
 
-The tower id ``T_<zone>_<round(cx)>_<round(cy)>`` depends only on the tower's
-points, never on file or processing order. :func:`match_towers` compares towers
-with ground truth (synthetic sidecar or towers built from class-15 labels).
+A tower's id is the zone registry's when it matches a registered tower, else made from
+the centroid where it is first seen (:mod:`towerpipe.registry`): it depends on the
+tower's points and the registry, never on file or processing order nor on the zone's
+name. :func:`match_towers` compares towers with ground truth (synthetic sidecar or
+towers built from class-15 labels).
 """
 
 from __future__ import annotations
 
 import os
-import re
 from collections.abc import Callable, Mapping, Sequence
 from datetime import datetime, timezone
 from typing import Any
 
 import geopandas as gpd
 import numpy as np
+import pandas as pd
 import shapely
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from towerpipe.errors import InputError
+from towerpipe.fields import DATETIME, GEOMETRY_GRID, Field, conform, dtypes, empty_frame, join_values
+from towerpipe.registry import REVIEW_STATUSES, assign_ids
 
-#: Attribute columns of a tower record (besides the geometry) and their dtypes.
-#: The GeoPackage layers use exactly these columns in this order.
-TOWER_COLUMNS: dict[str, str] = {
-    "tower_id": "str",
-    "zone": "str",
-    "block": "str",
-    "blocks": "str",
-    "centroid_x": "float64",
-    "centroid_y": "float64",
-    "height_m": "float64",
-    "base_z": "float64",
-    "top_z": "float64",
-    "footprint_area_m2": "float64",
-    "footprint_width_m": "float64",
-    "footprint_length_m": "float64",
-    "edge_distance_m": "float64",
-    "n_points": "int64",
-    "prob_mean": "float64",
-    "prob_max": "float64",
-    "wire_support": "float64",
-    "source_files": "str",
-    "model_name": "str",
-    "model_version": "str",
-    "processed_at": "str",
+#: Fields of a tower record (besides the footprint geometry), in order: the GeoPackage
+#: layers ``towers`` and ``tower_points`` use exactly these.
+TOWER_FIELDS: dict[str, Field] = {
+    "tower_id": Field("int64", "Tower id",
+                      "Stable id (docs/products.md): the first-seen footprint centroid on a 1 m grid, "
+                      "(x mod 9e7) * 1e8 + (y mod 1e8); kept from run to run by the zone's registry. The "
+                      "TowerpipeTowerId of the tower's points in the classified blocks"),
+    "zone": Field("str", "Zone", "Zone name"),
+    "block": Field("str", "Owning block", "Block holding the footprint centroid: the block that reports the tower"),
+    "blocks": Field("str", "Blocks touched", "Blocks the tower's points come from, ';'-separated"),
+    "centroid_x": Field("float64", "Centroid X (m)", "Footprint centroid, CRS units (m)", 2),
+    "centroid_y": Field("float64", "Centroid Y (m)", "Footprint centroid, CRS units (m)", 2),
+    "height_m": Field("float64", "Height (m)", "Height of the tower: top_z - base_z (m)", 2),
+    "base_z": Field("float64", "Base elevation (m)",
+                    "Ground elevation at the tower: median of z - HAG over its points (m)", 2),
+    "top_z": Field("float64", "Top elevation (m)", "Elevation of the tower's highest point (m)", 2),
+    "footprint_area_m2": Field("float64", "Footprint area (m²)", "Area of the xy footprint (m²)", 2),
+    "footprint_width_m": Field("float64", "Footprint width (m)", "Short side of the footprint's minimum "
+                                                                  "rotated rectangle (m)", 2),
+    "footprint_length_m": Field("float64", "Footprint length (m)", "Long side of the footprint's minimum "
+                                                                    "rotated rectangle (m)", 2),
+    "edge_distance_m": Field("float64", "Distance to block edge (m)",
+                             "Distance from the centroid to the nearest edge of the owning block (m)", 2),
+    "n_points": Field("int64", "Points", "Points of the tower: those classified 15 in the classified blocks"),
+    "prob_mean": Field("float64", "Mean probability",
+                       "Mean single-view tower probability (0-1) of the points of its cluster", 3),
+    "prob_max": Field("float64", "Max probability",
+                      "Highest single-view tower probability (0-1) of the points of its cluster", 3),
+    "wire_support": Field("float64", "Conductor support (0-1)",
+                          "Share (0-1) of the 80-160 m ring around the base reached by a conductor pointing at "
+                          "it; NULL when unknown (no data around)", 3),
+    "line_id": Field("Int64", "Line id", "Line of the tower (layer lines): the smallest tower_id on the line; "
+                                         "NULL when the tower is linked to no other (set in the zone's file)"),
+    "line_seq": Field("Int64", "Position on the line", "1, 2, … along the line (layer lines); NULL off a line"),
+    "line_chainage_m": Field("float64", "Chainage (m)",
+                             "Distance along the line from its first tower, through the towers (m)", 2),
+    "bearing_deg": Field("float64", "Line bearing (°)",
+                         "Azimuth of the line at the tower, degrees clockwise from grid north, toward increasing "
+                         "line_seq (at an angle tower the bisector of its two spans); the crossarm is "
+                         "perpendicular. For a tower on no line, the axis of its conductors (0-180); NULL "
+                         "when no conductor was found", 1),
+    "deflection_deg": Field("float64", "Line deflection (°)",
+                            "Angle the line turns at the tower (0 = straight through; angle towers); NULL at the "
+                            "ends of a line", 1),
+    "review_status": Field("str", "Review status", "Analyst review: unreviewed (default), confirmed or "
+                                                   "rejected; kept from run to run by the registry",
+                           enum=REVIEW_STATUSES),
+    "first_seen": Field(DATETIME, "First seen (UTC)", "When the tower was first found (when its id was made)"),
+    "source_files": Field("str", "Source files", "Absolute paths of the input files of its blocks, ';'-separated"),
+    "model_name": Field("str", "Model", "Model that predicted the tower points"),
+    "model_version": Field("str", "Model version", "Version of that model"),
+    "processed_at": Field(DATETIME, "Processed at (UTC)", "Time of the towers step"),
 }
+#: Column name → dtype of :data:`TOWER_FIELDS`.
+TOWER_COLUMNS: dict[str, str] = dtypes(TOWER_FIELDS)
 
 _PRED_NAMES = ("block_id", "point_index", "x", "y", "z", "hag", "prob")
 
@@ -293,16 +327,9 @@ def cluster_towers(xyz: np.ndarray, hag: np.ndarray, *, linkage: float = 2.5, me
 
 
 # --------------------------------------------------------------------------- records
-def tower_id(zone: str, cx: float, cy: float) -> str:
-    """The stable id ``T_<zone>_<round(cx)>_<round(cy)>`` of a tower centroid."""
-    safe = re.sub(r"[^A-Za-z0-9-]+", "-", str(zone)).strip("-") or "zone"
-    return f"T_{safe}_{int(np.round(cx))}_{int(np.round(cy))}"
-
-
 def empty_towers(crs: Any = None) -> gpd.GeoDataFrame:
-    """An empty tower table with the full schema (``TOWER_COLUMNS`` + Polygon geometry)."""
-    data = {k: np.empty(0, dtype=object if t == "str" else t) for k, t in TOWER_COLUMNS.items()}
-    return gpd.GeoDataFrame(data, geometry=gpd.GeoSeries([], crs=crs), crs=crs)
+    """An empty tower table with the full schema (:data:`TOWER_FIELDS` + Polygon geometry)."""
+    return empty_frame(TOWER_FIELDS, crs)
 
 
 def _in_bounds(x: np.ndarray, y: np.ndarray, bounds: Sequence[float]) -> np.ndarray:
@@ -334,7 +361,8 @@ def extract_towers(
     wire_min_height: float = 20.0,
     max_base_ratio: float = 1.0,
     point_threshold: float | None = None,
-    members: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
+    members: dict[int, tuple[np.ndarray, np.ndarray]] | None = None,
+    registry: gpd.GeoDataFrame | None = None,
 ) -> gpd.GeoDataFrame:
     """Towers owned by one block, built from the predictions of the block and its neighbours.
 
@@ -350,7 +378,7 @@ def extract_towers(
         ``(xmin, ymin, xmax, ymax)`` of the block; a tower belongs to the block
         when its footprint centroid is in ``[xmin, xmax) x [ymin, ymax)``.
     zone
-        Zone name, part of the tower id.
+        Zone name (recorded in ``zone``; not part of the id).
     threshold
         Minimum single-view tower probability (``prob_single``) of a point.
     linkage, merge_gap, max_extent, min_points, min_height
@@ -366,7 +394,7 @@ def extract_towers(
         prediction file.
     source_files
         Block name → input point-cloud path; a tower lists the files of the blocks
-        its points come from.
+        its points come from (made absolute).
     crs
         CRS of the result (WKT, EPSG string, ``pyproj.CRS``); default:
         ``meta["crs_wkt"]`` of the first prediction file.
@@ -399,7 +427,13 @@ def extract_towers(
         When a dict is given, ``members[tower_id] = (block names, point indices)`` of
         the points of every accepted tower with points in this block, owned or not (a
         neighbour's tower across the edge passes the same rules on the same points and
-        tiles there), for the classified block: its class-15 points.
+        tiles there), for the classified block: its class-15 points and their tower id.
+    registry
+        The zone's tower registry (:func:`towerpipe.registry.read_registry`): a tower
+        matching a registered one keeps its id, review status and ``first_seen``; others
+        get a new id from their location (:func:`towerpipe.registry.assign_ids`). Ids are
+        assigned over every accepted tower the job sees (its own and those of its
+        neighbours it reaches into), so both jobs give a tower across an edge one id.
 
     Returns
     -------
@@ -426,7 +460,7 @@ def extract_towers(
     order = order[labels[order] >= 0]
     groups = np.split(order, np.flatnonzero(np.diff(labels[order])) + 1)
     xmin, ymin, xmax, ymax = (float(v) for v in block_bounds)
-    rows, geoms = [], []
+    rows, geoms, accepted = [], [], []
     for g in groups:
         if min_core_prob > 0 and np.quantile(pts["prob_single"][g], 0.9) < min_core_prob:
             continue
@@ -434,7 +468,7 @@ def extract_towers(
         if hag.min() > max_base_ratio * hag.max():
             continue  # floating: a piece of conductor or crossarm, not a tower standing on the ground
         xy = xyz[g, :2]
-        foot = _footprint(xy, min_width)
+        foot = shapely.set_precision(_footprint(xy, min_width), GEOMETRY_GRID)  # as written: 1 cm
         c = foot.centroid
         touched = sorted(set(pts["block"][g].tolist()))
         owned = bool(_in_bounds(np.array([c.x]), np.array([c.y]), block_bounds)[0])
@@ -454,31 +488,42 @@ def extract_towers(
             support = wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], float(bx), float(by), extent=extent)
             if hag.max() >= wire_min_height and support < min_wire_support:
                 continue
-        tid = tower_id(zone, c.x, c.y)
         g_pts = g if point_threshold is None else g[pts["prob"][g] >= point_threshold]
         if len(g_pts) < min_points:
             continue  # what would be reported is too few points for a tower (the paper's 20)
+        accepted.append((g, g_pts, foot, touched, owned, support, hag, prob))
+    if not accepted:
+        return empty_towers(crs)
+    ids, first_seen, review = assign_ids([a[2] for a in accepted], registry)
+    stamp = pd.Timestamp(processed_at)
+    stamp = stamp.tz_localize("UTC") if stamp.tzinfo is None else stamp.tz_convert("UTC")
+    for (g, g_pts, foot, touched, owned, support, hag, prob), tid, first, rev in zip(accepted, ids.tolist(),
+                                                                                    first_seen, review):
         if members is not None:
             members[tid] = (pts["block"][g_pts], pts["point_index"][g_pts])
         if not owned:
             # reported by the neighbour that holds its centroid (the same rules on the same
             # points and tiles decide there); listed for this block's QA
             if neighbours is not None:
-                neighbours.append({"tower_id": tid, "footprint_wkt": foot.wkt, "blocks": ",".join(touched)})
+                neighbours.append({"tower_id": tid, "footprint_wkt": foot.wkt, "blocks": join_values(touched)})
             continue
+        c = foot.centroid
         rect = shapely.oriented_envelope(foot)
         ring = np.asarray(rect.exterior.coords) if isinstance(rect, shapely.Polygon) else np.zeros((2, 2))
         sides = np.hypot(*np.diff(ring[:3], axis=0).T) if len(ring) >= 3 else np.zeros(2)
+        # top and base to the cm, and the height their difference: height_m = top_z - base_z exactly
+        top = round(float(xyz[g, 2].max()), 2)
+        base = round(float(np.median(xyz[g, 2] - hag)), 2)
         rows.append({
             "tower_id": tid,
             "zone": str(zone),
             "block": str(block_name),
-            "blocks": ",".join(touched),
+            "blocks": join_values(touched),
             "centroid_x": float(c.x),
             "centroid_y": float(c.y),
-            "height_m": float(hag.max()),
-            "base_z": float(np.median(xyz[g, 2] - hag)),
-            "top_z": float(xyz[g, 2].max()),
+            "height_m": round(top - base, 2),
+            "base_z": base,
+            "top_z": top,
             "footprint_area_m2": float(foot.area),
             "footprint_width_m": float(np.min(sides)),
             "footprint_length_m": float(np.max(sides)),
@@ -487,17 +532,20 @@ def extract_towers(
             "prob_mean": float(prob.mean()),
             "prob_max": float(prob.max()),
             "wire_support": support,
-            "source_files": ";".join(sources[b] for b in touched if b in sources),
+            "line_id": None, "line_seq": None, "line_chainage_m": np.nan, "bearing_deg": np.nan,
+            "deflection_deg": np.nan,
+            "review_status": rev,
+            "first_seen": first if first is not None and pd.notna(first) else stamp,
+            "source_files": join_values(os.path.abspath(sources[b]) for b in touched if b in sources),
             "model_name": str(model_meta.get("name", "")),
             "model_version": str(model_meta.get("version", "")),
-            "processed_at": str(processed_at),
+            "processed_at": stamp,
         })
         geoms.append(foot)
     if not rows:
         return empty_towers(crs)
     gdf = gpd.GeoDataFrame(rows, geometry=geoms, crs=crs)
-    gdf = gdf.astype({k: t for k, t in TOWER_COLUMNS.items() if t != "str"})
-    return gdf.sort_values("tower_id", kind="stable").reset_index(drop=True)
+    return conform(gdf.sort_values("tower_id", kind="stable"), TOWER_FIELDS, crs)
 
 
 # --------------------------------------------------------------------------- tower points
@@ -508,11 +556,14 @@ MEMBER_ARRAYS: dict[str, np.dtype] = {"block_id": np.dtype("i4"), "point_index":
                                       "tower": np.dtype("i4")}
 
 
-def save_members(path: str | os.PathLike[str], members: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> None:
-    """Write the points of reported towers (``extract_towers(..., members=...)``) atomically."""
+def save_members(path: str | os.PathLike[str], members: Mapping[int, tuple[np.ndarray, np.ndarray]]) -> None:
+    """Write the points of reported towers (``extract_towers(..., members=...)``) atomically.
+
+    ``meta["towers"]`` lists the (integer) tower ids that ``tower`` indexes.
+    """
     from towerpipe.columnfile import save_columns
 
-    ids = sorted(members)
+    ids = sorted(int(t) for t in members)
     names = sorted({str(b) for bl, _ in members.values() for b in np.asarray(bl).tolist()})
     code = {b: i for i, b in enumerate(names)}
     parts = {k: [] for k in MEMBER_ARRAYS}
@@ -526,8 +577,8 @@ def save_members(path: str | os.PathLike[str], members: Mapping[str, tuple[np.nd
     save_columns(path, arrays, {"blocks": names, "towers": ids})
 
 
-def member_mask(paths: Sequence[str | os.PathLike[str]], block: str, n_points: int) -> np.ndarray:
-    """``(n_points,)`` bool: the points of ``block`` that belong to a reported tower.
+def member_ids(paths: Sequence[str | os.PathLike[str]], block: str, n_points: int) -> np.ndarray:
+    """``(n_points,)`` uint64: the ``tower_id`` of each point of ``block`` in a reported tower, 0 elsewhere.
 
     Parameters
     ----------
@@ -541,19 +592,32 @@ def member_mask(paths: Sequence[str | os.PathLike[str]], block: str, n_points: i
     """
     from towerpipe.columnfile import load_columns, validate_columns
 
-    mask = np.zeros(int(n_points), dtype=bool)
+    out = np.zeros(int(n_points), dtype=np.uint64)
     for p in paths:
         arrays, meta = load_columns(p, list(MEMBER_ARRAYS), "tower-points", "rerun the towers_block job")
         validate_columns(arrays, MEMBER_ARRAYS, p, "tower-points", "rerun the towers_block job")
         names = list(meta.get("blocks") or [])
         if block not in names:
             continue
-        idx = arrays["point_index"][arrays["block_id"] == names.index(block)]
+        try:
+            ids = np.asarray([int(t) for t in meta.get("towers") or []], dtype=np.uint64)
+        except (TypeError, ValueError) as exc:
+            raise InputError(p, f"tower ids are not integers ({exc}): the file is from an older version; rerun "
+                                "the towers_block job") from exc
+        sel = arrays["block_id"] == names.index(block)
+        idx, tower = arrays["point_index"][sel], arrays["tower"][sel]
         if len(idx) and (idx.min() < 0 or idx.max() >= n_points):
             raise InputError(p, f"point_index out of range for block {block!r} ({n_points} points); the file is "
                                 "stale: rerun the towers_block job")
-        mask[idx] = True
-    return mask
+        if len(tower) and (tower.min() < 0 or tower.max() >= len(ids)):
+            raise InputError(p, "tower index outside meta['towers']: rerun the towers_block job")
+        out[idx] = ids[tower]
+    return out
+
+
+def member_mask(paths: Sequence[str | os.PathLike[str]], block: str, n_points: int) -> np.ndarray:
+    """``(n_points,)`` bool: the points of ``block`` that belong to a reported tower (:func:`member_ids` > 0)."""
+    return member_ids(paths, block, n_points) > 0
 
 
 # --------------------------------------------------------------------------- truth / evaluation

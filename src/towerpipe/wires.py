@@ -31,6 +31,10 @@ or at the edge of a survey, is not scored on the empty land beside it. A sector 
 
 On the `calib` zone, with the defaults, all 17 true towers score 1.0 and the cranes,
 masts, chimneys and turbines at most 0.38 (see ``towers.min_wire_support``).
+
+:func:`conductor_points` keeps the wire points of a block's tiles (each point once, from
+the tile whose core holds it) with the clearance to the vegetation below each: the zone
+links its towers into lines and measures the spans from them (:mod:`towerpipe.lines`).
 """
 
 from __future__ import annotations
@@ -41,7 +45,25 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
 
-__all__ = ["Coverage", "TileContext", "wire_points", "wire_support"]
+from towerpipe.fields import Field
+
+__all__ = ["Coverage", "TileContext", "wire_points", "wire_support", "conductor_points", "CONDUCTOR_FIELDS",
+           "VEGETATION_CLASSES"]
+
+#: ASPRS classes of vegetation (low, medium, high): the clearance below a conductor is to them.
+VEGETATION_CLASSES = (3, 4, 5)
+
+#: Fields of a conductor point (layer ``conductor_points`` of a block's GeoPackage; Point geometry).
+CONDUCTOR_FIELDS: dict[str, Field] = {
+    "block": Field("str", "Block", "Block of the point"),
+    "z": Field("float64", "Elevation (m)", "Elevation of the point (m)", 2),
+    "hag": Field("float64", "Height above ground (m)", "Height of the point above the ground (m)", 2),
+    "direction_deg": Field("float64", "Wire direction (°)", "Axis of the wire through the point, degrees "
+                                                             "clockwise from grid north (0-180)", 1),
+    "clearance_m": Field("float64", "Clearance (m)", "Vertical distance down to the highest vegetation point "
+                                                     "(classes 3-5) within 2 m in plan below it; NULL when "
+                                                     "there is none", 2),
+}
 
 
 class Coverage:
@@ -136,12 +158,15 @@ def wire_points(x: np.ndarray, y: np.ndarray, z: np.ndarray, *, radius: float = 
     tree = cKDTree(xy)
     count = tree.query_ball_point(xy, radius, return_length=True)
     ok = count <= max_neighbours
-    pairs = tree.query_pairs(radius, output_type="ndarray")
-    if len(pairs):
-        dz = np.abs(z[pairs[:, 0]] - z[pairs[:, 1]])
-        steep = (dz >= max_dz) & (dz < min_gap)
-        ok[pairs[steep, 0]] = False
-        ok[pairs[steep, 1]] = False
+    # a sparse point with a neighbour between max_dz and min_gap above or below is in a crown;
+    # only the sparse points' neighbourhoods are looked at (in a forest most points are dense:
+    # the pairs of all points would be ~15 per point)
+    sparse_idx = np.flatnonzero(ok)
+    if len(sparse_idx):
+        near = cKDTree(xy[sparse_idx]).sparse_distance_matrix(tree, radius, output_type="coo_matrix")
+        rows, cols = sparse_idx[near.row], near.col
+        dz = np.abs(z[rows] - z[cols])
+        ok[rows[(dz >= max_dz) & (dz < min_gap)]] = False
     cand = np.flatnonzero(ok)
     if len(cand) == 0:
         return mask, direction
@@ -298,3 +323,74 @@ class TileContext:
                                              min_ring_share=self._min_ring_share))
                 return self._cached[1], self._cached[2]
         return None
+
+
+def _clearance(x: np.ndarray, y: np.ndarray, z: np.ndarray, vx: np.ndarray, vy: np.ndarray, vz: np.ndarray,
+               radius: float) -> np.ndarray:
+    """Per point, ``z`` minus the highest of the ``v`` points below it within ``radius`` in plan (nan: none)."""
+    out = np.full(len(x), np.nan)
+    if len(x) == 0 or len(vx) == 0:
+        return out
+    near = cKDTree(np.c_[x, y]).sparse_distance_matrix(cKDTree(np.c_[vx, vy]), radius, output_type="coo_matrix")
+    rows, cols = np.r_[near.row], np.r_[near.col]
+    below = vz[cols] < z[rows]
+    rows, top = rows[below], vz[cols[below]]
+    if len(rows):
+        highest = np.full(len(x), -np.inf)
+        np.maximum.at(highest, rows, top)
+        ok = np.isfinite(highest)
+        out[ok] = z[ok] - highest[ok]
+    return out
+
+
+def conductor_points(tile_paths: Sequence[str], block: str, *, min_hag: float = 5.0,
+                     clearance_radius: float = 2.0) -> dict[str, np.ndarray]:
+    """The wire points of a block, from its tile files.
+
+    Each tile's model-input points at least ``min_hag`` above the ground, core and
+    buffer (so a point at the core's edge is judged with its neighbours), go through
+    :func:`wire_points`; the core's wire points are kept, so each point of the block is
+    considered once.
+
+    Parameters
+    ----------
+    tile_paths
+        Tile files; those of other blocks (``meta["block"]``) are skipped.
+    block
+        The block.
+    min_hag
+        Height floor (m) of a wire point.
+    clearance_radius
+        Plan radius (m) in which the vegetation below a wire point is looked for.
+
+    Returns
+    -------
+    dict
+        ``x, y, z, hag, direction_deg, clearance_m`` (float64) as in
+        :data:`CONDUCTOR_FIELDS`.
+    """
+    from towerpipe.columnfile import read_meta
+    from towerpipe.tilefile import load_tile
+
+    keys = ("x", "y", "z", "hag", "direction_deg", "clearance_m")
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in keys}
+    for p in tile_paths:
+        if read_meta(p).get("block") != block:
+            continue
+        t = load_tile(p, columns=["x", "y", "z", "hag", "classification", "core", "model_input"]).arrays
+        inp = np.asarray(t["model_input"], dtype=bool)
+        high = np.flatnonzero(inp & (t["hag"] >= min_hag))
+        wire, direction = wire_points(t["x"][high], t["y"][high], t["z"][high])
+        keep = wire & np.asarray(t["core"], dtype=bool)[high]
+        idx = high[keep]
+        veg = np.flatnonzero(inp & np.isin(t["classification"], VEGETATION_CLASSES))
+        veg = np.setdiff1d(veg, high[wire], assume_unique=True)
+        u = direction[keep]
+        parts["x"].append(t["x"][idx])
+        parts["y"].append(t["y"][idx])
+        parts["z"].append(t["z"][idx])
+        parts["hag"].append(t["hag"][idx].astype(np.float64))
+        parts["direction_deg"].append(np.degrees(np.arctan2(u[:, 0], u[:, 1])) % 180.0)
+        parts["clearance_m"].append(_clearance(t["x"][idx], t["y"][idx], t["z"][idx], t["x"][veg], t["y"][veg],
+                                               t["z"][veg], clearance_radius))
+    return {k: (np.concatenate(v) if v else np.empty(0)).astype(np.float64) for k, v in parts.items()}

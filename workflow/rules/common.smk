@@ -168,6 +168,16 @@ def mem_mb_for_points(points, per_point_bytes, base_mb=400):
     return int(base_mb + points * per_point_bytes / 2**20)
 
 
+def registry_file(zone):
+    """The zone's tower registry (towerpipe.registry): written by the assembly, kept across runs."""
+    return f"{WORK}/{zone}/registry.gpkg"
+
+
+def registry_sources(zone):
+    """Where the towers jobs look for the registry: the file, else the published towers.gpkg."""
+    return [registry_file(zone), f"results/{zone}/towers.gpkg"]
+
+
 def zone_products(zone):
     """Relative path in results/<zone>/ -> per-block product."""
     files = {}

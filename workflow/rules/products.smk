@@ -27,6 +27,9 @@ rule towers_block:
         towers=TOWERS,
         threshold=INFER["threshold"],
         run=run_params(),
+        # read, not an input: the assembly writes it after every towers job (no cycle), and
+        # a new registry reruns nothing; matched towers keep their ids (towerpipe.registry)
+        registry=lambda wc: registry_sources(wc.zone),
     log:
         f"{WORK}/{{zone}}/logs/towers_block/{{block}}.log",
     benchmark:
@@ -35,10 +38,12 @@ rule towers_block:
         "../envs/towerpipe.yaml"
     threads: 1
     resources:
+        # one tile at a time, with the wire search over its high points (the block's conductor
+        # points): 290 MB peak for the demo zone's 0.88 M-point tiles
         mem_mb=lambda wc: mem_mb_for_points(
             block_points(wc.zone, wc.block)
             * min(1.0, ((PREP["tile_size"] + 2 * PREP["buffer"]) ** 2) / 1e6),
-            40,
+            120,
             base_mb=600,
         ),
         runtime=10,

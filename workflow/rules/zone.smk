@@ -20,6 +20,8 @@ rule assemble_zone:
         sources=lambda wc: {b: i.relpath for b, i in inputs(wc.zone).items()},
         run=run_params(),
         block_bounds=lambda wc: bounds(wc.zone),
+        # the tower registry: updated by each assembly (state kept across runs, not an output)
+        registry=lambda wc: registry_file(wc.zone),
     log:
         f"{WORK}/{{zone}}/logs/assemble_zone.log",
     benchmark:

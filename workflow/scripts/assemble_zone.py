@@ -5,4 +5,4 @@ p = snakemake.params
 run_step(snakemake, lambda: zone_step(
     snakemake.wildcards.zone, p.results, p.files, tower_gpkgs=p.gpkgs, qa_jsons=p.qa, run_cfg=p.run,
     stage_dir=p.stage, manifest=snakemake.output.manifest, sources=p.sources,
-    block_bounds=p.block_bounds))
+    block_bounds=p.block_bounds, registry=p.registry))

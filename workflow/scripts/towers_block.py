@@ -7,4 +7,4 @@ run_step(snakemake, lambda: towers_step(
     towers_cfg=snakemake.params.towers, source_files=snakemake.params.source_files,
     run_cfg=snakemake.params.run, out_neighbours=snakemake.output.neighbours,
     point_threshold=snakemake.params.threshold, tile_files=list(snakemake.input.tiles),
-    out_members=snakemake.output.members, survey=snakemake.params.survey))
+    out_members=snakemake.output.members, survey=snakemake.params.survey, registry=snakemake.params.registry))

@@ -49,7 +49,8 @@ def _gpkg_lines(gpkg: str | os.PathLike[str] | None) -> list[np.ndarray]:
 def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.PathLike[str]], *,
                failures: Mapping[str, str] | None = None, zone: str = "",
                out_json: str | os.PathLike[str] | None = None, gpkg: str | os.PathLike[str] | None = None,
-               block_bounds: Mapping[str, Sequence[float] | None] | None = None) -> dict[str, Any]:
+               block_bounds: Mapping[str, Sequence[float] | None] | None = None,
+               vanished: Sequence[Mapping[str, Any]] = ()) -> dict[str, Any]:
     """Write the zone's QA index: every block, totals, a map, and the blocks that need a look.
 
     Parameters
@@ -73,6 +74,10 @@ def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.
     block_bounds
         Block → ``(xmin, ymin, xmax, ymax)``, for the blocks without a QA JSON (failed) on
         the map; the others take theirs from their JSON.
+    vanished
+        Registered towers the run did not find again (``tower_id``, ``block``,
+        ``centroid_x``, ``centroid_y``, ``height_m``, ``last_seen``, ``vanished_since``,
+        ``review_status``; the zone's ``vanished_towers`` layer), listed under the blocks.
 
     Returns
     -------
@@ -137,9 +142,11 @@ def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.
     if not totals["failed"] and not totals["look"]:
         s += "; nothing to check"
     totals["summary"] = s + "."
+    totals["vanished_towers"] = len(vanished)
     tower_xy = [(t["x"], t["y"]) for b in block_docs.values() for t in b.get("towers") or []]
     lines = _gpkg_lines(gpkg)
     doc = jsonable({"zone": zone, "blocks": blocks, "totals": totals, "n_lines": len(lines),
+                    "vanished_towers": list(vanished),
                     "generated_at": datetime.now(timezone.utc).replace(microsecond=0).isoformat()})
     if out_json is not None:
         write_text_atomic(out_json, json.dumps(doc, indent=1))
