@@ -48,7 +48,7 @@ bench: setup
 
 # The shipped models (towerpipe.modelcard.MODEL_RELEASES): one per feature set, each trained by
 # the workflow from the windows of the training zones (config/models.yaml).
-MODELS := towerpipe-full-v3 towerpipe-rgb-v3 towerpipe-geometry-v3 towerpipe-shape-v3
+MODELS := towerpipe-geometry-v3 towerpipe-shape-v3
 
 # Train the shipped models (CPU, 2 cores).
 train: setup

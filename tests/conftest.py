@@ -139,7 +139,7 @@ def tower_features(path, layer="towers"):
     import pyogrio
 
     df = pyogrio.read_dataframe(path, layer=layer)
-    drop = [c for c in ("tower_id", "zone", "source_files", "processed_at") if c in df.columns]
+    drop = [c for c in ("tower_id", "zone", "source_files", "processed_at", "first_seen") if c in df.columns]
     return df.drop(columns=drop).sort_values(["centroid_x", "centroid_y"]).reset_index(drop=True)
 
 

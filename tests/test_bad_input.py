@@ -44,7 +44,7 @@ FAILING = {
     "empty": r"InputError: .*empty\.laz: the file holds zero points",
     "no_crs": r"InputError: .*no_crs\.laz: no CRS in the file; set it in the config: `zones: \{{zone}: \{crs",
     "other_crs": r"InputError: .*other_crs\.laz: its CRS \(EPSG:25831\) differs from the rest of zone",
-    "no_colour": r"ModelError: .*'no_colour'.* lacks RED, GREEN, BLUE, NIR but .*use the 'geometry' model",
+    "no_colour": r"ModelError: block 'no_colour' has no valid nir, rgb but model .* needs it; set `inference.model: auto`",
 }
 #: Blocks of zone A that must complete.
 PASSING = ["good", "colour_8bit", "no_ground", "duplicates", "outliers", "dense", "f2__upper_case"]

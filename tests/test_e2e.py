@@ -1,7 +1,7 @@
 """End to end on the CI zone (.test/config): raw blocks in -> classified blocks, towers, QA out.
 
-Uses the shipped default model, and checks that it reproduces the metrics recorded in its
-model card on this (deterministically generated) zone.
+Uses the model ``inference.model: auto`` chooses for the zone, and checks that it reproduces
+the metrics recorded in its model card on this (deterministically generated) zone.
 """
 
 from __future__ import annotations
@@ -33,7 +33,16 @@ def zone_run(tmp_path_factory):
     proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     yield REPO / "results" / ZONE, REPO / "data" / ZONE, cmd
+    # (the chosen model: work/<zone>/model.json, written by the choose_model checkpoint)
     shutil.rmtree(REPO / "results" / ZONE, ignore_errors=True)
+
+
+def chosen_model(cmd) -> str:
+    """The model directory the zone's choose_model checkpoint picked."""
+    from towerpipe.modelchoice import read_choice
+
+    work = next(a.split("=", 1)[1] for a in cmd if a.startswith("workdir="))
+    return read_choice(Path(work) / ZONE / "model.json")["path"]
 
 
 def test_every_point_and_attribute_survives(zone_run):
@@ -76,10 +85,9 @@ def test_geopackage_and_qa(zone_run):
 
 def test_shipped_model_reproduces_its_recorded_metrics(zone_run):
     from towerpipe.evaluate import evaluate_zone
-    from towerpipe.model import default_model_path
 
-    out, data, _ = zone_run
-    card = json.loads((default_model_path("full") / "model_card.json").read_text())
+    out, data, cmd = zone_run
+    card = json.loads((Path(chosen_model(cmd)) / "model_card.json").read_text())
     ref = card["metrics"]["reference_zone"]
     assert ref["zone_config"] == ".test/config/config.yaml"
     res = evaluate_zone(data, out)
@@ -94,7 +102,6 @@ def test_calibration_sweep_reproduces_the_pipeline(zone_run):
     predictions; for the configured candidate its figures are the pipeline's."""
     from towerpipe.calibrate import sweep
     from towerpipe.evaluate import evaluate_zone
-    from towerpipe.model import default_model_path
 
     out, data, cmd = zone_run
     work = next(a.split("=", 1)[1] for a in cmd if a.startswith("workdir="))
@@ -102,7 +109,7 @@ def test_calibration_sweep_reproduces_the_pipeline(zone_run):
     inf, tow = cfg["inference"], cfg["towers"]
     configured = (inf["tta"], tow["threshold"], inf["threshold"], tow["min_core_prob"])
     rows = sweep({ZONE: data}, [configured, (1, tow["threshold"], 0.6, tow["min_core_prob"])], work=work,
-                 model=str(default_model_path("full")), inference=inf, towers=tow)
+                 model=chosen_model(cmd), inference=inf, towers=tow)
     res = evaluate_zone(data, out)
     got = rows[0][ZONE]
     assert got["towers"] == res["towers_predicted"]

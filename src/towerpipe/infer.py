@@ -44,6 +44,7 @@ import numpy as np
 
 from towerpipe.errors import ConfigError, ModelError
 from towerpipe.predfile import save_pred
+from towerpipe.progress import Progress
 from towerpipe.resources import peak_rss_mb
 from towerpipe.tilefile import Tile, load_tile
 from towerpipe.windows import CandidateWindows, WindowSet, candidate_windows, sliding_windows
@@ -251,6 +252,8 @@ def predict_tile(
     t_sample = t_clf = 0.0
     buf: np.ndarray | None = None
     n_todo = len(todo)
+    what = f"infer {tile.meta.get('block', '?')}/{tile.meta.get('tile', '?')}"
+    progress = Progress(f"{what}: classifier", n_todo, "windows")
     for b0 in range(0, n_todo, batch_size):
         ta = time.perf_counter()
         b1 = min(b0 + batch_size, n_todo)
@@ -266,6 +269,8 @@ def predict_tile(
         win_prob[todo[b0:b1]] = np.asarray(bundle.classify(buf[: b1 - b0]), dtype=np.float32).reshape(-1)
         t_clf += time.perf_counter() - tb
         t_sample += tb - ta
+        progress.update(b1 - b0)
+    progress.close()
     timings["sample_features"] = t_sample
     timings["classify"] = t_clf
 
@@ -275,6 +280,7 @@ def predict_tile(
     acc1 = acc if tta == 1 else np.zeros(len(mi), dtype=np.float32)  # the single view
     cnt = np.zeros(len(mi), dtype=np.uint16)
     t_seg = t_comb = 0.0
+    progress = Progress(f"{what}: segmenter", len(passed), "windows")
     for i in passed:
         ta = time.perf_counter()
         local = ws.indices(int(i))
@@ -292,6 +298,8 @@ def predict_tile(
         cnt[local] += 1
         t_comb += time.perf_counter() - tb
         t_seg += tb - ta
+        progress.update()
+    progress.close()
     timings["segment"] = t_seg
     timings["combine"] = t_comb
 
@@ -341,7 +349,7 @@ def predict_tile(
 
 def infer_tile(
     tile_path: str | os.PathLike[str],
-    model: str | os.PathLike[str] | BundleLike,
+    model: str | os.PathLike[str] | BundleLike | None,
     out_path: str | os.PathLike[str],
     *,
     window: float = 40.0,
@@ -363,7 +371,8 @@ def infer_tile(
     tile_path
         Tile file (:mod:`towerpipe.tilefile`).
     model
-        A model bundle, or the path of a checkpoint directory (:func:`towerpipe.model.load_bundle`).
+        A model bundle, or the path of a checkpoint directory (:func:`towerpipe.model.load_bundle`);
+        ``None``: the model of ``choice``.
     out_path
         Prediction file (:mod:`towerpipe.predfile`), written atomically.
     window, stride
@@ -404,6 +413,10 @@ def infer_tile(
 
         choice = read_choice(choice)
     model_path = None
+    if model is None:  # the zone's chosen model, read from its choice
+        if not isinstance(choice, Mapping) or not choice.get("path"):
+            raise ConfigError(f"{tile_path}: no model given and no model choice to read it from")
+        model = choice["path"]
     if isinstance(model, (str, os.PathLike)):
         from towerpipe.model import load_bundle
 

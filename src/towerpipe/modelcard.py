@@ -28,7 +28,10 @@ REQUIRED_KEYS: tuple[str, ...] = ("name", "version", "bundle_version", "feature_
 BUNDLE_VERSION = 1
 #: Release of the shipped model of each feature set (``models/towerpipe-<set>-v<release>/``):
 #: bumped when it is retrained on other data or with another recipe (its card says how).
-MODEL_RELEASES = {"full": 3, "rgb": 3, "geometry": 3, "shape": 3}
+#: Only models that keep their towers when the tower points take the attributes of their
+#: surroundings are shipped (docs/model.md, the attribute-swap check): the colour recipes
+#: (``full``, ``rgb``) lost a third to a half of them and are trainable but not shipped.
+MODEL_RELEASES = {"geometry": 3, "shape": 3}
 
 #: Environment variable overriding the shipped models directory.
 MODELS_ENV = "TOWERPIPE_MODELS"
@@ -51,12 +54,16 @@ def models_dir() -> Path:
     return (root if root is not None else Path.cwd()) / "models"
 
 
-def default_model_path(feature_set: str = "full") -> Path:
+def default_model_path(feature_set: str = "shape") -> Path:
     """Path of the shipped bundle for ``feature_set``: ``models/towerpipe-<set>-v<release>/``."""
     from towerpipe.features import FEATURE_SETS
 
     if feature_set not in FEATURE_SETS:
         raise ModelError(f"unknown feature set {feature_set!r}; use one of {sorted(FEATURE_SETS)}")
+    if feature_set not in MODEL_RELEASES:
+        raise ModelError(f"no shipped model of feature set {feature_set!r} (shipped: {', '.join(MODEL_RELEASES)}); "
+                         f"train one (`towerpipe train --feature-set {feature_set}`) and set `inference.model` "
+                         "to its directory")
     return models_dir() / f"towerpipe-{feature_set}-v{MODEL_RELEASES[feature_set]}"
 
 

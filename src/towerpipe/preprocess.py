@@ -240,7 +240,7 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
                                f"({_crs_name(zone_crs)}); reproject it or put it in a zone of its own")
     n = header.point_count
     with _staged(out_dir) as tmp:
-        meta = _stream_block(it, tmp, header, n, cfg)
+        meta = _stream_block(it, tmp, header, n, cfg, block)
         bounds = meta["bounds"]
         grid = tiling.TileGrid(tuple(bounds), cfg.tile_size)
         x, y = (np.load(tmp / f"{c}.npy", mmap_mode="r") for c in ("x", "y"))
@@ -282,7 +282,7 @@ def header_warnings(header: BlockHeader, extent: Mapping[str, list[float]], tole
             f"(off by up to {off:.1f} m); tiles follow the points"]
 
 
-def _stream_block(it, tmp: Path, header: BlockHeader, n: int, cfg: PreprocessConfig) -> dict[str, Any]:
+def _stream_block(it, tmp: Path, header: BlockHeader, n: int, cfg: PreprocessConfig, block: str) -> dict[str, Any]:
     """Stream the decoded chunks of a block into the cache columns; what was measured on the way."""
     t0 = time.perf_counter()
     dtypes = {"x": "f8", "y": "f8", "z": "f8", "classification": "u1", "return_number": "u1",

@@ -95,7 +95,7 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
     return {"towers": len(gdf), "towers_owned_by_neighbours": len(neighbours), "conductor_points": len(conductors)}
 
 
-def infer_step(tile_path: str | os.PathLike[str], model: str | os.PathLike[str], out_path: str | os.PathLike[str],
+def infer_step(tile_path: str | os.PathLike[str], model: str | os.PathLike[str] | None, out_path: str | os.PathLike[str],
                **kw: Any) -> dict[str, Any]:
     """:func:`towerpipe.infer.infer_tile`, a model that cannot run on the tile recorded, not raised.
 

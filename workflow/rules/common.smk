@@ -213,17 +213,16 @@ def model_choice_file(zone):
     return f"{WORK}/{zone}/model.json"
 
 
-def zone_model(zone):
-    """The zone's model directory, once the choose_model checkpoint has run."""
-    from towerpipe.modelchoice import read_choice
-
-    return read_choice(checkpoints.choose_model.get(zone=zone).output.choice)["path"]
-
-
 def model_files(zone):
-    """The zone's model files: inputs of its inference jobs, so a new model reruns the zone."""
-    d = zone_model(zone)
-    return [f"{d}/classifier.pt", f"{d}/segmenter.pt", f"{d}/model_card.json"]
+    """The files of the models the zone may run: inputs of its inference jobs, so a new model
+    reruns the zone. Known without the choice (``auto``: every shipped model; else the one
+    named), so they never wait on a checkpoint; the job reads its model from the choice."""
+    from towerpipe.modelchoice import AUTO, resolve_model
+    from towerpipe.modelcard import MODEL_RELEASES, default_model_path
+
+    spec = model_spec_of(zone)[0]
+    dirs = [default_model_path(fs) for fs in MODEL_RELEASES] if spec == AUTO else [resolve_model(spec)]
+    return [f"{d}/{f}" for d in dirs for f in ("classifier.pt", "segmenter.pt", "model_card.json")]
 
 
 def pred_file(zone, block, tile):
@@ -310,7 +309,11 @@ def loso_models():
     """Recipe (feature set) -> real family -> the recipe's model trained without that family."""
     from towerpipe.synth.real import FAMILIES
 
+    judged = TRAIN.get("benchmark") or list(TRAIN["models"])
+    unknown = sorted(set(judged) - set(TRAIN["models"]))
+    if unknown:
+        raise WorkflowError(f"training.benchmark: {', '.join(unknown)} not in training.models")
     return {
-        spec["feature_set"]: {f: f"{WORK}/models/{name}{LOSO}{f}" for f in FAMILIES}
-        for name, spec in TRAIN["models"].items()
+        TRAIN["models"][name]["feature_set"]: {f: f"{WORK}/models/{name}{LOSO}{f}" for f in FAMILIES}
+        for name in judged
     }

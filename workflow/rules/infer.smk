@@ -1,7 +1,7 @@
 # The zone's model, then gated window inference per tile, then back into every point of each block.
 
 
-checkpoint choose_model:
+rule choose_model:
     input:
         caches=lambda wc: [cache_dir(wc.zone, b) for b in blocks(wc.zone)],
     output:
@@ -16,6 +16,7 @@ checkpoint choose_model:
         f"{WORK}/{{zone}}/benchmarks/choose_model.tsv"
     conda:
         "../envs/towerpipe.yaml"
+    localrule: True
     threads: 1
     resources:
         mem_mb=500,
@@ -28,12 +29,11 @@ rule infer_tile:
     input:
         tile=f"{WORK}/{{zone}}/tiles/{{block}}/{{tile}}.npz",
         model=lambda wc: model_files(wc.zone),
+        # after the zone's model is chosen; a rewritten choice alone reruns nothing
+        choice=lambda wc: ancient(model_choice_file(wc.zone)),
     output:
         pred=f"{WORK}/{{zone}}/pred/{{block}}/{{tile}}.npz",
     params:
-        model=lambda wc, input: os.path.dirname(input.model[0]),
-        # read, not an input: a rewritten choice naming the same model reruns nothing
-        choice=lambda wc: model_choice_file(wc.zone),
         # the point threshold applies after the windows (towers, merge): changing it
         # does not rerun the inference
         inference={k: v for k, v in INFER.items() if k != "threshold"},

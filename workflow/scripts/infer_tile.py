@@ -3,7 +3,7 @@ from towerpipe.steps import infer_step
 
 p = snakemake.params.inference
 run_step(snakemake, lambda: infer_step(
-    snakemake.input.tile, snakemake.params.model, snakemake.output.pred, window=p["window"],
+    snakemake.input.tile, None, snakemake.output.pred, window=p["window"],
     stride=p["stride"], gate=p["gate"], combine=p["combine"], batch_size=p["batch_size"],
     min_points=p["min_points"], min_height=p["min_height"], tta=p["tta"], windows=p["windows"],
-    choice=snakemake.params.choice))
+    choice=snakemake.input.choice))
