@@ -80,8 +80,9 @@ def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.Pa
     tiles = _zone_tiles(work, zone)
     keys = ("window", "windows", "stride", "gate", "combine", "batch_size", "min_points", "min_height")
     kw = {k: inference[k] for k in keys if k in inference}
-    # the weights' hashes are part of the key: a retrained model never reuses old predictions
-    key = config_hash({"inference": kw, "weights": read_card(model).get("files")})
+    # the weights' hashes and the inference code are part of the key: a retrained model or
+    # another way of placing windows never reuses old predictions
+    key = config_hash({"inference": kw, "weights": read_card(model).get("files"), "code": _inference_code()})
     out_dir = Path(work, zone, "calibrate", f"{Path(model).name}_tta{tta}_{key}")
     bundle = None
     paths = []
@@ -92,6 +93,18 @@ def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.Pa
             infer_tile(t, bundle, out, tta=tta, **kw)
         paths.append(str(out))
     return paths
+
+
+def _inference_code() -> str:
+    """SHA-256 of the modules that turn a tile into predictions."""
+    import hashlib
+
+    from towerpipe import features, infer, sampling, windows
+
+    h = hashlib.sha256()
+    for mod in (infer, windows, features, sampling):
+        h.update(Path(mod.__file__).read_bytes())
+    return h.hexdigest()[:16]
 
 
 def _labels(input_dir: Path) -> dict[str, np.ndarray]:

@@ -167,6 +167,23 @@ def _model_info(bundle: BundleLike, model_path: str | os.PathLike[str] | None) -
             "path": None if path is None else str(path), "sha256": sha}
 
 
+def overhead_wires(arrays: Mapping[str, np.ndarray], idx: np.ndarray, min_height: float) -> np.ndarray:
+    """Bool mask over ``idx``: the points at least ``min_height`` high that look like overhead
+    wire (:func:`towerpipe.wires.wire_points`, or classified as wire:
+    :data:`towerpipe.wires.WIRE_CLASSES`). A conductor is as high as the tower it hangs
+    from, and one passing over a lower tower hides that tower's height peak."""
+    from towerpipe.wires import WIRE_CLASSES, wire_points
+
+    out = np.zeros(len(idx), bool)
+    tall = np.flatnonzero(np.asarray(arrays["hag"])[idx] >= min_height)
+    if len(tall):
+        sel = idx[tall]
+        out[tall] = wire_points(arrays["x"][sel], arrays["y"][sel], arrays["z"][sel])[0]
+    if "classification" in arrays:  # the detector misses conductors where they reach the crossarm
+        out |= np.isin(np.asarray(arrays["classification"])[idx], WIRE_CLASSES)
+    return out
+
+
 def predict_tile(
     tile: Tile,
     bundle: BundleLike,
@@ -224,10 +241,11 @@ def predict_tile(
     canon = np.lexsort((arrays["point_index"][mi], arrays["block_id"][mi]))
     hag = arrays["hag"]
     if windows == "candidates":
+        floor = 0.0 if min_height is None else min_height
         ws: WindowSet | CandidateWindows = candidate_windows(
             arrays["x"][mi], arrays["y"][mi], hag[mi], core[mi], window=window,
-            min_height=0.0 if min_height is None else min_height, min_points=max(int(min_points), 1),
-            canonical_order=canon)
+            min_height=floor, min_points=max(int(min_points), 1),
+            canonical_order=canon, exclude=overhead_wires(arrays, mi, floor))
         n_all = len(ws)
     else:
         all_windows = sliding_windows(arrays["x"][mi], arrays["y"][mi], core[mi], window=window, stride=stride,

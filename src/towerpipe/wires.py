@@ -48,10 +48,14 @@ from scipy.spatial import cKDTree
 from towerpipe.fields import Field
 
 __all__ = ["Coverage", "TileContext", "wire_points", "wire_support", "conductor_points", "CONDUCTOR_FIELDS",
-           "VEGETATION_CLASSES"]
+           "VEGETATION_CLASSES", "WIRE_CLASSES"]
 
 #: ASPRS classes of vegetation (low, medium, high): the clearance below a conductor is to them.
 VEGETATION_CLASSES = (3, 4, 5)
+
+#: ASPRS classes of overhead wires (13 wire guard, 14 wire conductor): where a provider has
+#: classified them, these points are wire whatever :func:`wire_points` makes of them.
+WIRE_CLASSES = (13, 14)
 
 #: Fields of a conductor point (layer ``conductor_points`` of a block's GeoPackage; Point geometry).
 CONDUCTOR_FIELDS: dict[str, Field] = {

@@ -301,8 +301,10 @@ def model_train_config(name, ablation=False):
 
 
 def realshape_zones():
-    """The zones of the real-shape benchmark (towerpipe.realshape)."""
-    return [z for z in config["zones"] if z.startswith("realshape_")]
+    """The zones of the real-shape benchmark (towerpipe.realshape), of the variants judged."""
+    variants = TRAIN.get("benchmark_variants") or []
+    return [z for z in config["zones"] if z.startswith("realshape_")
+            and (not variants or any(z.endswith(f"_{v}") for v in variants))]
 
 
 def loso_models():
