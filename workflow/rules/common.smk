@@ -23,6 +23,8 @@ wildcard_constraints:
     # block ids are safe file names (towerpipe.inputs), whatever the input files are called
     block=r"[A-Za-z0-9_][A-Za-z0-9_.-]*",
     tile=r"-?\d+_-?\d+",
+    # model names (training.models, -without-<family>): no dot, so never a file of work/models
+    name=r"[A-Za-z0-9][A-Za-z0-9_-]*",
 
 
 try:
