@@ -41,6 +41,15 @@ _UNBOUNDED = (-1e18, -1e18, 1e18, 1e18)
 _TOWER_KEYS = ("linkage", "min_points", "min_height", "min_wire_support", "wire_min_height", "max_base_ratio")
 
 
+def _survey(work: str | os.PathLike[str], zone: str) -> list[list[float]]:
+    """The measured bounds of the zone's blocks (its plan, written by the pipeline's split)."""
+    plan = Path(work, zone, "plan.json")
+    if not plan.exists():
+        raise InputError(plan, f"zone {zone!r} has no plan yet; run `snakemake --cores 2 results/{zone}/` first")
+    blocks = json.loads(plan.read_text())["blocks"]
+    return [list(map(float, b["bounds"])) for b in blocks.values() if b.get("bounds")]
+
+
 def _zone_tiles(work: str | os.PathLike[str], zone: str) -> list[Path]:
     tiles = sorted(Path(work, zone, "tiles").glob("*/*.npz"))
     if not tiles:
@@ -124,7 +133,8 @@ def _labels(input_dir: Path) -> dict[str, np.ndarray]:
 
 def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: Mapping[str, np.ndarray], *,
                threshold: float, point_threshold: float, min_core_prob: float, towers: Mapping[str, Any],
-               zone: str = "zone", min_truth_points: int = 0) -> dict[str, Any]:
+               zone: str = "zone", min_truth_points: int = 0,
+               survey: Sequence[Sequence[float]] = ()) -> dict[str, Any]:
     """Towers of a whole zone from its predictions, scored against its labels.
 
     Parameters
@@ -133,6 +143,9 @@ def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: M
         Prediction files (or loaded predictions) of every tile of the zone.
     tile_paths
         The zone's tiles (conductor support context).
+    survey
+        The measured bounds of the zone's blocks: where the data is, as the towers jobs see
+        it (``towers.wire_ring_coverage``; see :class:`towerpipe.wires.TileContext`).
     truth
         True tower footprints (GeoDataFrame, layer ``towers`` of ``towers_truth.gpkg``).
     labels
@@ -158,8 +171,10 @@ def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: M
 
     members: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     gdf = extract_towers(preds, zone, _UNBOUNDED, zone=zone, threshold=threshold, point_threshold=point_threshold,
-                         min_core_prob=min_core_prob, context=TileContext(list(tile_paths)), members=members,
-                         model_meta={}, crs=truth.crs, **{k: towers[k] for k in _TOWER_KEYS if k in towers})
+                         min_core_prob=min_core_prob, context=TileContext(list(tile_paths), survey=survey,
+                                            min_ring_share=float(towers.get("wire_ring_coverage", 0.0))),
+                         members=members, model_meta={}, crs=truth.crs,
+                         **{k: towers[k] for k in _TOWER_KEYS if k in towers})
     chosen: dict[str, list[np.ndarray]] = {}
     for blocks, idx in members.values():
         blocks = np.asarray(blocks).astype(str)
@@ -233,7 +248,7 @@ def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Cand
         if not truth_path.exists():
             raise InputError(truth_path, "calibration needs the zone's true towers (a synthetic zone has them)")
         data[zone] = (gpd.read_file(truth_path, layer="towers"), _labels(Path(input_dir)),
-                      [str(p) for p in _zone_tiles(work, zone)])
+                      [str(p) for p in _zone_tiles(work, zone)], _survey(work, zone))
     preds: dict[tuple[str, int, float], list[Any]] = {}
     rows = []
     for cand in candidates:
@@ -243,14 +258,14 @@ def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Cand
         wire = float(rest[1]) if len(rest) > 1 else float(towers.get("min_wire_support", 0.0))
         row: dict[str, Any] = {"tta": tta, "threshold": thr, "point_threshold": pthr, "min_core_prob": mcp,
                                "gate": gate, "min_wire_support": wire}
-        for zone, (truth, labels, tiles) in data.items():
+        for zone, (truth, labels, tiles, survey) in data.items():
             if (zone, tta, gate) not in preds:
                 zm = model if isinstance(model, (str, os.PathLike)) else model[zone]
                 preds[(zone, tta, gate)] = [load_pred(p) for p in zone_predictions(work, zone, zm, tta,
                                                                                   {**inference, "gate": gate})]
             row[zone] = score_zone(preds[(zone, tta, gate)], tiles, truth, labels, threshold=thr,
                                    point_threshold=pthr, min_core_prob=mcp,
-                                   towers={**towers, "min_wire_support": wire}, zone=zone)
+                                   towers={**towers, "min_wire_support": wire}, zone=zone, survey=survey)
         row["mean_point_iou"] = float(np.mean([row[z]["point_iou"] for z in data]))
         rows.append(row)
     return rows

@@ -209,7 +209,9 @@ def predict_tile(
     -------
     arrays
         Prediction arrays (:data:`towerpipe.predfile.PRED_ARRAYS`) of the core points
-        inside at least one segmented window, in tile order.
+        inside at least one segmented window, in tile order; points the input classifies as
+        wire (:data:`towerpipe.wires.WIRE_CLASSES`) have probability 0, so reprocessing a
+        classified block gives the same towers.
     stats
         ``windows_total``, ``windows_passed_gate``, ``windows_segmented``,
         ``windows_empty`` (windows with fewer than ``min_points`` points),
@@ -338,6 +340,12 @@ def predict_tile(
         "prob": np.clip(acc[sel_local], 0.0, 1.0).astype(np.float32),
         "prob_single": np.clip(acc1[sel_local], 0.0, 1.0).astype(np.float32),
     }
+    if "classification" in arrays:  # what the provider classified as wire is never tower
+        from towerpipe.wires import WIRE_CLASSES
+
+        wire = np.isin(np.asarray(arrays["classification"])[sel], WIRE_CLASSES)
+        out["prob"][wire] = 0.0
+        out["prob_single"][wire] = 0.0
     timings["total"] = time.perf_counter() - t0
     stats = {
         "windows_total": int(n_win),
