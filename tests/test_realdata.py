@@ -60,7 +60,8 @@ def test_towers_found_and_named_with_the_model(corridor):
     assert rep["towers_true"] == len(truth.towers) >= 3
     assert rep["tower_recall"] >= 2 / 3, rep
     meta = pyogrio.read_info(out / "towers.gpkg", layer="towers")["dataset_metadata"]
-    assert meta["model_choice"].startswith("auto:")
+    choice = json.loads(meta["model_choice"])
+    assert choice["mode"] == "auto" and choice["reason"].startswith("auto:")
 
 
 @pytest.mark.xfail(strict=True, reason="issue #13's bar (no tree reported) is not met: shape-v3 reports real trees "
