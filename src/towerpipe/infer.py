@@ -167,21 +167,30 @@ def _model_info(bundle: BundleLike, model_path: str | os.PathLike[str] | None) -
             "path": None if path is None else str(path), "sha256": sha}
 
 
+def _classified_wire(arrays: Mapping[str, np.ndarray], idx: np.ndarray) -> np.ndarray:
+    """Bool mask over ``idx``: the points the input classifies as wire
+    (:data:`towerpipe.wires.WIRE_CLASSES`); none when the tile has no classification."""
+    from towerpipe.wires import WIRE_CLASSES
+
+    if "classification" not in arrays:
+        return np.zeros(len(idx), bool)
+    return np.isin(np.asarray(arrays["classification"])[idx], WIRE_CLASSES)
+
+
 def overhead_wires(arrays: Mapping[str, np.ndarray], idx: np.ndarray, min_height: float) -> np.ndarray:
     """Bool mask over ``idx``: the points at least ``min_height`` high that look like overhead
     wire (:func:`towerpipe.wires.wire_points`, or classified as wire:
     :data:`towerpipe.wires.WIRE_CLASSES`). A conductor is as high as the tower it hangs
     from, and one passing over a lower tower hides that tower's height peak."""
-    from towerpipe.wires import WIRE_CLASSES, wire_points
+    from towerpipe.wires import wire_points
 
     out = np.zeros(len(idx), bool)
     tall = np.flatnonzero(np.asarray(arrays["hag"])[idx] >= min_height)
     if len(tall):
         sel = idx[tall]
         out[tall] = wire_points(arrays["x"][sel], arrays["y"][sel], arrays["z"][sel])[0]
-    if "classification" in arrays:  # the detector misses conductors where they reach the crossarm
-        out |= np.isin(np.asarray(arrays["classification"])[idx], WIRE_CLASSES)
-    return out
+    # the detector misses conductors where they reach the crossarm
+    return out | _classified_wire(arrays, idx)
 
 
 def predict_tile(
@@ -340,12 +349,9 @@ def predict_tile(
         "prob": np.clip(acc[sel_local], 0.0, 1.0).astype(np.float32),
         "prob_single": np.clip(acc1[sel_local], 0.0, 1.0).astype(np.float32),
     }
-    if "classification" in arrays:  # what the provider classified as wire is never tower
-        from towerpipe.wires import WIRE_CLASSES
-
-        wire = np.isin(np.asarray(arrays["classification"])[sel], WIRE_CLASSES)
-        out["prob"][wire] = 0.0
-        out["prob_single"][wire] = 0.0
+    wire = _classified_wire(arrays, sel)  # what the provider classified as wire is never tower
+    out["prob"][wire] = 0.0
+    out["prob_single"][wire] = 0.0
     timings["total"] = time.perf_counter() - t0
     stats = {
         "windows_total": int(n_win),

@@ -9,10 +9,11 @@ highest height above ground per :data:`PEAK_RES` cell, each the maximum within
 window centred on it. Overhead wires make no peak (``exclude``; the inference passes
 :func:`towerpipe.infer.overhead_wires`): a conductor of another line passing over a lower
 tower, or rising with the terrain beside it, is higher than that tower's top. Towers then
-sit at a window's centre, as in training, and the classifier sees fewer windows than the grid sends it (a forest gives one candidate per
-crown cluster, open land none). The raster lives on a global grid and a candidate's window
-reaches at most ``window / 2 + PEAK_RADIUS`` from it, within the tile buffer, so a tower near a
-tile edge gives the same window in both tiles that see it.
+sit at a window's centre, as in training, and the classifier sees fewer windows than the
+grid sends it (a forest gives one candidate per crown cluster, open land none). The raster
+lives on a global grid and a candidate's window reaches at most ``window / 2 + PEAK_RADIUS``
+from it, within the tile buffer, so a tower near a tile edge gives the same window in both
+tiles that see it.
 
 Sliding windows (:func:`sliding_windows`)
 -----------------------------------------
