@@ -46,7 +46,7 @@ bench: setup
 	$(BIN)/python -m towerpipe.bench preprocess
 	$(BIN)/python -m towerpipe.bench e2e
 
-# The shipped models (towerpipe.modelcard.MODEL_RELEASES): one per feature set, each trained by
+# The shipped models (towerpipe.model.cards.MODEL_RELEASES): one per feature set, each trained by
 # the workflow from the windows of the training zones (config/models.yaml).
 MODELS := towerpipe-geometry-v3 towerpipe-shape-v3
 
@@ -67,7 +67,7 @@ ship-models:
 
 # Screenshots of the QA pages in docs/img (after `make demo`), taken with headless Chromium at 1,280 px.
 docs-img: setup
-	$(BIN)/python -m towerpipe.qa.browser results/demo/qa/index.html results/demo/qa/400250_4600250.html \
+	$(BIN)/python -m towerpipe.products.qa.browser results/demo/qa/index.html results/demo/qa/400250_4600250.html \
 	  --screenshot docs/img/qa_index.png --height 1200 --screenshot docs/img/qa_block.png --height 2100
 
 clean-demo:

@@ -36,7 +36,7 @@ rule all:
 
 onsuccess:
     # one line per zone assembled by this run: towers, failed blocks, the QA index
-    from towerpipe.summary import print_summary, zones_in_log
+    from towerpipe.products.summary import print_summary, zones_in_log
 
     print_summary(zones_in_log(log))
 
@@ -44,8 +44,8 @@ onsuccess:
 onerror:
     # With --keep-going the other blocks completed: publish them, and the failures, in an
     # explicitly INCOMPLETE zone directory whose QA index names each failed block and why.
-    from towerpipe.steps import assemble_incomplete_zone, failures_from_log
-    from towerpipe.summary import print_summary, zones_in_log
+    from towerpipe.jobs.steps import assemble_incomplete_zone, failures_from_log
+    from towerpipe.products.summary import print_summary, zones_in_log
 
     _failures = failures_from_log(log, WORK)
     for _zone, _failed in _failures.items():

@@ -3,7 +3,7 @@
 #
 #   scripts/nightly.sh ZONE [CONFIGFILE] [extra snakemake arguments...]
 #
-# - one run per zone: every run takes the zone's run lock (towerpipe.runlock, held by the
+# - one run per zone: every run takes the zone's run lock (towerpipe.jobs.runlock, held by the
 #   Snakefile, whatever started the run); a start while one is alive exits with status 75;
 # - a run that was killed (power cut, OOM killer, kill -9) leaves Snakemake's own lock
 #   behind: it is cleared (`snakemake --unlock`) only when no towerpipe run is alive, and the
@@ -23,10 +23,10 @@ elif [ -x .venv/bin/python ]; then py=(.venv/bin/python)
 else py=(python3); fi
 args=(--cores "${CORES:-2}" --keep-going)
 [ -n "$cfg" ] && args+=("--configfile=$cfg")
-if "${py[@]}" -m towerpipe.runlock busy "$zone"; then
+if "${py[@]}" -m towerpipe.jobs.runlock busy "$zone"; then
   echo "towerpipe: another run of zone $zone is in progress; nothing done" >&2
   exit 75
 fi
-"${py[@]}" -m towerpipe.runlock if-idle -- "${smk[@]}" "${args[@]}" --unlock -- "results/$zone/"
+"${py[@]}" -m towerpipe.jobs.runlock if-idle -- "${smk[@]}" "${args[@]}" --unlock -- "results/$zone/"
 echo "towerpipe: $(date -u +%FT%TZ) zone $zone: start" >&2
 "${smk[@]}" "${args[@]}" "$@" -- "results/$zone/"

@@ -65,9 +65,9 @@ def pdal_cli():
 @pytest.fixture(scope="package")  # tests/ is no package: one per test run
 def random_model_factory(tmp_path_factory):
     """``make(feature_set)`` -> a randomly initialised model bundle directory (plumbing tests)."""
-    from towerpipe.features import FEATURE_SETS
-    from towerpipe.model import PointNetClassifier, PointNetSegmenter, save_bundle
-    from towerpipe.modelcard import code_version, config_hash
+    from towerpipe.model.features import FEATURE_SETS
+    from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter, save_bundle
+    from towerpipe.model.cards import code_version, config_hash
 
     made = {}
 

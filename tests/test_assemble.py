@@ -1,4 +1,4 @@
-"""Publishing a directory atomically (towerpipe.assemble): never deleted first, no leftovers."""
+"""Publishing a directory atomically (towerpipe.io.atomic): never deleted first, no leftovers."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from towerpipe.assemble import assemble_directory, publish_copy, staging_path, swap_in, write_text_atomic
+from towerpipe.io.atomic import assemble_directory, publish_copy, staging_path, swap_in, write_text_atomic
 
 
 def _leftovers(root: Path) -> list[str]:
@@ -77,7 +77,7 @@ def test_text_written_on_a_full_disk_leaves_no_part_file(tmp_path, monkeypatch):
             self.fh.write(text[:10])  # a few bytes land, then the disk is full
             raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr("towerpipe.assemble.open", lambda *a, **k: Full(builtins.open(*a, **k)), raising=False)
+    monkeypatch.setattr("towerpipe.io.atomic.open", lambda *a, **k: Full(builtins.open(*a, **k)), raising=False)
     path = tmp_path / "INCOMPLETE.txt"
     path.write_text("previous")
     with pytest.raises(OSError) as exc:
@@ -90,7 +90,7 @@ def test_text_written_on_a_full_disk_leaves_no_part_file(tmp_path, monkeypatch):
 def test_columns_written_on_a_full_disk_leave_no_part_file(tmp_path):
     import numpy as np
 
-    from towerpipe.columnfile import save_columns
+    from towerpipe.io.columns import save_columns
 
     os.symlink("/dev/full", tmp_path / "t.npz.part")
     with pytest.raises(OSError):

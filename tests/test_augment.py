@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from towerpipe.augment import OPERATIONS, attribute_groups, augment_geometry, corrupt_attributes
-from towerpipe.features import FEATURE_SETS
+from towerpipe.training.augment import OPERATIONS, attribute_groups, augment_geometry, corrupt_attributes
+from towerpipe.model.features import FEATURE_SETS
 
 FULL = FEATURE_SETS["full"]       # x y z intensity green blue ndvi
 

@@ -1,11 +1,11 @@
-"""towerpipe.calibrate: the error paths (the sweep itself is checked against the pipeline
+"""towerpipe.evaluation.calibrate: the error paths (the sweep itself is checked against the pipeline
 on the CI zone in test_e2e.py)."""
 
 from __future__ import annotations
 
 import pytest
 
-from towerpipe.calibrate import sweep, zone_predictions
+from towerpipe.evaluation.calibrate import sweep, zone_predictions
 from towerpipe.cli import main
 from towerpipe.errors import InputError
 

@@ -116,7 +116,7 @@ def test_run_plans_a_zone_with_the_config_after_the_zone(tmp_path, random_model_
 
 
 def test_profile_keys_are_all_applied():
-    from towerpipe.run import profile_settings
+    from towerpipe.jobs.run import profile_settings
 
     prof = profile_settings(REPO)
     assert prof["dag"]["force_incomplete"] is True and prof["output"]["show_failed_logs"] is True

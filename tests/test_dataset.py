@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from towerpipe.dataset import KINDS, SPLITS, build_windows, load_windows, split_blocks, tall_objects, tower_instances
+from towerpipe.training.dataset import KINDS, SPLITS, build_windows, load_windows, split_blocks, tall_objects, tower_instances
 from towerpipe.errors import ConfigError
-from towerpipe.tilefile import Tile, empty_arrays, save_tile
+from towerpipe.io.tiles import Tile, empty_arrays, save_tile
 
 
 def make_tile(path, block: str, origin: tuple[float, float], towers: list[tuple[float, float]],
@@ -106,7 +106,7 @@ def test_tallest_object_gets_a_negative_window(tmp_path):
     extra["classification"] = np.full(k, 1, a["classification"].dtype)
     merged = {name: np.concatenate([v, extra[name].astype(v.dtype)]) for name, v in a.items()}
     merged["point_index"] = np.arange(len(merged["x"]))
-    from towerpipe.tilefile import Tile, save_tile
+    from towerpipe.io.tiles import Tile, save_tile
     save_tile(p, Tile(merged, tile.meta))
     for seed in range(3):
         ws = build_windows([str(p)], {"n_points": 128, "seed": seed, "tall_negatives_per_tile": 2,
@@ -208,7 +208,7 @@ def test_windows_know_their_tower_family(tmp_path):
     import geopandas as gpd
     import shapely
 
-    from towerpipe.dataset import FAMILY_BITS
+    from towerpipe.training.dataset import FAMILY_BITS
 
     paths = make_tiles(tmp_path, n_blocks=3)
     rows = []

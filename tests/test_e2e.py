@@ -39,7 +39,7 @@ def zone_run(tmp_path_factory):
 
 def chosen_model(cmd) -> str:
     """The model directory the zone's choose_model checkpoint picked."""
-    from towerpipe.modelchoice import read_choice
+    from towerpipe.model.choice import read_choice
 
     work = next(a.split("=", 1)[1] for a in cmd if a.startswith("workdir="))
     return read_choice(Path(work) / ZONE / "model.json")["path"]
@@ -84,7 +84,7 @@ def test_geopackage_and_qa(zone_run):
 
 
 def test_shipped_model_reproduces_its_recorded_metrics(zone_run):
-    from towerpipe.evaluate import evaluate_zone
+    from towerpipe.evaluation.evaluate import evaluate_zone
 
     out, data, cmd = zone_run
     card = json.loads((Path(chosen_model(cmd)) / "model_card.json").read_text())
@@ -100,8 +100,8 @@ def test_shipped_model_reproduces_its_recorded_metrics(zone_run):
 def test_calibration_sweep_reproduces_the_pipeline(zone_run):
     """`towerpipe calibrate` builds the towers of the whole zone at once from cached
     predictions; for the configured candidate its figures are the pipeline's."""
-    from towerpipe.calibrate import sweep
-    from towerpipe.evaluate import evaluate_zone
+    from towerpipe.evaluation.calibrate import sweep
+    from towerpipe.evaluation.evaluate import evaluate_zone
 
     out, data, cmd = zone_run
     work = next(a.split("=", 1)[1] for a in cmd if a.startswith("workdir="))

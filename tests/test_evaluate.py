@@ -7,7 +7,7 @@ import laspy
 import numpy as np
 import shapely
 
-from towerpipe.evaluate import false_tower_sources, zone_points
+from towerpipe.evaluation.evaluate import false_tower_sources, zone_points
 
 
 def write_block(path, x, y, cls):

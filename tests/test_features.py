@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from towerpipe.errors import ModelError
-from towerpipe.features import (FEATURE_SETS, NORM_RADIUS, intensity_scale, missing_attributes,
+from towerpipe.model.features import (FEATURE_SETS, NORM_RADIUS, intensity_scale, missing_attributes,
                                 required_attributes, tile_feature_meta, window_features)
 
 

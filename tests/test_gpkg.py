@@ -1,4 +1,4 @@
-"""Tests of towerpipe.gpkg: the tower GeoPackage and the zone merge."""
+"""Tests of towerpipe.products.gpkg: the tower GeoPackage and the zone merge."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from pyproj import CRS as ProjCRS
 
 from towerpipe import __version__
 from towerpipe.errors import InputError
-from towerpipe.gpkg import (
+from towerpipe.products.gpkg import (
     LAYER_POINTS,
     LAYER_TOWERS,
     config_hash,
@@ -24,7 +24,7 @@ from towerpipe.gpkg import (
     run_metadata,
     write_towers_gpkg,
 )
-from towerpipe.towers import TOWER_COLUMNS, empty_towers, extract_towers
+from towerpipe.towers.extract import TOWER_COLUMNS, empty_towers, extract_towers
 
 X0, Y0 = 400_000.0, 4_600_000.0
 WKT = ProjCRS.from_epsg(25831).to_wkt()
@@ -175,8 +175,8 @@ def test_geometry_roundtrip_exact(tmp_path):
 # --------------------------------------------------------------------------- hygiene
 def zone_file(tmp_path):
     """A zone-like GeoPackage with every layer: towers, lines, spans, vanished towers."""
-    from towerpipe.lines import build_lines
-    from towerpipe.registry import read_registry, update_registry, vanished
+    from towerpipe.towers.lines import build_lines
+    from towerpipe.towers.registry import read_registry, update_registry, vanished
 
     towers = towers_for("b1", (X0, Y0, X0 + 500, Y0 + 500), [(X0 + 50, Y0 + 50), (X0 + 350, Y0 + 50)])
     u = np.linspace(0, 300, 600)
@@ -193,9 +193,9 @@ def zone_file(tmp_path):
 
 def test_geopackage_version_and_fields(tmp_path):
     """GeoPackage 1.2, DATETIME fields, values to the cm, height = top - base, descriptions with units."""
-    from towerpipe.lines import LINE_FIELDS, SPAN_FIELDS
-    from towerpipe.registry import REGISTRY_FIELDS
-    from towerpipe.towers import TOWER_FIELDS
+    from towerpipe.towers.lines import LINE_FIELDS, SPAN_FIELDS
+    from towerpipe.towers.registry import REGISTRY_FIELDS
+    from towerpipe.towers.extract import TOWER_FIELDS
 
     path, towers, lines, spans = zone_file(tmp_path)
     assert dict(pyogrio.list_layers(path)) == {"towers": "Polygon", "tower_points": "Point", "lines": "LineString",

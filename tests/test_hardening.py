@@ -209,7 +209,7 @@ def names_run(ci_scene, random_model_factory, tmp_path_factory):
 
 def _ids(run) -> dict[str, str]:
     manifest = json.loads((run["work"] / run["zone"] / "inputs.json").read_text())
-    from towerpipe.inputs import block_ids
+    from towerpipe.io.inputs import block_ids
 
     return {rel: b for b, rel in block_ids(sorted(manifest)).items()}
 
@@ -248,7 +248,7 @@ def test_neighbour_without_nir_costs_only_itself(names_run):
     for b in ("nir_west", "nir_east"):
         assert (out / "blocks" / f"{b}.laz").is_file()
         tiles = list((work / zone / "tiles" / b).glob("*.npz"))
-        from towerpipe.columnfile import read_meta
+        from towerpipe.io.columns import read_meta
 
         notes = [n for t in tiles for n in read_meta(t)["buffer_notes"]]
         assert any("buffer points of block nonir_mid have no valid nir" in n for n in notes), notes
@@ -416,11 +416,11 @@ def test_all_bad_zone_publishes_incomplete_with_a_qa_index(tmp_path, ci_scene):
 
 
 def test_previous_runs_classified_blocks_as_input(request, tmp_path):
-    from towerpipe import merge
+    from towerpipe.products import merge
 
     if not [n for n in vars(merge) if n.endswith("_DIMENSION") and n != "PROB_DIMENSION"]:
         pytest.skip("replacing the pipeline's own dimensions in an input comes with the tower-id dimension "
-                    "(towerpipe.merge, products)")
+                    "(towerpipe.products.merge, products)")
     ci_reference = request.getfixturevalue("ci_reference")
     zone = _zone("again")
     cfg = write_zone_config(tmp_path / "c.yaml", {zone: {"input": str(ci_reference / "blocks")}}, tmp_path / "work",

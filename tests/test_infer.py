@@ -1,4 +1,4 @@
-"""Tests of gated window inference (towerpipe.infer): plumbing, not model quality.
+"""Tests of gated window inference (towerpipe.inference.infer): plumbing, not model quality.
 
 A test double implements the ModelBundle interface: its classifier says "tower" when a
 window's sampled points hold a tall narrow column, its segmenter thresholds normalised
@@ -11,11 +11,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from towerpipe import features
+from towerpipe.model import features
 from towerpipe.errors import ConfigError, ModelError
-from towerpipe.infer import TTA_CHOICES, check_model_compatibility, infer_tile, predict_tile, segment_views
-from towerpipe.predfile import PRED_META_KEYS, load_pred
-from towerpipe.tilefile import Tile, empty_arrays, save_tile
+from towerpipe.inference.infer import TTA_CHOICES, check_model_compatibility, infer_tile, predict_tile, segment_views
+from towerpipe.io.predictions import PRED_META_KEYS, load_pred
+from towerpipe.io.tiles import Tile, empty_arrays, save_tile
 
 R = features.NORM_RADIUS
 CORE = (400000.0, 4600000.0, 400160.0, 4600160.0)
@@ -375,7 +375,7 @@ def test_bad_config_rejected():
 
 def test_random_initialised_real_bundle_runs(tmp_path):
     torch = pytest.importorskip("torch")
-    model = pytest.importorskip("towerpipe.model")
+    model = pytest.importorskip("towerpipe.model.pointnet")
     torch.manual_seed(0)
     c = len(features.FEATURE_SETS["geometry"])
     bundle = model.ModelBundle(name="random", version="0", feature_set="geometry", card={}, n_points=2048,

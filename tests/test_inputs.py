@@ -1,4 +1,4 @@
-"""Block ids and fingerprints (towerpipe.inputs)."""
+"""Block ids and fingerprints (towerpipe.io.inputs)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import os
 import re
 import shutil
 
-from towerpipe.inputs import block_ids, find_blocks, fingerprint, scan_zone
+from towerpipe.io.inputs import block_ids, find_blocks, fingerprint, scan_zone
 
 
 def test_plain_names_are_kept_and_odd_ones_made_safe_and_unique():

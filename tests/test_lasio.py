@@ -8,7 +8,7 @@ import pytest
 
 from conftest import RGBNIR_SMALL, need
 from towerpipe.errors import InputError
-from towerpipe.lasio import find_blocks, las_header_for, read_block, read_header
+from towerpipe.io.las import find_blocks, las_header_for, read_block, read_header
 
 
 def write_points(path, n=100, *, crs="EPSG:25831", point_format=8, version="1.4", colour_max=65535):
@@ -103,7 +103,7 @@ def test_crs_units_refused_naming_the_unit():
     from pyproj import CRS
 
     from towerpipe.errors import InputError
-    from towerpipe.lasio import check_metric_crs
+    from towerpipe.io.las import check_metric_crs
 
     for ok in ("EPSG:25831", "EPSG:2154+5720", "EPSG:7415"):
         check_metric_crs("b.laz", CRS.from_user_input(ok).to_wkt())

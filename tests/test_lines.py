@@ -1,4 +1,4 @@
-"""Tests of towerpipe.lines: towers linked into lines by the conductors between them."""
+"""Tests of towerpipe.towers.lines: towers linked into lines by the conductors between them."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import shapely
 
-from towerpipe.lines import LINE_FIELDS, SPAN_FIELDS, build_lines
+from towerpipe.towers.lines import LINE_FIELDS, SPAN_FIELDS, build_lines
 
 X0, Y0 = 400_000.0, 4_600_000.0
 CRS = "EPSG:25831"

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from towerpipe.losses import class_balanced_weights, effective_number, weighted_nll
+from towerpipe.training.losses import class_balanced_weights, effective_number, weighted_nll
 
 
 def test_effective_number_by_hand():

@@ -1,4 +1,4 @@
-"""Tests of towerpipe.merge: every input point, every byte but Classification, kept."""
+"""Tests of towerpipe.products.merge: every input point, every byte but Classification, kept."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from laspy.vlrs.known import ExtraBytesVlr, LasZipVlr
 from laspy.vlrs.vlrlist import VLRList
 
 from towerpipe.errors import InputError, TowerpipeError
-from towerpipe.merge import (
+from towerpipe.products.merge import (
     OWN_DIMENSIONS,
     PROB_DIMENSION,
     TOWER_ID_DIMENSION,
@@ -20,7 +20,7 @@ from towerpipe.merge import (
     own_dimensions,
     relabel,
 )
-from towerpipe.predfile import PRED_META_KEYS, save_pred
+from towerpipe.io.predictions import PRED_META_KEYS, save_pred
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "backgrounds"
 real = pytest.mark.skipif(not REAL.is_dir(), reason=f"real LiDAR data not found at {REAL}")
@@ -245,7 +245,7 @@ def test_merge_rejects_bad_threshold(tmp_path):
 def test_own_output_is_reprocessed_values_replaced(tmp_path, version, pf):
     """A classified block as input: the same layout and descriptors, the values replaced; merging
     it again with the same predictions and towers gives the same file, byte for byte."""
-    from towerpipe.towers import save_members
+    from towerpipe.towers.extract import save_members
 
     n = 6000
     src = make_las(tmp_path / "b.laz", version=version, point_format=pf, n=n, extra=True)
@@ -277,7 +277,7 @@ def test_own_output_is_reprocessed_values_replaced(tmp_path, version, pf):
                                                (PROB_DIMENSION, "float32", True)])
 def test_a_foreign_dimension_with_towerpipes_name_is_refused(tmp_path, name, dtype, scaled):
     """Same name, another type (or scaled): somebody else's dimension, refused at the split."""
-    from towerpipe.preprocess import split_block
+    from towerpipe.preprocess.tile import split_block
 
     header = laspy.LasHeader(point_format=6, version="1.4")
     scale = {"scales": np.array([0.5]), "offsets": np.array([0.0])} if scaled else {}
@@ -327,8 +327,8 @@ def test_merge_several_extra_byte_blocks_described_in_output(tmp_path):
 @pytest.mark.parametrize("version,pf", [("1.2", 3), ("1.4", 8)])
 def test_merge_from_split_records_equals_merge_from_laz(tmp_path, version, pf):
     """The split's copy of the point records gives the same file as decoding the LAZ again."""
-    from towerpipe.lasio import RECORDS_FILE
-    from towerpipe.preprocess import split_block
+    from towerpipe.io.las import RECORDS_FILE
+    from towerpipe.preprocess.tile import split_block
 
     n = 12_000
     src = make_las(tmp_path / "b.laz", version=version, point_format=pf, n=n, extra=True)
@@ -352,7 +352,7 @@ def test_merge_refuses_stale_records(tmp_path):
 
 def test_merge_with_tower_points_classifies_only_reported_towers(tmp_path):
     """Classification 15 on exactly the points of reported towers; TowerProbability as predicted."""
-    from towerpipe.towers import save_members
+    from towerpipe.towers.extract import save_members
 
     n = 5000
     src = make_las(tmp_path / "b.laz", version="1.4", point_format=6, n=n)
@@ -384,7 +384,7 @@ def test_every_las_version_and_point_format_is_accepted_at_split_and_merge():
     import pytest
 
     from towerpipe.errors import InputError
-    from towerpipe.merge import SUPPORTED_FORMATS, check_format
+    from towerpipe.products.merge import SUPPORTED_FORMATS, check_format
 
     assert sum(len(v) for v in SUPPORTED_FORMATS.values()) == 2 + 4 + 6 + 11
     for (major, minor), pfs in SUPPORTED_FORMATS.items():

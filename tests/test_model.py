@@ -9,10 +9,10 @@ import pytest
 import torch
 
 from towerpipe.errors import ModelError
-from towerpipe.features import FEATURE_SETS
-from towerpipe.model import (PointNetClassifier, PointNetSegmenter, count_parameters, default_model_path,
+from towerpipe.model.features import FEATURE_SETS
+from towerpipe.model.pointnet import (PointNetClassifier, PointNetSegmenter, count_parameters, default_model_path,
                              load_bundle, save_bundle, segment_points)
-from towerpipe.modelcard import MODEL_RELEASES, code_version, config_hash, validate_card
+from towerpipe.model.cards import MODEL_RELEASES, code_version, config_hash, validate_card
 
 torch.set_num_threads(2)
 

@@ -6,11 +6,11 @@ import json
 
 import pytest
 
-from towerpipe import modelcard
+from towerpipe.model import cards as modelcard
 from towerpipe.errors import ConfigError, ModelError
-from towerpipe.features import FEATURE_SETS
-from towerpipe.infer import infer_tile
-from towerpipe.modelchoice import choose_model, incompatibility_error, resolve_model, zone_attributes
+from towerpipe.model.features import FEATURE_SETS
+from towerpipe.inference.infer import infer_tile
+from towerpipe.model.choice import choose_model, incompatibility_error, resolve_model, zone_attributes
 
 RELEASES = {"full": 9, "rgb": 9, "geometry": 9, "shape": 9}
 
@@ -99,7 +99,7 @@ def test_bad_specs_name_the_fix(shipped, tmp_path):
 
 def test_an_explicit_incompatible_model_fails_its_block_only(random_model_factory, tmp_path):
     """The prediction of a block the chosen model cannot use fails with the config key to change."""
-    from towerpipe.tilefile import Tile, empty_arrays, save_tile
+    from towerpipe.io.tiles import Tile, empty_arrays, save_tile
 
     a = empty_arrays(3)
     a["model_input"][:] = True

@@ -1,4 +1,4 @@
-"""Tests of the prediction-file contract (towerpipe.predfile)."""
+"""Tests of the prediction-file contract (towerpipe.io.predictions)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from towerpipe.errors import InputError
-from towerpipe.predfile import PRED_ARRAYS, PRED_META_KEYS, PredFile, empty_pred_arrays, load_pred, save_pred
+from towerpipe.io.predictions import PRED_ARRAYS, PRED_META_KEYS, PredFile, empty_pred_arrays, load_pred, save_pred
 
 
 def _meta(**kw):
@@ -66,7 +66,7 @@ def test_one_view_prediction_gets_prob_single(tmp_path):
 
 
 def test_stale_prediction_without_prob_single_names_the_fix(tmp_path):
-    from towerpipe.columnfile import save_columns
+    from towerpipe.io.columns import save_columns
 
     arrays = {k: np.asarray(v).astype(PRED_ARRAYS[k]) for k, v in _arrays().items() if k != "prob_single"}
     save_columns(tmp_path / "old.npz", arrays, dict(_meta(), format_version=1))

@@ -10,9 +10,9 @@ import pytest
 import rasterio
 
 from conftest import HIGH_NOISE, RGB_SUBSET, RGBNIR_BLOCK, RGBNIR_SMALL, need
-from towerpipe import tiling
-from towerpipe.preprocess import PreprocessConfig, preprocess_tile, split_block, summarize_block
-from towerpipe.tilefile import load_tile
+from towerpipe.preprocess import tiling
+from towerpipe.preprocess.tile import PreprocessConfig, preprocess_tile, split_block, summarize_block
+from towerpipe.io.tiles import load_tile
 
 pytestmark = pytest.mark.usefixtures("pdal_cli")
 

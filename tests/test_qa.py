@@ -1,4 +1,4 @@
-"""Tests of towerpipe.qa: block QA pages and the zone index."""
+"""Tests of towerpipe.products.qa: block QA pages and the zone index."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import pytest
 import rasterio
 from affine import Affine
 
-from towerpipe.qa import block_report, load_classified, read_benchmark, zone_index
-from towerpipe.towers import extract_towers
+from towerpipe.products.qa import block_report, load_classified, read_benchmark, zone_index
+from towerpipe.towers.extract import extract_towers
 
 X0, Y0 = 400_000.0, 4_600_000.0
 SIZE = 200.0
@@ -133,7 +133,7 @@ def test_block_flags(tmp_path):
 def test_tower_whose_ring_is_outside_the_data_is_flagged(tmp_path):
     pts = make_block()
     gdf = towers_of(pts)
-    gdf["wire_support"] = float("nan")  # towerpipe.wires: ring mostly outside the surveyed area
+    gdf["wire_support"] = float("nan")  # towerpipe.towers.wires: ring mostly outside the surveyed area
     tiles, preds = metas()
     doc = block_report(tmp_path / "b.html", tmp_path / "b.json", block_name="b", block_bounds=BOUNDS,
                        tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts)
@@ -178,7 +178,7 @@ def test_block_report_from_files_and_no_towers(tmp_path):
     las.write(tmp_path / "b.laz")
     loaded = load_classified(tmp_path / "b.laz")
     assert set(loaded) == {"x", "y", "z", "classification", "prob"}
-    from towerpipe.gpkg import write_towers_gpkg
+    from towerpipe.products.gpkg import write_towers_gpkg
 
     gpkg = write_towers_gpkg(tmp_path / "b.gpkg", None, crs_wkt="EPSG:25831")
     doc = block_report(tmp_path / "b.html", tmp_path / "b.json", block_name="b", towers=gpkg,
@@ -278,7 +278,7 @@ def test_tower_at_the_zone_edge_or_a_failed_neighbour_is_flagged(tmp_path):
 def test_data_edge_joins_adjoining_blocks_without_a_slit():
     import shapely
 
-    from towerpipe.qa.metrics import data_extent, distance_to_data_edge
+    from towerpipe.products.qa.metrics import data_extent, distance_to_data_edge
 
     # header bounds end at the last point, 1 cm before the next block starts
     extent = data_extent([(0, 0, 99.99, 100), (100, 0, 200, 100)])
@@ -289,9 +289,9 @@ def test_data_edge_joins_adjoining_blocks_without_a_slit():
 
 # --------------------------------------------------------------------------- side views
 def test_side_views_see_a_seam_tower_whole(tmp_path):
-    from towerpipe.qa import tower_neighbourhoods
-    from towerpipe.tilefile import Tile, empty_arrays, save_tile
-    from towerpipe.towers import save_members
+    from towerpipe.products.qa import tower_neighbourhoods
+    from towerpipe.io.tiles import Tile, empty_arrays, save_tile
+    from towerpipe.towers.extract import save_members
 
     pts, gdf, _ = seam_setup()
     tid = gdf["tower_id"].iloc[0]
@@ -369,7 +369,7 @@ def test_zone_index_map_with_lines_and_failed_block(tmp_path):
     import geopandas as gpd
     import shapely
 
-    from towerpipe.gpkg import write_towers_gpkg
+    from towerpipe.products.gpkg import write_towers_gpkg
 
     qa = tmp_path / "qa"
     tiles, preds = metas()

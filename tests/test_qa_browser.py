@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from test_qa import BOUNDS, SIZE, X0, Y0, make_block, metas, towers_of
-from towerpipe.qa import block_report, zone_index
-from towerpipe.qa.browser import PAGE_WIDTH, Browser, find_chromium
+from towerpipe.products.qa import block_report, zone_index
+from towerpipe.products.qa.browser import PAGE_WIDTH, Browser, find_chromium
 
 
 @pytest.fixture(scope="module")

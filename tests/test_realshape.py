@@ -7,7 +7,7 @@ import json
 import pytest
 
 from conftest import BACKGROUNDS, TOWERS, need
-from towerpipe.realshape import run_benchmark, stamp_cards, zone_name
+from towerpipe.evaluation.realshape import run_benchmark, stamp_cards, zone_name
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.shared]
 
@@ -15,8 +15,8 @@ pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.shared]
 @pytest.fixture(scope="module")
 def bare_zone(tmp_path_factory):
     """A tiny benchmark zone: TS40K towers on a real tile, exported without colour, preprocessed."""
-    from towerpipe import tiling
-    from towerpipe.preprocess import preprocess_tile, split_block
+    from towerpipe.preprocess import tiling
+    from towerpipe.preprocess.tile import preprocess_tile, split_block
     from towerpipe.synth import generate_zone
 
     tmp = tmp_path_factory.mktemp("realshape")
@@ -59,7 +59,7 @@ def test_benchmark_rows_auto_and_report(bare_zone, random_model_factory):
 def test_stamp_cards_writes_the_transfer_figures(tmp_path, random_model_factory):
     import shutil
 
-    from towerpipe.modelcard import read_card
+    from towerpipe.model.cards import read_card
 
     model = tmp_path / "m"
     shutil.copytree(random_model_factory("shape"), model)

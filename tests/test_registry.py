@@ -1,4 +1,4 @@
-"""Tests of towerpipe.registry: stable tower ids from run to run."""
+"""Tests of towerpipe.towers.registry: stable tower ids from run to run."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import pytest
 import shapely
 
 from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
-from towerpipe.gpkg import write_towers_gpkg
-from towerpipe.registry import (
+from towerpipe.products.gpkg import write_towers_gpkg
+from towerpipe.towers.registry import (
     ACTIVE,
     MATCH_DISTANCE,
     VANISHED,
@@ -23,7 +23,7 @@ from towerpipe.registry import (
     vanished,
     write_registry,
 )
-from towerpipe.towers import extract_towers
+from towerpipe.towers.extract import extract_towers
 
 CRS = "EPSG:25831"
 T1 = pd.Timestamp("2024-05-01T12:00:00Z")

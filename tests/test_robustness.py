@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from conftest import BACKGROUNDS, REPO, TOWERS, need
-from towerpipe.robustness import SWAPPED, swap_scores, tower_windows
+from towerpipe.evaluation.robustness import SWAPPED, swap_scores, tower_windows
 
 
 class ColourKeyed:
@@ -25,7 +25,7 @@ class ColourKeyed:
     def classify(self, feats):
         # full features: x y z intensity green blue ndvi -> tower when what stands above the
         # vegetation (13 m) has a low NDVI: a steel signature, not a shape
-        from towerpipe.features import NORM_RADIUS
+        from towerpipe.model.features import NORM_RADIUS
 
         tall = feats[..., 2] * NORM_RADIUS > 13.0
         return np.array([float(f[t, 6].mean() < 0.1) for f, t in zip(feats, tall)], np.float32)
@@ -78,8 +78,8 @@ def calibration_towers():
 @pytest.mark.shared
 @pytest.mark.slow
 def test_every_shipped_model_keeps_its_calibration_towers_when_attributes_swap(calibration_towers):
-    from towerpipe.modelcard import MODEL_RELEASES, default_model_path
-    from towerpipe.model import load_bundle
+    from towerpipe.model.cards import MODEL_RELEASES, default_model_path
+    from towerpipe.model.pointnet import load_bundle
 
     gate = yaml.safe_load((REPO / "config" / "config.yaml").read_text())["inference"]["gate"]
     assert len(calibration_towers) >= 15

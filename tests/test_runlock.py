@@ -1,4 +1,4 @@
-"""One run per zone (towerpipe.runlock) and the nightly script's guards."""
+"""One run per zone (towerpipe.jobs.runlock) and the nightly script's guards."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from conftest import REPO
 
 def _holder(tmp_path, zone):
     """A live process holding ``zone``'s run lock in ``tmp_path`` (as a running Snakemake does)."""
-    code = ("import sys, time; from towerpipe.runlock import hold_zone; "
+    code = ("import sys, time; from towerpipe.jobs.runlock import hold_zone; "
             f"hold_zone({zone!r}, {str(tmp_path)!r}); print('held', flush=True); time.sleep(60)")
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     assert proc.stdout.readline().strip() == "held"
@@ -21,13 +21,13 @@ def _holder(tmp_path, zone):
 
 def test_second_run_of_a_zone_is_refused_naming_the_live_process(tmp_path):
     from towerpipe.errors import TowerpipeError
-    from towerpipe.runlock import hold_zone, runs_alive, zone_busy
+    from towerpipe.jobs.runlock import hold_zone, runs_alive, zone_busy
 
     assert not runs_alive(tmp_path) and not zone_busy("z1", tmp_path)
     proc = _holder(tmp_path, "z1")
     try:
         assert zone_busy("z1", tmp_path) and runs_alive(tmp_path) and not zone_busy("z2", tmp_path)
-        code = f"from towerpipe.runlock import hold_zone; hold_zone('z1', {str(tmp_path)!r})"
+        code = f"from towerpipe.jobs.runlock import hold_zone; hold_zone('z1', {str(tmp_path)!r})"
         other = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
         assert other.returncode != 0
         assert f"zone z1 is being processed by another run (process {proc.pid})" in other.stderr
@@ -45,7 +45,7 @@ def test_second_run_of_a_zone_is_refused_naming_the_live_process(tmp_path):
 
 def test_unlock_only_when_no_run_is_alive(tmp_path):
     marker = tmp_path / "unlocked"
-    cmd = [sys.executable, "-m", "towerpipe.runlock", "if-idle", "--", "touch", str(marker)]
+    cmd = [sys.executable, "-m", "towerpipe.jobs.runlock", "if-idle", "--", "touch", str(marker)]
     proc = _holder(tmp_path, "z1")
     try:
         subprocess.run(cmd, cwd=tmp_path, check=True)

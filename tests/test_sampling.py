@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from towerpipe.sampling import constrained_sample, random_sample
+from towerpipe.model.sampling import constrained_sample, random_sample
 
 
 def _hag(n_low: int, n_mid: int, n_high: int, seed: int = 0) -> np.ndarray:

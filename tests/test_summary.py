@@ -1,10 +1,10 @@
-"""Tests of towerpipe.summary: the end-of-run lines."""
+"""Tests of towerpipe.products.summary: the end-of-run lines."""
 
 from __future__ import annotations
 
 import json
 
-from towerpipe.summary import print_summary, zone_summary, zones_in_log
+from towerpipe.products.summary import print_summary, zone_summary, zones_in_log
 
 
 def test_zone_summary_and_zones_in_log(tmp_path, capsys):

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from towerpipe import tiling
+from towerpipe.preprocess import tiling
 
 
 def test_cores_partition_points_including_edges_and_strays():
@@ -37,7 +37,7 @@ def test_neighbours_and_tile_blocks():
 def test_plan_comes_from_the_points_never_from_a_header():
     import numpy as np
 
-    from towerpipe.tiling import TileGrid, occupied_tiles, plan_zone
+    from towerpipe.preprocess.tiling import TileGrid, occupied_tiles, plan_zone
 
     # a block of 1 km with one stray point 1,400 km away: 4 tiles and one more, not 2,800²
     x = np.r_[np.random.default_rng(0).uniform(0, 1000, 5000), 1.4e6]

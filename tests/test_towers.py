@@ -1,4 +1,4 @@
-"""Tests of towerpipe.towers: clustering predicted points into tower records."""
+"""Tests of towerpipe.towers.extract: clustering predicted points into tower records."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import pandas as pd
 import pytest
 import shapely
 
-from towerpipe.predfile import save_pred
+from towerpipe.io.predictions import save_pred
 from towerpipe.errors import InputError
-from towerpipe.towers import (
+from towerpipe.towers.extract import (
     TOWER_COLUMNS,
     cluster_towers,
     extract_towers,
@@ -18,7 +18,7 @@ from towerpipe.towers import (
     save_members,
     towers_from_labels,
 )
-from towerpipe.registry import location_id
+from towerpipe.towers.registry import location_id
 
 X0, Y0 = 400_000.0, 4_600_000.0
 CRS = "EPSG:25831"

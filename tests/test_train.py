@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from test_dataset import make_tiles
-from towerpipe.ablation import run_ablation
-from towerpipe.dataset import build_windows
-from towerpipe.model import load_bundle
-from towerpipe.train import classification_metrics, segmentation_metrics, train_bundle, train_classifier
+from towerpipe.training.ablation import run_ablation
+from towerpipe.training.dataset import build_windows
+from towerpipe.model.pointnet import load_bundle
+from towerpipe.training.train import classification_metrics, segmentation_metrics, train_bundle, train_classifier
 
 TINY = {"epochs": 6, "batch_size": 8, "threads": 2, "seed": 0, "progress": False, "arch": "light"}
 
@@ -71,7 +71,7 @@ def test_warm_start_continues_from_a_bundle(windows, tmp_path, random_model_fact
     import torch
 
     from towerpipe.errors import ConfigError
-    from towerpipe.train import _initial, train_config
+    from towerpipe.training.train import _initial, train_config
 
     _, path = windows
     init = random_model_factory("full")

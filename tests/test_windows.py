@@ -1,11 +1,11 @@
-"""Tests of sliding-window membership (towerpipe.windows) against brute force."""
+"""Tests of sliding-window membership (towerpipe.inference.windows) against brute force."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from towerpipe.windows import sliding_windows
+from towerpipe.inference.windows import sliding_windows
 
 
 def _cloud(n=4000, seed=0, x0=400000.0, y0=4600000.0):
@@ -89,7 +89,7 @@ def test_negative_coordinates_and_bad_arguments():
 def test_height_peaks_find_tower_tops_not_wires_or_crowns():
     """A tower top stands out of its crossarms and the conductors sagging away from it; a low
     plateau gives one peak; everything under min_height is ignored."""
-    from towerpipe.windows import PEAK_RADIUS, height_peaks
+    from towerpipe.inference.windows import PEAK_RADIUS, height_peaks
 
     rng = np.random.default_rng(0)
     parts = []
@@ -111,7 +111,7 @@ def test_height_peaks_find_tower_tops_not_wires_or_crowns():
 
 
 def test_candidate_windows_need_core_points_and_keep_canonical_order():
-    from towerpipe.windows import candidate_windows
+    from towerpipe.inference.windows import candidate_windows
 
     rng = np.random.default_rng(1)
     x = np.r_[rng.uniform(0, 10, 200), rng.uniform(200, 210, 200)]

@@ -1,10 +1,10 @@
-"""Tests of towerpipe.wires: conductor support of tower candidates."""
+"""Tests of towerpipe.towers.wires: conductor support of tower candidates."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from towerpipe.wires import TileContext, wire_points, wire_support
+from towerpipe.towers.wires import TileContext, wire_points, wire_support
 
 X0, Y0 = 400_000.0, 4_600_000.0
 
@@ -91,7 +91,7 @@ def test_no_data_in_the_ring_is_unknown_and_partial_data_is_scored_on_what_is_th
 
 
 def test_tile_context_picks_the_tile_holding_the_centre(tmp_path):
-    from towerpipe.tilefile import Tile, empty_arrays, save_tile
+    from towerpipe.io.tiles import Tile, empty_arrays, save_tile
 
     paths = []
     for k, x0 in enumerate((X0, X0 + 500)):
@@ -114,7 +114,7 @@ def test_tile_context_picks_the_tile_holding_the_centre(tmp_path):
 def test_tile_context_skips_a_tile_without_points(tmp_path):
     # a block whose split failed used to leave an empty tile over its neighbour's place:
     # listed first, it hid the neighbour's tile and its tower lost its conductor support
-    from towerpipe.tilefile import Tile, empty_arrays, save_tile
+    from towerpipe.io.tiles import Tile, empty_arrays, save_tile
 
     empty = tmp_path / "a_failed.npz"
     save_tile(empty, Tile(empty_arrays(0), {"core_bounds": [X0, Y0, X0 + 500, Y0 + 500], "buffer": 40.0,
@@ -131,7 +131,7 @@ def test_tile_context_skips_a_tile_without_points(tmp_path):
 def test_corridor_strip_scores_only_where_points_exist():
     # a 40 m wide strip along the line (a corridor survey): the ring beside the strip has
     # no data. Scored on the tile's box it looked like a tower without conductors
-    from towerpipe.wires import Coverage
+    from towerpipe.towers.wires import Coverage
 
     rng = np.random.default_rng(5)
     line = line_through(X0, Y0, 0.0, rng=rng, length=400.0)
@@ -152,8 +152,8 @@ def test_corridor_strip_scores_only_where_points_exist():
 
 def test_conductor_points_of_a_block_with_clearance(tmp_path):
     """Each wire point of the block once (tile cores), with the gap down to the vegetation below it."""
-    from towerpipe.tilefile import Tile, empty_arrays, save_tile
-    from towerpipe.wires import conductor_points
+    from towerpipe.io.tiles import Tile, empty_arrays, save_tile
+    from towerpipe.towers.wires import conductor_points
 
     rng = np.random.default_rng(5)
     wires = line_through(X0 + 250, Y0 + 250, 0.0, rng=rng, length=240.0, z0=25.0)  # west-east, sag 6 m

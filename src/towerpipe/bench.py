@@ -28,8 +28,8 @@ from pathlib import Path
 
 import yaml
 
-from towerpipe.columnfile import read_meta
-from towerpipe.lasio import read_header
+from towerpipe.io.columns import read_meta
+from towerpipe.io.las import read_header
 
 REPO = Path(__file__).resolve().parents[2]
 

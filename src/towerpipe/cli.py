@@ -17,13 +17,13 @@ from towerpipe.errors import TowerpipeError
 
 #: Modules that add sub-commands, in --help order.
 COMMAND_MODULES = [
-    "towerpipe.run",
+    "towerpipe.jobs.run",
     "towerpipe.synth.cli",
-    "towerpipe.train",
-    "towerpipe.evaluate",
-    "towerpipe.calibrate",
-    "towerpipe.realshape",
-    "towerpipe.lines",
+    "towerpipe.training.train",
+    "towerpipe.evaluation.evaluate",
+    "towerpipe.evaluation.calibrate",
+    "towerpipe.evaluation.realshape",
+    "towerpipe.towers.lines",
     "towerpipe.bench",
 ]
 

@@ -1,6 +1,6 @@
 """Progress of long jobs in their rule log: counts, rate and ETA, a line every few seconds.
 
-A job logs to its rule log (``work/<zone>/logs/<rule>/…``, see :func:`towerpipe.smk.run_step`),
+A job logs to its rule log (``work/<zone>/logs/<rule>/…``, see :func:`towerpipe.jobs.smk.run_step`),
 so an operator following a run (``tail -f``) sees what each job is doing::
 
     split 400000_4600000: 2.00M/9.85M points (20 %), 625k points/s, ETA 00:12
@@ -21,6 +21,8 @@ The numbers are formatted with tqdm's helpers; the lines go through :mod:`loggin
 from __future__ import annotations
 
 import logging
+import resource
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
@@ -119,3 +121,9 @@ class Progress:
     def __exit__(self, *exc: Any) -> None:
         if exc[0] is None:
             self.close()
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process in MiB (``ru_maxrss`` is KiB on Linux, bytes on macOS)."""
+    r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return r / (1024 * 1024) if sys.platform == "darwin" else r / 1024

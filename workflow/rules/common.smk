@@ -7,12 +7,12 @@ from pathlib import Path
 
 from snakemake.exceptions import WorkflowError
 
-from towerpipe import layout
+from towerpipe.products import layout
 from towerpipe.config import exit_with as config_exit
 from towerpipe.errors import PdalError, TowerpipeError
-from towerpipe import runlock
-from towerpipe.inputs import describe, scan_zone
-from towerpipe.pdal import pdal_version
+from towerpipe.jobs import runlock
+from towerpipe.io.inputs import describe, scan_zone
+from towerpipe.preprocess.pdal import pdal_version
 
 WORK = config["workdir"]
 PREP = config["preprocess"]
@@ -20,7 +20,7 @@ PREP = config["preprocess"]
 
 wildcard_constraints:
     zone=r"[A-Za-z0-9][A-Za-z0-9_.-]*",
-    # block ids are safe file names (towerpipe.inputs), whatever the input files are called
+    # block ids are safe file names (towerpipe.io.inputs), whatever the input files are called
     block=r"[A-Za-z0-9_][A-Za-z0-9_.-]*",
     tile=r"-?\d+_-?\d+",
     # model names (training.models, -without-<family>): no dot, so never a file of work/models
@@ -75,7 +75,7 @@ def _inputs(zone, path):
 
 
 def inputs(zone):
-    """Block id -> towerpipe.inputs.BlockInput (file, original name, fingerprint), sorted by id."""
+    """Block id -> towerpipe.io.inputs.BlockInput (file, original name, fingerprint), sorted by id."""
     return _inputs(zone, zone_input(zone))
 
 
@@ -171,7 +171,7 @@ def mem_mb_for_points(points, per_point_bytes, base_mb=400):
 
 
 def registry_file(zone):
-    """The zone's tower registry (towerpipe.registry): written by the assembly, kept across runs."""
+    """The zone's tower registry (towerpipe.towers.registry): written by the assembly, kept across runs."""
     return f"{WORK}/{zone}/registry.gpkg"
 
 
@@ -219,8 +219,8 @@ def model_files(zone):
     """The files of the models the zone may run: inputs of its inference jobs, so a new model
     reruns the zone. Known without the choice (``auto``: every shipped model; else the one
     named), so they never wait on a checkpoint; the job reads its model from the choice."""
-    from towerpipe.modelchoice import AUTO, resolve_model
-    from towerpipe.modelcard import MODEL_RELEASES, default_model_path
+    from towerpipe.model.choice import AUTO, resolve_model
+    from towerpipe.model.cards import MODEL_RELEASES, default_model_path
 
     spec = model_spec_of(zone)[0]
     dirs = [default_model_path(fs) for fs in MODEL_RELEASES] if spec == AUTO else [resolve_model(spec)]
@@ -257,7 +257,7 @@ def block_benchmarks(zone, block):
 
 TRAIN = config["training"]
 #: ``<model>-without-<family>``: the model's recipe trained without one real tower family
-#: (the leave-one-source-out benchmark, towerpipe.realshape)
+#: (the leave-one-source-out benchmark, towerpipe.evaluation.realshape)
 LOSO = "-without-"
 
 
@@ -303,7 +303,7 @@ def model_train_config(name, ablation=False):
 
 
 def realshape_zones():
-    """The zones of the real-shape benchmark (towerpipe.realshape), of the variants judged."""
+    """The zones of the real-shape benchmark (towerpipe.evaluation.realshape), of the variants judged."""
     variants = TRAIN.get("benchmark_variants") or []
     return [z for z in config["zones"] if z.startswith("realshape_")
             and (not variants or any(z.endswith(f"_{v}") for v in variants))]

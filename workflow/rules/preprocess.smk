@@ -1,7 +1,7 @@
 # Preprocessing (paper 3.1): decode once per block, then ground/DTM/HAG/noise per tile.
 
 
-# The block file is a parameter, not an input: its fingerprint (towerpipe.inputs) reruns the
+# The block file is a parameter, not an input: its fingerprint (towerpipe.io.inputs) reruns the
 # split when its content changes, whatever its mtime, and any file name works (Snakemake reads
 # braces in an input path as wildcards).
 rule split_block:

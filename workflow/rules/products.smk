@@ -28,7 +28,7 @@ rule towers_block:
         threshold=INFER["threshold"],
         run=run_params(),
         # read, not an input: the assembly writes it after every towers job (no cycle), and
-        # a new registry reruns nothing; matched towers keep their ids (towerpipe.registry)
+        # a new registry reruns nothing; matched towers keep their ids (towerpipe.towers.registry)
         registry=lambda wc: registry_sources(wc.zone),
     log:
         f"{WORK}/{{zone}}/logs/towers_block/{{block}}.log",

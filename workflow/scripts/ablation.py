@@ -1,5 +1,5 @@
-from towerpipe.ablation import run_ablation
-from towerpipe.smk import run_step
+from towerpipe.training.ablation import run_ablation
+from towerpipe.jobs.smk import run_step
 
 if __name__ == "__main__":  # each ablation row runs in a spawned process that re-imports this file
     run_step(snakemake, lambda: run_ablation(

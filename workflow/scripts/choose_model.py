@@ -1,5 +1,5 @@
-from towerpipe.modelchoice import write_choice
-from towerpipe.smk import run_step
+from towerpipe.model.choice import write_choice
+from towerpipe.jobs.smk import run_step
 
 run_step(snakemake, lambda: write_choice(
     snakemake.params.spec, snakemake.params.caches, snakemake.output.choice,

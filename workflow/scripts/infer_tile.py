@@ -1,5 +1,5 @@
-from towerpipe.smk import run_step
-from towerpipe.steps import infer_step
+from towerpipe.jobs.smk import run_step
+from towerpipe.jobs.steps import infer_step
 
 p = snakemake.params.inference
 run_step(snakemake, lambda: infer_step(

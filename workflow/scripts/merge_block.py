@@ -1,8 +1,8 @@
 import os
 
-from towerpipe.merge import merge_block
-from towerpipe.lasio import RECORDS_FILE
-from towerpipe.smk import run_step
+from towerpipe.products.merge import merge_block
+from towerpipe.io.las import RECORDS_FILE
+from towerpipe.jobs.smk import run_step
 
 run_step(snakemake, lambda: merge_block(
     snakemake.params.block, snakemake.input.preds, snakemake.output.laz,

@@ -1,5 +1,5 @@
-from towerpipe.smk import run_step
-from towerpipe.steps import model_results_step
+from towerpipe.jobs.smk import run_step
+from towerpipe.jobs.steps import model_results_step
 
 run_step(snakemake, lambda: model_results_step(
     snakemake.input.bundle, snakemake.input.ablation, snakemake.output[0]))

@@ -1,5 +1,5 @@
-from towerpipe.smk import run_step
-from towerpipe.tiling import plan_zone_step
+from towerpipe.jobs.smk import run_step
+from towerpipe.preprocess.tiling import plan_zone_step
 
 run_step(snakemake, lambda: plan_zone_step(
     dict(zip(snakemake.params.blocks, snakemake.input.caches)), snakemake.output.plan,

@@ -1,5 +1,5 @@
-from towerpipe.preprocess import summarize_block
-from towerpipe.smk import run_step
+from towerpipe.preprocess.tile import summarize_block
+from towerpipe.jobs.smk import run_step
 
 run_step(snakemake, lambda: summarize_block(
     snakemake.input.cache, snakemake.input.tiles, snakemake.output.summary))

@@ -1,5 +1,5 @@
-from towerpipe.preprocess import preprocess_tile
-from towerpipe.smk import run_step
+from towerpipe.preprocess.tile import preprocess_tile
+from towerpipe.jobs.smk import run_step
 
 run_step(snakemake, lambda: preprocess_tile(
     snakemake.wildcards.zone, snakemake.wildcards.block, snakemake.wildcards.tile,

@@ -1,5 +1,5 @@
-from towerpipe.smk import run_step
-from towerpipe.steps import qa_step
+from towerpipe.jobs.smk import run_step
+from towerpipe.jobs.steps import qa_step
 
 i = snakemake.input
 run_step(snakemake, lambda: qa_step(

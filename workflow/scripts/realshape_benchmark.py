@@ -1,5 +1,5 @@
-from towerpipe.realshape import run_benchmark
-from towerpipe.smk import run_step
+from towerpipe.evaluation.realshape import run_benchmark
+from towerpipe.jobs.smk import run_step
 
 run_step(snakemake, lambda: run_benchmark(
     snakemake.params.loso, snakemake.params.zones, work=snakemake.config["workdir"],

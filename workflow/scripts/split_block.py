@@ -1,5 +1,5 @@
-from towerpipe.preprocess import PreprocessConfig, split_block
-from towerpipe.smk import run_step
+from towerpipe.preprocess.tile import PreprocessConfig, split_block
+from towerpipe.jobs.smk import run_step
 
 run_step(snakemake, lambda: split_block(
     snakemake.params.block, snakemake.output.cache, block=snakemake.wildcards.block,

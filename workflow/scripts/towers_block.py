@@ -1,5 +1,5 @@
-from towerpipe.smk import run_step
-from towerpipe.steps import towers_step
+from towerpipe.jobs.smk import run_step
+from towerpipe.jobs.steps import towers_step
 
 run_step(snakemake, lambda: towers_step(
     snakemake.wildcards.zone, snakemake.wildcards.block, snakemake.params.bounds,

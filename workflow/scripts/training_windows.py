@@ -1,5 +1,5 @@
-from towerpipe.dataset import build_windows
-from towerpipe.smk import run_step
+from towerpipe.training.dataset import build_windows
+from towerpipe.jobs.smk import run_step
 
 run_step(snakemake, lambda: build_windows(
     list(snakemake.input.tiles), snakemake.params.dataset, snakemake.output.windows,

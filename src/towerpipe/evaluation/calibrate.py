@@ -1,0 +1,353 @@
+"""Calibrating the inference and tower thresholds on labelled zones.
+
+The thresholds of ``inference`` and ``towers`` (views, point threshold, clustering
+threshold, ``min_core_prob``) are set on calibration zones, never on held-out ones. A
+full pipeline run per candidate costs a minute per zone; most candidates share their
+predictions. :func:`sweep` therefore predicts each tile of a zone once per number of
+views (cached under ``<workdir>/<zone>/calibrate/``), then, per candidate, finds the
+towers of the whole zone at once (:func:`towerpipe.towers.extract.extract_towers` with the
+zone's tiles as conductor context, the other tower rules from the config) and scores
+them against the input labels: tower precision / recall (as ``towerpipe evaluate``) and
+point IoU of class 15.
+
+The zone must have been preprocessed (``snakemake --cores 2 results/<zone>/``). On a
+whole zone the towers are built as the pipeline builds them block by block, so the
+figures of the configured candidate are the pipeline's (tested on the CI zone).
+
+``towerpipe calibrate --zones calib,calib2,calib3 --tta 1,2 --point-threshold 0.4,0.5,0.6``
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from towerpipe.errors import InputError
+
+__all__ = ["Candidate", "score_zone", "sweep", "zone_predictions"]
+
+#: One candidate: (views, towers.threshold, inference.threshold, towers.min_core_prob), optionally
+#: followed by inference.gate and towers.min_wire_support (default: the config's).
+Candidate = tuple[float, ...]
+
+_UNBOUNDED = (-1e18, -1e18, 1e18, 1e18)
+# the towers config keys that extract_towers takes as they are
+_TOWER_KEYS = ("linkage", "min_points", "min_height", "min_wire_support", "wire_min_height", "max_base_ratio")
+
+
+def _survey(work: str | os.PathLike[str], zone: str) -> list[list[float]]:
+    """The measured bounds of the zone's blocks (its plan, written by the pipeline's split)."""
+    plan = Path(work, zone, "plan.json")
+    if not plan.exists():
+        raise InputError(plan, f"zone {zone!r} has no plan yet; run `snakemake --cores 2 results/{zone}/` first")
+    blocks = json.loads(plan.read_text())["blocks"]
+    return [list(map(float, b["bounds"])) for b in blocks.values() if b.get("bounds")]
+
+
+def _zone_tiles(work: str | os.PathLike[str], zone: str) -> list[Path]:
+    tiles = sorted(Path(work, zone, "tiles").glob("*/*.npz"))
+    if not tiles:
+        raise InputError(Path(work, zone, "tiles"), f"no tiles of zone {zone!r}; run "
+                         f"`snakemake --cores 2 results/{zone}/` first")
+    return tiles
+
+
+def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.PathLike[str], tta: int,
+                     inference: Mapping[str, Any]) -> list[str]:
+    """Prediction files of every tile of a zone with ``tta`` views, computed once and cached.
+
+    Parameters
+    ----------
+    work
+        The workdir (``work``); tiles are read from ``<work>/<zone>/tiles/*/*.npz``.
+    zone
+        Zone name.
+    model
+        Model bundle directory.
+    tta
+        Views per segmented window.
+    inference
+        The config's ``inference`` section (window, stride, gate, combine, batch size,
+        min points, min height).
+
+    Returns
+    -------
+    list of str
+        ``<work>/<zone>/calibrate/<model>_tta<k>_<hash>/<block>_<tile>.npz``, one per tile;
+        the hash covers the inference settings and the model's weights.
+    """
+    from towerpipe.inference.infer import infer_tile
+    from towerpipe.model.pointnet import load_bundle
+    from towerpipe.model.cards import config_hash, read_card
+
+    tiles = _zone_tiles(work, zone)
+    keys = ("window", "windows", "stride", "gate", "combine", "batch_size", "min_points", "min_height")
+    kw = {k: inference[k] for k in keys if k in inference}
+    # the weights' hashes and the inference code are part of the key: a retrained model or
+    # another way of placing windows never reuses old predictions
+    key = config_hash({"inference": kw, "weights": read_card(model).get("files"), "code": _inference_code()})
+    out_dir = Path(work, zone, "calibrate", f"{Path(model).name}_tta{tta}_{key}")
+    bundle = None
+    paths = []
+    for t in tiles:
+        out = out_dir / f"{t.parent.name}_{t.stem}.npz"
+        if not out.exists() or out.stat().st_mtime < t.stat().st_mtime:
+            bundle = bundle or load_bundle(model)
+            infer_tile(t, bundle, out, tta=tta, **kw)
+        paths.append(str(out))
+    return paths
+
+
+def _inference_code() -> str:
+    """SHA-256 of the modules that turn a tile into predictions."""
+    import hashlib
+
+    from towerpipe.model import features
+
+    from towerpipe.inference import infer
+
+    from towerpipe.model import sampling
+
+    from towerpipe.inference import windows
+
+    from towerpipe.towers import wires
+
+    h = hashlib.sha256()
+    for mod in (infer, windows, wires, features, sampling):  # wires: the peaks leave overhead wires out
+        h.update(Path(mod.__file__).read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _labels(input_dir: Path) -> dict[str, np.ndarray]:
+    """Block name -> indices of its points labelled 15 in the input."""
+    import laspy
+
+    from towerpipe.evaluation.evaluate import TOWER_CLASS
+    from towerpipe.io.las import find_blocks, laz_backend
+
+    out = {}
+    for name, path in find_blocks(input_dir).items():
+        with laspy.open(path, laz_backend=laz_backend()) as f:
+            cls = np.asarray(f.read().classification)
+        out[name] = np.flatnonzero(cls == TOWER_CLASS)
+    return out
+
+
+def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: Mapping[str, np.ndarray], *,
+               threshold: float, point_threshold: float, min_core_prob: float, towers: Mapping[str, Any],
+               zone: str = "zone", min_truth_points: int = 0,
+               survey: Sequence[Sequence[float]] = ()) -> dict[str, Any]:
+    """Towers of a whole zone from its predictions, scored against its labels.
+
+    Parameters
+    ----------
+    preds
+        Prediction files (or loaded predictions) of every tile of the zone.
+    tile_paths
+        The zone's tiles (conductor support context).
+    survey
+        The measured bounds of the zone's blocks: where the data is, as the towers jobs see
+        it (``towers.wire_ring_coverage``; see :class:`towerpipe.towers.wires.TileContext`).
+    truth
+        True tower footprints (GeoDataFrame, layer ``towers`` of ``towers_truth.gpkg``).
+    labels
+        Block name -> indices of its class-15 input points.
+    threshold, point_threshold, min_core_prob
+        The candidate (``towers.threshold``, ``inference.threshold``, ``towers.min_core_prob``).
+    towers
+        The config's ``towers`` section: the other rules.
+    min_truth_points
+        True towers with fewer points are left out of the tower scores, and a prediction
+        matching one is not a false tower (the paper's floor: 20 points).
+
+    Returns
+    -------
+    dict
+        ``precision``, ``recall``, ``f1``, ``towers``, ``point_iou``, ``tp``, ``fp``, ``fn``
+        (tower points), ``towers_tp``, ``towers_fp``, ``towers_fn``, ``true_towers``,
+        ``gate_recall`` (share of the true towers that some window passing the gate
+        covers: they have segmented points) and ``false_towers`` (height, points).
+    """
+    from towerpipe.towers.extract import extract_towers, match_towers
+    from towerpipe.towers.wires import TileContext
+
+    members: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    gdf = extract_towers(preds, zone, _UNBOUNDED, zone=zone, threshold=threshold, point_threshold=point_threshold,
+                         min_core_prob=min_core_prob, context=TileContext(list(tile_paths), survey=survey,
+                                            min_ring_share=float(towers.get("wire_ring_coverage", 0.0))),
+                         members=members, model_meta={}, crs=truth.crs,
+                         **{k: towers[k] for k in _TOWER_KEYS if k in towers})
+    chosen: dict[str, list[np.ndarray]] = {}
+    for blocks, idx in members.values():
+        blocks = np.asarray(blocks).astype(str)
+        for b in np.unique(blocks):
+            chosen.setdefault(str(b), []).append(np.asarray(idx)[blocks == b])
+    tp = fp = fn = 0
+    for name in sorted(set(labels) | set(chosen)):
+        pred = np.unique(np.concatenate(chosen.get(name) or [np.empty(0, np.int64)]))
+        true = labels.get(name, np.empty(0, np.int64))
+        hit = int(np.intersect1d(pred, true, assume_unique=True).size)
+        tp, fp, fn = tp + hit, fp + pred.size - hit, fn + true.size - hit
+    if min_truth_points and "n_points" in truth.columns and len(truth):
+        small = truth["n_points"].to_numpy() < int(min_truth_points)
+        if small.any() and len(gdf):
+            hits = {str(h["pred"]) for h in match_towers(gdf, truth[small], max_dist=5.0)["matches"]}
+            gdf = gdf[~gdf["tower_id"].astype(str).isin(hits)]
+        truth = truth[~small]
+    m = match_towers(gdf, truth, max_dist=5.0)
+    false = gdf[gdf["tower_id"].astype(str).isin([str(i) for i in m["unmatched_pred"]])] if len(gdf) else gdf
+    return {"precision": m["precision"], "recall": m["recall"], "f1": m["f1"], "towers": int(len(gdf)),
+            "point_iou": tp / (tp + fp + fn) if tp + fp + fn else float("nan"), "tp": tp, "fp": fp, "fn": fn,
+            "towers_tp": m["tp"], "towers_fp": m["fp"], "towers_fn": m["fn"], "true_towers": int(len(truth)),
+            "gate_recall": gate_recall(preds, truth),
+            "false_towers": [{"height_m": round(float(r["height_m"]), 1), "n_points": int(r["n_points"])}
+                             for _, r in false.iterrows()]}
+
+
+def gate_recall(preds: Sequence[Any], truth) -> float | None:
+    """Share of the true towers (footprint + 1 m) holding a segmented point, i.e. reached by the gate."""
+    import shapely
+
+    from towerpipe.io.predictions import load_pred
+
+    if not len(truth):
+        return None
+    loaded = [load_pred(p) if isinstance(p, (str, os.PathLike)) else p for p in preds]
+    x = np.concatenate([np.asarray(p.arrays["x"]) for p in loaded]) if loaded else np.empty(0)
+    y = np.concatenate([np.asarray(p.arrays["y"]) for p in loaded]) if loaded else np.empty(0)
+    hit = [bool(shapely.contains_xy(shapely.buffer(g, 1.0), x, y).any()) for g in truth.geometry]
+    return float(np.mean(hit))
+
+
+def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Candidate], *, work: str,
+          model: str | Mapping[str, str], inference: Mapping[str, Any], towers: Mapping[str, Any]
+          ) -> list[dict[str, Any]]:
+    """Score every candidate on every zone.
+
+    Parameters
+    ----------
+    zones
+        Zone name -> its input directory (labelled blocks and ``towers_truth.gpkg``).
+    candidates
+        ``(views, towers.threshold, inference.threshold, towers.min_core_prob[, inference.gate[,
+        towers.min_wire_support]])`` tuples (the last two default to the config's).
+    work, model, inference, towers
+        Workdir, model bundle directory (or zone -> its model directory) and the config's sections.
+
+    Returns
+    -------
+    list of dict
+        One row per candidate: the candidate, per-zone :func:`score_zone` figures and
+        ``mean_point_iou`` over the zones.
+    """
+    import geopandas as gpd
+
+    from towerpipe.io.predictions import load_pred
+
+    data = {}
+    for zone, input_dir in zones.items():
+        truth_path = Path(input_dir) / "towers_truth.gpkg"
+        if not truth_path.exists():
+            raise InputError(truth_path, "calibration needs the zone's true towers (a synthetic zone has them)")
+        data[zone] = (gpd.read_file(truth_path, layer="towers"), _labels(Path(input_dir)),
+                      [str(p) for p in _zone_tiles(work, zone)], _survey(work, zone))
+    preds: dict[tuple[str, int, float], list[Any]] = {}
+    rows = []
+    for cand in candidates:
+        tta, thr, pthr, mcp, *rest = cand
+        tta = int(tta)
+        gate = float(rest[0]) if rest else float(inference.get("gate", 0.5))
+        wire = float(rest[1]) if len(rest) > 1 else float(towers.get("min_wire_support", 0.0))
+        row: dict[str, Any] = {"tta": tta, "threshold": thr, "point_threshold": pthr, "min_core_prob": mcp,
+                               "gate": gate, "min_wire_support": wire}
+        for zone, (truth, labels, tiles, survey) in data.items():
+            if (zone, tta, gate) not in preds:
+                zm = model if isinstance(model, (str, os.PathLike)) else model[zone]
+                preds[(zone, tta, gate)] = [load_pred(p) for p in zone_predictions(work, zone, zm, tta,
+                                                                                  {**inference, "gate": gate})]
+            row[zone] = score_zone(preds[(zone, tta, gate)], tiles, truth, labels, threshold=thr,
+                                   point_threshold=pthr, min_core_prob=mcp,
+                                   towers={**towers, "min_wire_support": wire}, zone=zone, survey=survey)
+        row["mean_point_iou"] = float(np.mean([row[z]["point_iou"] for z in data]))
+        rows.append(row)
+    return rows
+
+
+def _floats(text: str) -> list[float]:
+    return [float(v) for v in text.split(",") if v.strip()]
+
+
+def _zone_model(work: str, zone: str, spec: str) -> str:
+    """The model a zone's pipeline run used: its choice file for ``auto``, else the named model."""
+    from towerpipe.model.choice import AUTO, read_choice, resolve_model
+
+    if spec != AUTO:
+        return str(resolve_model(spec))
+    path = Path(work, zone, "model.json")
+    if not path.exists():
+        raise InputError(path, f"zone {zone!r} has no model choice yet; run `snakemake --cores 2 results/{zone}/` "
+                               "first, or pass --model")
+    return str(read_choice(path)["path"])
+
+
+def _cli(args: argparse.Namespace) -> int:
+    import yaml
+
+    cfg: dict[str, Any] = {}
+    for path in args.config:                     # later files win, zones are merged
+        more = yaml.safe_load(Path(path).read_text()) or {}
+        zones_so_far = {**(cfg.get("zones") or {}), **(more.get("zones") or {})}
+        cfg = {**cfg, **more, "zones": zones_so_far}
+    inference, towers = dict(cfg.get("inference") or {}), dict(cfg.get("towers") or {})
+    work = args.workdir or cfg.get("workdir", "work")
+    zones, models = {}, {}
+    for z in args.zones.split(","):
+        spec = (cfg.get("zones") or {}).get(z)
+        if spec is None:
+            raise InputError(args.config[-1], f"zone {z!r} is not defined in {', '.join(args.config)}")
+        zones[z] = spec["input"]
+        models[z] = args.model or _zone_model(work, z, str(spec.get("model") or inference.get("model", "auto")))
+    tta = [int(v) for v in args.tta.split(",")] if args.tta else [int(inference.get("tta", 1))]
+    thr = _floats(args.threshold) if args.threshold else [float(towers.get("threshold", 0.5))]
+    pthr = _floats(args.point_threshold) if args.point_threshold else [float(inference.get("threshold", 0.5))]
+    mcp = _floats(args.min_core_prob) if args.min_core_prob else [float(towers.get("min_core_prob", 0.0))]
+    gates = _floats(args.gate) if args.gate else [float(inference.get("gate", 0.5))]
+    wires = _floats(args.min_wire_support) if args.min_wire_support else [float(towers.get("min_wire_support", 0.0))]
+    rows = sweep(zones, list(itertools.product(tta, thr, pthr, mcp, gates, wires)), work=work, model=models,
+                 inference=inference, towers=towers)
+    print("models: " + ", ".join(f"{z}: {Path(m).name}" for z, m in models.items()))
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    def f(v: Any) -> str:
+        return "  -  " if v is None else f"{v:.3f}"
+
+    print("views  gate  threshold  points  min_core  wire | " + " | ".join(f"{z}: P / R / IoU" for z in zones)
+          + " | mean IoU")
+    for r in rows:
+        cells = " | ".join(f"{f(r[z]['precision'])} / {f(r[z]['recall'])} / {r[z]['point_iou']:.4f}" for z in zones)
+        print(f"{r['tta']:5d}  {r['gate']:4.2f}  {r['threshold']:9.2f}  {r['point_threshold']:6.2f}  "
+              f"{r['min_core_prob']:8.2f}  {r['min_wire_support']:4.2f} | {cells} | {r['mean_point_iou']:.4f}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("calibrate", help="score views / thresholds on labelled calibration zones (after their run)")
+    p.add_argument("--config", nargs="+", default=["config/config.yaml", "config/models.yaml"],
+                   help="config files defining the zones and the other rules (later files win)")
+    p.add_argument("--zones", required=True, help="comma-separated calibration zones (never held-out ones)")
+    p.add_argument("--tta", help="views to try, e.g. 1,2,4 (default: the config's)")
+    p.add_argument("--threshold", help="towers.threshold values (default: the config's)")
+    p.add_argument("--point-threshold", help="inference.threshold values (default: the config's)")
+    p.add_argument("--min-core-prob", help="towers.min_core_prob values (default: the config's)")
+    p.add_argument("--gate", help="inference.gate values (default: the config's); each predicts the zones again")
+    p.add_argument("--min-wire-support", help="towers.min_wire_support values (default: the config's)")
+    p.add_argument("--model", help="model bundle directory (default: the config's inference.model)")
+    p.add_argument("--workdir", help="workdir holding the zones' tiles (default: the config's)")
+    p.add_argument("--json", help="also write the rows here")
+    p.set_defaults(func=_cli)

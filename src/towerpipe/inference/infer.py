@@ -1,0 +1,484 @@
+"""Gated sliding-window inference: a tower probability for every core point of a tile.
+
+The method of Carós et al. (2022, sec. 3.2): each 40 × 40 m window of the tile's
+model-input points (not ground, not noise) is sampled to ``n_points`` with the
+constrained sampler, the classifier decides whether a tower is in it, and only
+windows at or above the gate threshold go through the segmenter, on **all** their
+points. Windows below the gate are background and cost one classifier pass.
+
+Windows overlap (``stride < window``); the probabilities of a point from the
+segmented windows that contain it are combined with ``max`` (default) or ``mean``.
+A point that no segmented window contains has probability 0 and is not written.
+
+With ``tta`` > 1 each segmented window also goes through the segmenter turned about its
+centre (:func:`segment_views`); two probabilities are written per point: the window as
+it is (``prob_single``, on which towers are found) and the mean over the views
+(``prob``, which picks a tower's points and becomes ``TowerProbability``).
+
+Only the tile's **core** points are written (each point of a zone lies in exactly one
+tile core); buffer points give context to the windows that reach into them.
+
+Determinism
+    Each window's sampler draws from its own generator seeded from ``seed`` and the
+    window's *global* grid indices (:mod:`towerpipe.inference.windows`), and a window's points
+    are listed in canonical ``(block_id, point_index)`` order. The result therefore
+    depends neither on the order in which windows are processed, nor on the batch
+    size, nor on how the tile stores its points; a window seen by two neighbouring
+    tiles gets identical inputs in both.
+
+Memory
+    Classifier inputs are built one batch at a time (``(batch_size, n_points, C)``
+    float32); the segmenter takes one window at a time and chunks internally; per
+    point the tile keeps one float32 accumulator (two with ``tta`` > 1) and one
+    uint16 count.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import time
+from typing import Any, Mapping, Protocol
+
+import numpy as np
+
+from towerpipe.errors import ConfigError, ModelError
+from towerpipe.io.predictions import save_pred
+from towerpipe.progress import Progress
+from towerpipe.progress import peak_rss_mb
+from towerpipe.io.tiles import Tile, load_tile
+from towerpipe.inference.windows import CandidateWindows, WindowSet, candidate_windows, sliding_windows
+
+__all__ = ["TTA_CHOICES", "BundleLike", "check_model_compatibility", "infer_tile", "predict_tile", "segment_views",
+           "window_rng"]
+
+_COMBINE = ("max", "mean")
+#: How a tile's windows are laid: centred on height peaks, or the paper's sliding grid.
+WINDOW_MODES = ("candidates", "grid")
+#: test-time views of a window's plan, in the order they are added: the window as it is,
+#: the half turn, the quarter turns, then the mirror images (x -> -x etc.). Each is the
+#: matrix (a, b, c, d): x' = a x + b y, y' = c x + d y, on the first two feature columns.
+_TTA_VIEWS = ((1, 0, 0, 1), (-1, 0, 0, -1), (0, -1, 1, 0), (0, 1, -1, 0),
+              (-1, 0, 0, 1), (0, 1, 1, 0), (1, 0, 0, -1), (0, -1, -1, 0))
+TTA_CHOICES = (1, 2, 4, 8)
+
+
+def _check_views(views: int) -> None:
+    if views not in TTA_CHOICES:
+        raise ConfigError(f"inference.tta must be one of {TTA_CHOICES}, got {views!r}")
+
+
+class BundleLike(Protocol):
+    """The part of :class:`towerpipe.model.pointnet.ModelBundle` inference uses."""
+
+    name: str
+    version: str
+    feature_set: str
+    card: dict[str, Any]
+    n_points: int
+
+    def classify(self, feats: np.ndarray) -> np.ndarray: ...  # (B, n, C) -> (B,)
+
+    def segment(self, feats: np.ndarray) -> np.ndarray: ...  # (N, C) -> (N,)
+
+
+def segment_views(bundle: BundleLike, feats: np.ndarray, views: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Segmenter probability of each point: the window as it is, and the mean over ``views`` views.
+
+    2 and 4 views add the window turned by 180 and by 90 / 270 degrees about its centre,
+    8 adds their mirror images. The views are exact (the plan coordinates are permuted
+    and negated, no resampling). A tower looks like a tower from every side; a crown
+    that the segmenter paints in one view seldom scores as high in all of them, so the
+    mean trims the uncertain edge of a tower. It also lowers the whole of a tower the
+    segmenter is unsure of, which is why towers are found on the single view
+    (:mod:`towerpipe.towers.extract`) and only their points are chosen on the mean.
+
+    Parameters
+    ----------
+    bundle
+        The model (its ``segment``).
+    feats
+        ``(N, C)`` float32 features of one window; columns 0 and 1 are the plan
+        coordinates relative to the window centre.
+    views
+        One of :data:`TTA_CHOICES`; 1 is the plain segmenter.
+
+    Returns
+    -------
+    single, mean
+        ``(N,)`` float32 probabilities (the same array when ``views`` is 1).
+    """
+    _check_views(views)
+    single = np.asarray(bundle.segment(feats), dtype=np.float32).reshape(-1)
+    if views == 1:
+        return single, single
+    acc = single.copy()
+    xy = np.array(feats[:, :2], dtype=np.float32)
+    f = np.array(feats, dtype=np.float32)
+    for a, b, c, d in _TTA_VIEWS[1:views]:
+        f[:, 0] = a * xy[:, 0] + b * xy[:, 1]
+        f[:, 1] = c * xy[:, 0] + d * xy[:, 1]
+        acc += np.asarray(bundle.segment(f), dtype=np.float32).reshape(-1)
+    return single, acc / np.float32(views)
+
+
+def window_rng(seed: int, kx: int, ky: int) -> np.random.Generator:
+    """The sampler's generator of window ``(kx, ky)`` (global grid indices)."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, int(kx) & 0xFFFFFFFF,
+                                                         int(ky) & 0xFFFFFFFF]))
+
+
+def check_model_compatibility(tile_meta: Mapping[str, Any], bundle: BundleLike) -> None:
+    """Raise :class:`ModelError` when the tile lacks valid attributes the model's features need.
+
+    Parameters
+    ----------
+    tile_meta
+        Tile metadata (``valid_attributes``, ``tile``, ``block``).
+    bundle
+        The model bundle (its ``feature_set`` decides the needed attributes).
+
+    Raises
+    ------
+    ModelError
+        Naming the missing attributes, the model, and the config key that chooses a model.
+    """
+    from towerpipe.model import features
+
+    try:
+        missing = features.missing_attributes(bundle.feature_set, tile_meta)
+    except ModelError as exc:
+        raise ModelError(f"model {bundle.name!r} v{bundle.version}: {exc}") from exc
+    if missing:
+        where = f"block {tile_meta.get('block', '?')!r} tile {tile_meta.get('tile', '?')!r}"
+        raise ModelError(
+            f"{where} has no valid {', '.join(missing)} but model {bundle.name!r} v{bundle.version} "
+            f"(feature set {bundle.feature_set!r}) needs {', '.join(features.required_attributes(bundle.feature_set))}; "
+            f"set `inference: {{model: auto}}` (or the zone's `model: auto`) to use a model these data support")
+
+
+def _model_info(bundle: BundleLike, model_path: str | os.PathLike[str] | None) -> dict[str, Any]:
+    path = model_path if model_path is not None else getattr(bundle, "path", None)
+    files = (bundle.card or {}).get("files") if isinstance(getattr(bundle, "card", None), Mapping) else None
+    sha = None
+    if isinstance(files, Mapping) and files:
+        sha = hashlib.sha256("".join(f"{k}:{files[k]}" for k in sorted(files)).encode()).hexdigest()
+    return {"name": bundle.name, "version": str(bundle.version), "feature_set": bundle.feature_set,
+            "path": None if path is None else str(path), "sha256": sha}
+
+
+def _classified_wire(arrays: Mapping[str, np.ndarray], idx: np.ndarray) -> np.ndarray:
+    """Bool mask over ``idx``: the points the input classifies as wire
+    (:data:`towerpipe.towers.wires.WIRE_CLASSES`); none when the tile has no classification."""
+    from towerpipe.towers.wires import WIRE_CLASSES
+
+    if "classification" not in arrays:
+        return np.zeros(len(idx), bool)
+    return np.isin(np.asarray(arrays["classification"])[idx], WIRE_CLASSES)
+
+
+def overhead_wires(arrays: Mapping[str, np.ndarray], idx: np.ndarray, min_height: float) -> np.ndarray:
+    """Bool mask over ``idx``: the points at least ``min_height`` high that look like overhead
+    wire (:func:`towerpipe.towers.wires.wire_points`, or classified as wire:
+    :data:`towerpipe.towers.wires.WIRE_CLASSES`). A conductor is as high as the tower it hangs
+    from, and one passing over a lower tower hides that tower's height peak."""
+    from towerpipe.towers.wires import wire_points
+
+    out = np.zeros(len(idx), bool)
+    tall = np.flatnonzero(np.asarray(arrays["hag"])[idx] >= min_height)
+    if len(tall):
+        sel = idx[tall]
+        out[tall] = wire_points(arrays["x"][sel], arrays["y"][sel], arrays["z"][sel])[0]
+    # the detector misses conductors where they reach the crossarm
+    return out | _classified_wire(arrays, idx)
+
+
+def predict_tile(
+    tile: Tile,
+    bundle: BundleLike,
+    *,
+    window: float = 40.0,
+    stride: float = 20.0,
+    gate: float = 0.5,
+    combine: str = "max",
+    batch_size: int = 32,
+    seed: int = 0,
+    min_points: int = 10,
+    min_height: float | None = None,
+    tta: int = 1,
+    windows: str = "grid",
+) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Tower probabilities of a tile's core points (in memory; see :func:`infer_tile`).
+
+    ``windows``: ``"grid"`` slides windows on a ``stride`` grid and skips those whose
+    highest point is below ``min_height`` (the paper's); ``"candidates"`` centres one window
+    on each height peak of at least ``min_height`` (:func:`towerpipe.inference.windows.candidate_windows`).
+
+    Returns
+    -------
+    arrays
+        Prediction arrays (:data:`towerpipe.io.predictions.PRED_ARRAYS`) of the core points
+        inside at least one segmented window, in tile order; points the input classifies as
+        wire (:data:`towerpipe.towers.wires.WIRE_CLASSES`) have probability 0, so reprocessing a
+        classified block gives the same towers.
+    stats
+        ``windows_total``, ``windows_passed_gate``, ``windows_segmented``,
+        ``windows_empty`` (windows with fewer than ``min_points`` points),
+        ``windows_prefiltered`` (windows whose highest point is below ``min_height``,
+        background without a classifier pass),
+        ``gate_threshold``, ``combine``, ``points_core``, ``points_model_input_core``,
+        ``points_predicted``, ``timings`` (s) and ``window_probs`` (list of
+        ``[kx, ky, p]`` for the windows that passed the gate).
+    """
+    from towerpipe.model import features
+    from towerpipe.model import sampling
+
+    if combine not in _COMBINE:
+        raise ConfigError(f"infer.combine must be one of {_COMBINE}, got {combine!r}")
+    if windows not in WINDOW_MODES:
+        raise ConfigError(f"inference.windows must be one of {WINDOW_MODES}, got {windows!r}")
+    if not (0.0 <= gate <= 1.0):
+        raise ConfigError(f"infer.gate must be in [0, 1], got {gate}")
+    if batch_size < 1:
+        raise ConfigError(f"infer.batch_size must be >= 1, got {batch_size}")
+    _check_views(tta)  # before the classifier pass, not at the first segmented window
+    if np.asarray(tile.arrays["model_input"], dtype=bool).any():  # nothing to predict needs no features
+        check_model_compatibility(tile.meta, bundle)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+
+    arrays = tile.arrays
+    core = np.asarray(arrays["core"], dtype=bool)
+    mi = np.flatnonzero(np.asarray(arrays["model_input"], dtype=bool))
+    canon = np.lexsort((arrays["point_index"][mi], arrays["block_id"][mi]))
+    hag = arrays["hag"]
+    if windows == "candidates":
+        floor = 0.0 if min_height is None else min_height
+        ws: WindowSet | CandidateWindows = candidate_windows(
+            arrays["x"][mi], arrays["y"][mi], hag[mi], core[mi], window=window,
+            min_height=floor, min_points=max(int(min_points), 1),
+            canonical_order=canon, exclude=overhead_wires(arrays, mi, floor))
+        n_all = len(ws)
+    else:
+        all_windows = sliding_windows(arrays["x"][mi], arrays["y"][mi], core[mi], window=window, stride=stride,
+                                      min_points=1, canonical_order=canon)
+        ws = all_windows.select(all_windows.counts >= max(int(min_points), 1))
+        n_all = len(all_windows)
+    fmeta = features.tile_feature_meta(arrays, tile.meta)
+    timings["windows"] = time.perf_counter() - t0
+
+    # --- optional height pre-filter: a window with nothing tall holds no tower -------
+    n_win = len(ws)
+    if min_height is not None and windows == "grid":
+        tall = np.fromiter((hag[mi[ws.indices(i)]].max() >= min_height for i in range(n_win)), bool, n_win)
+    else:
+        tall = np.ones(n_win, dtype=bool)
+    todo = np.flatnonzero(tall)
+    timings["prefilter"] = time.perf_counter() - t0 - timings["windows"]
+
+    # --- classifier gate, one batch at a time ---------------------------------------
+    n_pts = int(bundle.n_points)
+    win_prob = np.zeros(n_win, dtype=np.float32)
+    t_sample = t_clf = 0.0
+    buf: np.ndarray | None = None
+    n_todo = len(todo)
+    what = f"infer {tile.meta.get('block', '?')}/{tile.meta.get('tile', '?')}"
+    progress = Progress(f"{what}: classifier", n_todo, "windows")
+    for b0 in range(0, n_todo, batch_size):
+        ta = time.perf_counter()
+        b1 = min(b0 + batch_size, n_todo)
+        for j, i in enumerate(todo[b0:b1]):
+            idx = mi[ws.indices(i)]
+            kx, ky = ws.keys[i]
+            s = sampling.constrained_sample(hag[idx], n=n_pts, rng=window_rng(seed, kx, ky))
+            f = features.window_features(arrays, idx[s], ws.center(i), bundle.feature_set, fmeta)
+            if buf is None:
+                buf = np.empty((min(batch_size, n_todo), n_pts, f.shape[1]), dtype=np.float32)
+            buf[j] = f
+        tb = time.perf_counter()
+        win_prob[todo[b0:b1]] = np.asarray(bundle.classify(buf[: b1 - b0]), dtype=np.float32).reshape(-1)
+        t_clf += time.perf_counter() - tb
+        t_sample += tb - ta
+        progress.update(b1 - b0)
+    progress.close()
+    timings["sample_features"] = t_sample
+    timings["classify"] = t_clf
+
+    # --- segmenter on all points of the windows that passed the gate ----------------
+    passed = todo[win_prob[todo] >= gate]
+    acc = np.zeros(len(mi), dtype=np.float32)
+    acc1 = acc if tta == 1 else np.zeros(len(mi), dtype=np.float32)  # the single view
+    cnt = np.zeros(len(mi), dtype=np.uint16)
+    t_seg = t_comb = 0.0
+    progress = Progress(f"{what}: segmenter", len(passed), "windows")
+    for i in passed:
+        ta = time.perf_counter()
+        local = ws.indices(int(i))
+        idx = mi[local]
+        f = features.window_features(arrays, idx, ws.center(int(i)), bundle.feature_set, fmeta)
+        p1, p = segment_views(bundle, f, tta)
+        if p.shape != (len(idx),):
+            raise ModelError(f"model {bundle.name!r}: segment returned {p.shape} for {len(idx)} points")
+        tb = time.perf_counter()
+        for a, q in ((acc, p), (acc1, p1)) if tta > 1 else ((acc, p),):
+            if combine == "max":
+                a[local] = np.maximum(a[local], q)
+            else:
+                a[local] += q
+        cnt[local] += 1
+        t_comb += time.perf_counter() - tb
+        t_seg += tb - ta
+        progress.update()
+    progress.close()
+    timings["segment"] = t_seg
+    timings["combine"] = t_comb
+
+    seen = cnt > 0
+    if combine == "mean":
+        acc[seen] /= cnt[seen]
+        if tta > 1:
+            acc1[seen] /= cnt[seen]
+    sel_local = np.flatnonzero(seen & core[mi])
+    sel = mi[sel_local]
+    out = {
+        "block_id": arrays["block_id"][sel],
+        "point_index": arrays["point_index"][sel],
+        "x": arrays["x"][sel],
+        "y": arrays["y"][sel],
+        "z": arrays["z"][sel],
+        "hag": arrays["hag"][sel],
+        "prob": np.clip(acc[sel_local], 0.0, 1.0).astype(np.float32),
+        "prob_single": np.clip(acc1[sel_local], 0.0, 1.0).astype(np.float32),
+    }
+    wire = _classified_wire(arrays, sel)  # what the provider classified as wire is never tower
+    out["prob"][wire] = 0.0
+    out["prob_single"][wire] = 0.0
+    timings["total"] = time.perf_counter() - t0
+    stats = {
+        "windows_total": int(n_win),
+        "windows_empty": int(n_all - n_win),
+        "windows_mode": windows,
+        "windows_prefiltered": int(n_win - n_todo),
+        "windows_classified": int(n_todo),
+        "windows_passed_gate": int(len(passed)),
+        "windows_segmented": int(len(passed)),
+        "gate_threshold": float(gate),
+        "combine": combine,
+        "tta": int(tta),
+        "window": float(window),
+        "stride": float(stride),
+        "min_points": int(min_points),
+        "min_height": None if min_height is None else float(min_height),
+        "seed": int(seed),
+        "points_core": int(core.sum()),
+        "points_model_input_core": int(core[mi].sum()),
+        "points_predicted": int(len(sel)),
+        "timings": timings,
+        "windows_per_s_classify": float(n_todo / (t_sample + t_clf)) if n_todo and (t_sample + t_clf) > 0 else None,
+        "window_probs": [[int(ws.keys[i, 0]), int(ws.keys[i, 1]), float(win_prob[i])] for i in passed],
+    }
+    return out, stats
+
+
+def infer_tile(
+    tile_path: str | os.PathLike[str],
+    model: str | os.PathLike[str] | BundleLike | None,
+    out_path: str | os.PathLike[str],
+    *,
+    window: float = 40.0,
+    stride: float = 20.0,
+    gate: float = 0.5,
+    combine: str = "max",
+    batch_size: int = 32,
+    seed: int = 0,
+    min_points: int = 10,
+    min_height: float | None = None,
+    tta: int = 1,
+    windows: str = "grid",
+    choice: Mapping[str, Any] | str | os.PathLike[str] | None = None,
+) -> dict[str, Any]:
+    """Run gated window inference on one tile file and write its prediction file.
+
+    Parameters
+    ----------
+    tile_path
+        Tile file (:mod:`towerpipe.io.tiles`).
+    model
+        A model bundle, or the path of a checkpoint directory (:func:`towerpipe.model.pointnet.load_bundle`);
+        ``None``: the model of ``choice``.
+    out_path
+        Prediction file (:mod:`towerpipe.io.predictions`), written atomically.
+    window, stride
+        Window side and step (m); ``window - stride`` is the overlap.
+    gate
+        Windows whose classifier probability is below ``gate`` are background.
+    combine
+        ``"max"`` or ``"mean"`` over the segmented windows containing a point.
+    batch_size
+        Windows per classifier call.
+    seed
+        Base seed of the per-window samplers.
+    min_points
+        Windows with fewer model-input points are skipped as empty.
+    min_height
+        Optional pre-filter (not in the paper): windows whose highest model-input point
+        is below this HAG (m) are background without a classifier pass. Transmission
+        towers are 14-58 m tall, so e.g. 10 m loses no tower and skips open land and low
+        vegetation at no model cost. ``None`` (default): every window is classified.
+    tta
+        Views of each segmented window averaged (:func:`segment_views`): 1, 2, 4 or 8.
+    windows
+        ``"candidates"`` (windows centred on height peaks) or ``"grid"`` (:func:`predict_tile`).
+    choice
+        The zone's model choice (:func:`towerpipe.model.choice.choose_model`, or its JSON
+        file): recorded as ``model.choice``; a block it lists as incompatible fails here
+        with the message naming the config key.
+
+    Returns
+    -------
+    dict
+        The prediction file's ``meta`` (see :mod:`towerpipe.io.predictions`) plus
+        ``points_predicted``, ``windows_empty`` and ``windows_per_s_classify``.
+    """
+    t0 = time.perf_counter()
+    if isinstance(choice, (str, os.PathLike)):
+        from towerpipe.model.choice import read_choice
+
+        choice = read_choice(choice)
+    model_path = None
+    if model is None:  # the zone's chosen model, read from its choice
+        if not isinstance(choice, Mapping) or not choice.get("path"):
+            raise ConfigError(f"{tile_path}: no model given and no model choice to read it from")
+        model = choice["path"]
+    if isinstance(model, (str, os.PathLike)):
+        from towerpipe.model.pointnet import load_bundle
+
+        model_path = model
+        bundle = load_bundle(model)
+    else:
+        bundle = model
+    t_model = time.perf_counter() - t0
+    tile = load_tile(tile_path)
+    t_load = time.perf_counter() - t0 - t_model
+    if choice is not None and np.asarray(tile.arrays["model_input"], dtype=bool).any():
+        from towerpipe.model.choice import incompatibility_error
+
+        msg = incompatibility_error(choice, str(tile.meta.get("block")))
+        if msg:
+            raise ModelError(msg)
+    arrays, stats = predict_tile(tile, bundle, window=window, stride=stride, gate=gate, combine=combine,
+                                 batch_size=batch_size, seed=seed, min_points=min_points,
+                                 min_height=min_height, tta=tta, windows=windows)
+    timings = {"load_model": t_model, "load_tile": t_load, **stats.pop("timings")}
+    meta = {k: tile.meta.get(k) for k in ("zone", "block", "tile", "blocks", "crs_wkt", "core_bounds")}
+    meta["model"] = _model_info(bundle, model_path)
+    if choice is not None:
+        meta["model"]["choice"] = {k: choice.get(k) for k in ("mode", "key", "reason", "valid_attributes")}
+    meta.update(stats)
+    tw = time.perf_counter()
+    meta["timings"] = timings
+    meta["peak_rss_mb"] = peak_rss_mb()
+    save_pred(out_path, arrays, meta)
+    timings["write"] = time.perf_counter() - tw
+    timings["total"] = time.perf_counter() - t0
+    return meta

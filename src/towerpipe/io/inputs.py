@@ -1,0 +1,211 @@
+"""A zone's input files: safe block ids and content fingerprints.
+
+Every ``.las``/``.laz`` file under a zone's input directory is one block. Its **block
+id** names its jobs and products (``results/<zone>/blocks/<id>.laz``), so it must be a
+safe file name and unique in the zone, whatever the file is called:
+
+* the id is the path relative to the input directory, without the suffix, with ``/``
+  replaced by ``__`` (``flight1/a.laz`` → ``flight1__a``), when that is made of ASCII
+  letters, digits, ``_``, ``.`` and ``-`` only and no other file gives the same id;
+* otherwise (spaces, braces, non-ASCII letters, ``flight1/a.laz`` beside
+  ``flight1__a.laz``, ``a.las`` beside ``a.laz``) every other character becomes ``_``
+  and ``-`` plus 8 hex digits of the relative path's SHA-1 are appended
+  (``blk{1}.laz`` → ``blk_1_-5d41402a``). The original relative path is kept in
+  every product (cache meta, block summary, GeoPackage ``source_files``, QA).
+
+Two files that differ only in their LAS suffix (``a.las``, ``a.laz``) are one block
+twice: :attr:`BlockInput.clash` names the other file, and the split refuses both (a
+clash costs those blocks, never the zone).
+
+A block's **fingerprint** (:func:`fingerprint`) is a hash of its size and of samples of
+its bytes: the first and the last MiB (the header with its GUID and point count, the
+LAZ chunk table) and 16 slices of 64 KiB spread over the file. It is a parameter of the
+block's split job, so a file replaced by other content reruns the block's jobs whatever
+its modification time (``cp -p``, ``rsync -a`` from an archive). Fingerprints are cached
+by the file's ``stat`` (device, inode, size, mtime, ctime: a rewritten file always gets
+a new ctime), so planning a zone of thousands of blocks reads only new or changed files.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import unicodedata
+from collections import defaultdict
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from towerpipe.errors import TowerpipeError
+
+LAS_SUFFIXES = (".las", ".laz")
+
+#: Characters a block id may hold (besides a leading letter, digit or ``_``).
+_UNSAFE = re.compile(r"[^A-Za-z0-9_.-]")
+_SAMPLE = 1 << 20  # bytes read at each end of a file
+_SLICES, _SLICE = 16, 1 << 16
+
+#: Version of the fingerprint recipe (part of every fingerprint: a new recipe reruns).
+FINGERPRINT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class BlockInput:
+    """One input file of a zone.
+
+    Attributes
+    ----------
+    id
+        The safe, unique block id.
+    path
+        The file.
+    relpath
+        Its path relative to the zone's input directory (as the user named it).
+    size
+        Bytes.
+    fingerprint
+        Content fingerprint (:func:`fingerprint`).
+    header
+        ``point_count``, ``version``, ``point_format``, ``crs_wkt``, ``bounds`` from the header, or
+        ``None`` when the header is unreadable (the split reports why). Header values
+        never shape the job graph; they only size job resources and pick the zone's CRS.
+    clash
+        The other file when this one is the same block in a second file, else ``None``.
+    """
+
+    id: str
+    path: str
+    relpath: str
+    size: int
+    fingerprint: str
+    header: dict[str, Any] | None = None
+    clash: str | None = None
+
+    @property
+    def points_estimate(self) -> int:
+        """Points for sizing resources: the header's count, never more than the file's bytes."""
+        n = int((self.header or {}).get("point_count") or 0)
+        return min(n, self.size) if n > 0 else self.size // 30
+
+
+def _stem(rel: str) -> str:
+    p = Path(rel)
+    return str(p.with_suffix("")) if p.suffix.lower() in LAS_SUFFIXES else rel
+
+
+def safe_name(rel: str) -> str:
+    """The id a relative path gets when it is unique (see the module docstring)."""
+    base = "__".join(Path(_stem(rel)).parts)
+    letters = "".join(c for c in unicodedata.normalize("NFKD", base) if not unicodedata.combining(c))
+    safe = _UNSAFE.sub("_", letters)
+    if not safe or not (safe[0].isalnum() or safe[0] == "_"):
+        safe = "_" + safe
+    return safe
+
+
+def block_ids(relpaths: list[str]) -> dict[str, str]:
+    """Block id → relative path for every input file (ids are unique and safe)."""
+    by_safe: dict[str, list[str]] = defaultdict(list)
+    for rel in relpaths:
+        by_safe[safe_name(rel)].append(rel)
+    out: dict[str, str] = {}
+    for safe, rels in by_safe.items():
+        for rel in rels:
+            plain = "__".join(Path(_stem(rel)).parts)
+            if len(rels) == 1 and plain == safe:
+                out[safe] = rel
+            else:
+                out[f"{safe}-{hashlib.sha1(rel.encode()).hexdigest()[:8]}"] = rel
+    return dict(sorted(out.items()))
+
+
+def find_blocks(input_dir: str | os.PathLike[str]) -> dict[str, str]:
+    """Block id → path of every ``.las``/``.laz`` file under ``input_dir`` (sorted by id)."""
+    root = Path(input_dir)
+    rels = [p.relative_to(root).as_posix() for p in sorted(root.rglob("*"))
+            if p.suffix.lower() in LAS_SUFFIXES and p.is_file()]
+    return {b: str(root / rel) for b, rel in block_ids(rels).items()}
+
+
+def fingerprint(path: str | os.PathLike[str]) -> str:
+    """Content fingerprint of a file (see the module docstring): 24 hex digits."""
+    h = hashlib.sha256(f"towerpipe-fingerprint-{FINGERPRINT_VERSION}".encode())
+    with open(path, "rb") as fh:
+        size = os.fstat(fh.fileno()).st_size
+        h.update(size.to_bytes(8, "little"))
+        h.update(fh.read(_SAMPLE))
+        if size > 2 * _SAMPLE:
+            span = size - 2 * _SAMPLE - _SLICE
+            for i in range(_SLICES):
+                fh.seek(_SAMPLE + span * i // max(_SLICES - 1, 1))
+                h.update(fh.read(_SLICE))
+        if size > _SAMPLE:
+            fh.seek(max(_SAMPLE, size - _SAMPLE))
+            h.update(fh.read(_SAMPLE))
+    return h.hexdigest()[:24]
+
+
+def _stat_key(st: os.stat_result) -> list[int]:
+    return [st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns]
+
+
+def _header(path: str) -> dict[str, Any] | None:
+    from towerpipe.io.las import read_header
+
+    try:
+        h = read_header(path)
+    except TowerpipeError:
+        return None
+    return {"point_count": h.point_count, "version": h.version, "point_format": h.point_format,
+            "crs_wkt": h.crs_wkt, "bounds": [float(v) for v in h.bounds]}
+
+
+def scan_zone(input_dir: str | os.PathLike[str], cache: str | os.PathLike[str] | None = None
+              ) -> dict[str, BlockInput]:
+    """Every block of a zone with its fingerprint (id → :class:`BlockInput`, sorted by id).
+
+    Parameters
+    ----------
+    input_dir
+        The zone's input directory.
+    cache
+        JSON file keeping fingerprints and headers by ``stat`` between runs; files whose
+        ``stat`` is unchanged are not read again. Written atomically when it changes.
+    """
+    from towerpipe.io.atomic import write_text_atomic
+
+    paths = find_blocks(input_dir)
+    root = Path(input_dir)
+    known: dict[str, Any] = {}
+    if cache is not None and Path(cache).is_file():
+        try:
+            known = json.loads(Path(cache).read_text())
+        except ValueError:
+            known = {}
+    fresh: dict[str, Any] = {}
+    out: dict[str, BlockInput] = {}
+    stems: dict[str, list[str]] = defaultdict(list)
+    for b, p in paths.items():
+        stems[_stem(Path(p).relative_to(root).as_posix())].append(b)
+    for b, p in paths.items():
+        rel = Path(p).relative_to(root).as_posix()
+        key = _stat_key(os.stat(p))
+        rec = known.get(rel)
+        if not rec or rec.get("stat") != key or rec.get("version") != FINGERPRINT_VERSION:
+            rec = {"stat": key, "version": FINGERPRINT_VERSION, "fingerprint": fingerprint(p), "header": _header(p)}
+        fresh[rel] = rec
+        twins = [paths[o] for o in stems[_stem(rel)] if o != b]
+        out[b] = BlockInput(b, p, rel, key[2], rec["fingerprint"], rec["header"],
+                            Path(twins[0]).relative_to(root).as_posix() if twins else None)
+    if cache is not None and fresh != known:
+        write_text_atomic(cache, json.dumps(fresh, indent=0, sort_keys=True))
+    return out
+
+
+def describe(block: BlockInput) -> dict[str, Any]:
+    """JSON-able record of a block input (for the split's metadata)."""
+    d = asdict(block)
+    d.pop("header")
+    return d

@@ -1,0 +1,125 @@
+"""The per-tile intermediate point file: the contract between preprocessing and the model.
+
+A tile file (``.npz``, uncompressed: compressed intermediates cost more time than
+they save disk) holds every point of one tile's *core* plus a *buffer* around it
+taken from the same block and from neighbouring blocks, with:
+
+================  ========  ====================================================
+array             dtype     meaning
+================  ========  ====================================================
+``x, y, z``       float64   absolute coordinates in the block CRS (metres)
+``intensity``     uint16    as in the file
+``red, green,     uint16    as in the file (zeros when absent, see ``meta``)
+blue, nir``
+``classification`` uint8    input class (labels; never used for prediction)
+``return_number`` uint8
+``number_of_returns`` uint8
+``hag``           float32   height above ground (m), from the PDAL DTM
+``block_id``      int32     index into ``meta["blocks"]``: the source block
+``point_index``   int64     index of the point in its source block file
+``core``          bool      the point is owned by this tile (each point of a
+                            zone is in exactly one tile core)
+``model_input``   bool      the point goes to the model: not ground, not noise
+                            (class 7/18), HAG within ``[hag_min, hag_max]``
+================  ========  ====================================================
+
+``meta`` is a JSON-able dict: ``zone``, ``block``, ``tile``, ``crs_wkt``,
+``core_bounds`` ``[xmin, ymin, xmax, ymax]``, ``buffer``, ``blocks`` (names, the
+source block of each ``block_id``), ``has_rgb``, ``has_nir``, ``color_bits``
+(8 or 16: how colour is really stored), ``ground_source`` (``"class2"`` or the
+PDAL filter used), ``counts`` (points per stage) and ``timings``.
+
+Coordinates stay float64 here; any float32 cast happens after subtracting a
+window centre (UTM northings lose ~0.5 m in float32).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from towerpipe.io.columns import load_columns, save_columns, validate_columns
+
+#: Arrays of a tile file and their dtypes, in file order.
+TILE_ARRAYS: dict[str, np.dtype] = {
+    "x": np.dtype("f8"),
+    "y": np.dtype("f8"),
+    "z": np.dtype("f8"),
+    "intensity": np.dtype("u2"),
+    "red": np.dtype("u2"),
+    "green": np.dtype("u2"),
+    "blue": np.dtype("u2"),
+    "nir": np.dtype("u2"),
+    "classification": np.dtype("u1"),
+    "return_number": np.dtype("u1"),
+    "number_of_returns": np.dtype("u1"),
+    "hag": np.dtype("f4"),
+    "block_id": np.dtype("i4"),
+    "point_index": np.dtype("i8"),
+    "core": np.dtype("?"),
+    "model_input": np.dtype("?"),
+}
+
+FORMAT_VERSION = 1
+
+
+@dataclass
+class Tile:
+    """Points of one tile (core + buffer) and their metadata.
+
+    Attributes
+    ----------
+    arrays
+        Column arrays named as in :data:`TILE_ARRAYS`, all of the same length.
+    meta
+        JSON-able metadata (see the module docstring).
+    """
+
+    arrays: dict[str, np.ndarray]
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.arrays["x"])
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.arrays[name]
+
+    def subset(self, mask_or_index: np.ndarray) -> "Tile":
+        """A new tile with only the selected points (same metadata)."""
+        return Tile({k: v[mask_or_index] for k, v in self.arrays.items()}, dict(self.meta))
+
+    def validate(self, path: str | os.PathLike[str] = "<tile>") -> None:
+        """Check names, dtypes and lengths; raise :class:`InputError` otherwise."""
+        validate_columns(self.arrays, TILE_ARRAYS, path, "tile", "rerun the preprocessing")
+
+
+def empty_arrays(n: int = 0) -> dict[str, np.ndarray]:
+    """Zero-filled tile arrays for ``n`` points."""
+    return {k: np.zeros(n, dtype=d) for k, d in TILE_ARRAYS.items()}
+
+
+def save_tile(path: str | os.PathLike[str], tile: Tile) -> None:
+    """Write ``tile`` atomically (temporary file, then rename) as uncompressed ``.npz``."""
+    tile.validate(path)
+    save_columns(path, tile.arrays, dict(tile.meta, format_version=FORMAT_VERSION))
+
+
+def load_tile(path: str | os.PathLike[str], columns: list[str] | None = None) -> Tile:
+    """Read a tile file written by :func:`save_tile`.
+
+    Parameters
+    ----------
+    path
+        The ``.npz`` file.
+    columns
+        Only these arrays (default: all).
+    """
+    arrays, meta = load_columns(path, list(TILE_ARRAYS) if columns is None else columns, "tile",
+                                "rerun the preprocessing")
+    tile = Tile(arrays, meta)
+    if columns is None:
+        tile.validate(path)
+    return tile

@@ -1,0 +1,116 @@
+"""Sensor attributes: which a block carries, and whether each carries information.
+
+A LAS point format can hold a dimension that the export filled with nothing: public ALS
+derivatives often have intensity, return numbers, scan angle and GPS time all 0, a
+colourised file can hold a NIR channel of zeros, and a re-export can leave colour
+constant. A model fed such a column sees a constant where it learned a signal, so what
+matters is not whether a dimension exists but whether it varies. While a block is split
+(:func:`towerpipe.preprocess.tile.split_block`) an :class:`AttributeStats` sees every chunk
+and decides, per attribute of :data:`ATTRIBUTES`:
+
+``intensity``
+    valid with more than :data:`MIN_DISTINCT` distinct values;
+``returns``
+    valid when return numbers and numbers of returns are not all 0 and the pulses do not
+    all have a single return (a constant carries no information);
+``rgb``
+    valid when the colour channels exist and hold more than :data:`MIN_DISTINCT` distinct
+    values (not all 0, not constant);
+``nir``
+    valid when the NIR channel exists and holds more than :data:`MIN_DISTINCT` distinct values.
+
+The result (:meth:`AttributeStats.result`) is recorded in the block cache and summary as
+``attributes`` (``{name: {"present", "valid", "reason"}}``) plus
+``degenerate_attributes``: the attributes whose dimensions exist but carry nothing, which
+the QA page flags. Model choice (:mod:`towerpipe.model.choice`) uses only valid attributes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+
+#: The sensor attributes a model may use, in a fixed order.
+ATTRIBUTES: tuple[str, ...] = ("intensity", "returns", "rgb", "nir")
+#: An attribute with at most this many distinct values carries no information.
+MIN_DISTINCT = 8
+#: The point dimensions behind each attribute.
+DIMENSIONS: dict[str, tuple[str, ...]] = {"intensity": ("intensity",),
+                                          "returns": ("return_number", "number_of_returns"),
+                                          "rgb": ("red", "green", "blue"), "nir": ("nir",)}
+
+
+class AttributeStats:
+    """Accumulates, chunk by chunk, what decides each attribute's validity.
+
+    Parameters
+    ----------
+    dimensions
+        The point dimensions of the file (an attribute whose dimensions are missing is
+        absent, not degenerate).
+    """
+
+    def __init__(self, dimensions: Iterable[str]):
+        dims = set(dimensions)
+        self.present = {a: all(d in dims for d in DIMENSIONS[a]) for a in ATTRIBUTES}
+        self._distinct: dict[str, set[int]] = {d: set() for a in ATTRIBUTES if self.present[a]
+                                                for d in DIMENSIONS[a]}
+        self.points = 0
+
+    def update(self, chunk: Mapping[str, np.ndarray]) -> None:
+        """Add one chunk of points (arrays by dimension name)."""
+        self.points += len(next(iter(chunk.values()))) if chunk else 0
+        for dim, seen in self._distinct.items():
+            if len(seen) > MIN_DISTINCT or dim not in chunk:
+                continue                     # decided already: enough distinct values seen
+            seen.update(np.unique(np.asarray(chunk[dim])).tolist())
+
+    def _distinct_count(self, attribute: str) -> int:
+        return len(set().union(*(self._distinct[d] for d in DIMENSIONS[attribute])))
+
+    def result(self) -> dict[str, dict[str, Any]]:
+        """``{attribute: {"present": bool, "valid": bool, "reason": str}}``."""
+        out: dict[str, dict[str, Any]] = {}
+        for a in ATTRIBUTES:
+            if not self.present[a]:
+                out[a] = {"present": False, "valid": False, "reason": "not in the point format"}
+                continue
+            if a == "returns":
+                rn, nr = self._distinct["return_number"], self._distinct["number_of_returns"]
+                if rn <= {0} or nr <= {0}:
+                    valid, reason = False, "return numbers all 0"
+                elif len(rn) == 1 and len(nr) == 1:
+                    valid, reason = False, f"every point is return {min(rn)} of {min(nr)}"
+                else:
+                    valid, reason = True, f"up to {max(nr)} returns per pulse"
+            else:
+                k = self._distinct_count(a)
+                seen = set().union(*(self._distinct[d] for d in DIMENSIONS[a]))
+                if seen <= {0}:
+                    valid, reason = False, "all 0"
+                elif k <= MIN_DISTINCT:
+                    valid, reason = False, f"only {k} distinct value{'s' if k > 1 else ''}"
+                else:
+                    valid, reason = True, f"more than {MIN_DISTINCT} distinct values"
+            out[a] = {"present": True, "valid": valid, "reason": reason}
+        return out
+
+
+def degenerate(attributes: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """The attributes whose dimensions exist but carry no information."""
+    return [a for a in ATTRIBUTES if a in attributes and attributes[a]["present"] and not attributes[a]["valid"]]
+
+
+def valid_set(attributes: Mapping[str, Mapping[str, Any]] | None) -> set[str]:
+    """The names of the valid attributes of a record (``None``: an old record, nothing known)."""
+    if attributes is None:
+        return set()
+    return {a for a in ATTRIBUTES if a in attributes and bool(attributes[a].get("valid"))}
+
+
+def describe(attributes: Mapping[str, Mapping[str, Any]]) -> str:
+    """One line: ``intensity ok; returns: return numbers all 0; rgb ok; nir: not in the point format``."""
+    return "; ".join(f"{a} ok" if attributes[a]["valid"] else f"{a}: {attributes[a]['reason']}"
+                     for a in ATTRIBUTES if a in attributes)

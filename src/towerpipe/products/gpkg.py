@@ -1,0 +1,528 @@
+"""The tower GeoPackage: per-block ``towers/<block>.gpkg`` and the zone's ``towers.gpkg``.
+
+A tower GeoPackage holds
+
+* layer ``towers`` (Polygon): one footprint per tower, attributes
+  :data:`towerpipe.towers.extract.TOWER_FIELDS`;
+* layer ``tower_points`` (Point): the footprint centroid with the same attributes;
+* in the zone's file, layers ``lines`` (LineString, :data:`towerpipe.towers.lines.LINE_FIELDS`),
+  ``spans`` (LineString, :data:`towerpipe.towers.lines.SPAN_FIELDS`) and ``vanished_towers``
+  (Polygon, :data:`towerpipe.towers.registry.REGISTRY_FIELDS`: registered towers the last run
+  did not find again);
+* in a block's file, layer ``conductor_points`` (Point: the conductor points found in the
+  block, :data:`towerpipe.towers.wires.CONDUCTOR_FIELDS`), from which the zone's lines are built;
+* table ``layer_styles``: the default QGIS style of each layer (as QGIS itself stores
+  styles in a GeoPackage), built from ``towerpipe/data/towers.qml``;
+* ``gpkg_data_columns``: title and description (with units) of every field, and an
+  enum constraint for ``review_status`` (GDAL reads it as a field domain);
+* run metadata (``towerpipe_version``, ``model_name``, ``model_version``, ``model_choice``,
+  ``config_hash``, ``run_time`` …) as GDAL dataset metadata, i.e. in the standard
+  ``gpkg_metadata`` / ``gpkg_metadata_reference`` tables; read it with
+  :func:`read_metadata` or ``pyogrio.read_info(path)["dataset_metadata"]``.
+
+Files are GeoPackage 1.2 (``PRAGMA user_version`` 10200, GDAL's layer creation option
+``VERSION``), which GDAL 3.6 (QGIS LTR of Debian 12) opens without a warning and whose
+R-tree triggers its validator accepts; GDAL >= 3.7 writes 1.4 by default. Values are
+rounded as their :class:`towerpipe.products.fields.Field` says, geometries snapped to 1 cm.
+Files are written to a temporary file in the destination folder and renamed into
+place, so a reader never sees a half-written GeoPackage. A block without towers gets
+valid empty layers with the full schema.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sqlite3
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+import pyogrio
+import shapely
+
+from towerpipe.errors import InputError
+from towerpipe.products.fields import Field, conform
+from towerpipe.model.cards import config_hash
+
+log = logging.getLogger(__name__)
+
+LAYER_TOWERS = "towers"
+LAYER_POINTS = "tower_points"
+LAYER_LINES = "lines"
+LAYER_SPANS = "spans"
+LAYER_VANISHED = "vanished_towers"
+LAYER_CONDUCTORS = "conductor_points"
+GEOMETRY_NAME = "geom"
+#: GeoPackage version written (GDAL layer creation option ``VERSION``): 1.2, as GDAL 3.6.
+GPKG_VERSION = "1.2"
+
+__all__ = ["LAYER_TOWERS", "LAYER_POINTS", "LAYER_LINES", "LAYER_SPANS", "LAYER_VANISHED", "LAYER_CONDUCTORS",
+           "GPKG_VERSION", "Layer", "write_gpkg", "write_towers_gpkg", "read_towers", "read_metadata",
+           "list_layers", "merge_gpkgs", "concat_towers", "run_metadata", "default_style", "config_hash"]
+
+
+# --------------------------------------------------------------------------- styles
+#: Per layer: symbol (kind, fill/line colour, outline colour, width), label expression,
+#: map tip. The QML template is ``towerpipe/data/towers.qml``.
+_TOWER_TIP = ('<b>[% "tower_id" %]</b><br>height [% format_number("height_m", 1) %] m, base '
+              '[% format_number("base_z", 1) %] m<br>[% "n_points" %] points, mean probability '
+              '[% format_number("prob_mean", 2) %], conductor support [% format_number("wire_support", 2) %]'
+              '<br>line [% "line_id" %] #[% "line_seq" %], review: [% "review_status" %]'
+              '<br>block [% "block" %] ([% "blocks" %])')
+_STYLES: dict[str, dict[str, Any]] = {
+    LAYER_TOWERS: {"symbol": ("fill", "227,26,28,80", "165,15,21,255", "0.6"), "placement": "1",
+                   "label": "concat(\"tower_id\", '\\n', format_number(\"height_m\", 1), ' m')", "tip": _TOWER_TIP},
+    LAYER_POINTS: {"symbol": ("marker", "227,26,28,255", "103,0,13,255", "0.3"), "placement": "0",
+                   "label": "concat(\"tower_id\", '\\n', format_number(\"height_m\", 1), ' m')", "tip": _TOWER_TIP},
+    LAYER_LINES: {"symbol": ("line", "31,120,180,255", None, "0.8"), "placement": "2",
+                  "label": "concat('line ', \"line_id\", ' (', \"tower_count\", ' towers)')",
+                  "tip": '<b>line [% "line_id" %]</b><br>[% "tower_count" %] towers, '
+                         '[% format_number("length_m", 0) %] m'},
+    LAYER_SPANS: {"symbol": ("line", "166,206,227,255", None, "0.4"), "placement": "2",
+                  "label": "concat(format_number(\"length_m\", 0), ' m')",
+                  "tip": '<b>span [% "from_tower" %] → [% "to_tower" %]</b><br>[% format_number("length_m", 1) %] m, '
+                         'bearing [% format_number("bearing_deg", 1) %]°, [% "conductor_points" %] conductor '
+                         'points<br>lowest conductor [% format_number("lowest_conductor_m", 1) %] m above ground, '
+                         'clearance to vegetation [% format_number("clearance_m", 1) %] m'},
+    LAYER_VANISHED: {"symbol": ("fill", "150,150,150,60", "90,90,90,255", "0.5"), "placement": "1",
+                     "label": "concat(\"tower_id\", ' (vanished)')",
+                     "tip": '<b>[% "tower_id" %]</b> not found since [% "vanished_since" %]<br>last seen '
+                            '[% "last_seen" %] in block [% "block" %], review: [% "review_status" %]'},
+    LAYER_CONDUCTORS: {"symbol": ("marker", "31,120,180,255", "31,120,180,255", "0.0"), "placement": "0",
+                       "label": None, "tip": 'conductor point, [% format_number("hag", 1) %] m above ground'},
+}
+_GEOMETRY_CODE = {"marker": "0", "line": "1", "fill": "2"}
+
+
+def _symbol_xml(kind: str, color: str, outline: str | None, width: str) -> ET.Element:
+    opts = {"fill": [("color", color), ("outline_color", outline), ("outline_style", "solid"),
+                     ("outline_width", width), ("outline_width_unit", "MM"), ("style", "solid"),
+                     ("joinstyle", "miter")],
+            "marker": [("name", "triangle" if outline != color else "circle"), ("color", color),
+                       ("outline_color", outline), ("outline_width", width), ("outline_width_unit", "MM"),
+                       ("size", "3.2" if outline != color else "1.0"), ("size_unit", "MM")],
+            "line": [("line_color", color), ("line_width", width), ("line_width_unit", "MM"),
+                     ("line_style", "solid"), ("capstyle", "round"), ("joinstyle", "round")]}[kind]
+    cls = {"fill": "SimpleFill", "marker": "SimpleMarker", "line": "SimpleLine"}[kind]
+    sym = ET.Element("symbol", {"type": kind, "name": "0", "alpha": "1", "clip_to_extent": "1", "force_rhr": "0"})
+    layer = ET.SubElement(sym, "layer", {"class": cls, "enabled": "1", "locked": "0", "pass": "0"})
+    opt = ET.SubElement(layer, "Option", {"type": "Map"})
+    for name, value in opts:
+        ET.SubElement(opt, "Option", {"name": name, "type": "QString", "value": value})
+    return sym
+
+
+def default_style(layer: str = LAYER_TOWERS, fields: Mapping[str, Field] | None = None) -> str:
+    """The default QGIS style (QML text) of a layer of a tower GeoPackage.
+
+    Parameters
+    ----------
+    layer
+        A layer name (``"towers"``, ``"tower_points"``, ``"lines"`` …); ``"polygon"`` and
+        ``"point"`` name the two tower layers.
+    fields
+        The layer's fields: their titles become the field aliases (default: the tower
+        fields).
+    """
+    layer = {"polygon": LAYER_TOWERS, "point": LAYER_POINTS}.get(layer, layer)
+    if layer not in _STYLES:
+        raise ValueError(f"no style for layer {layer!r} (known: {', '.join(_STYLES)})")
+    if fields is None:
+        from towerpipe.towers.extract import TOWER_FIELDS as fields
+    spec = _STYLES[layer]
+    text = resources.files("towerpipe").joinpath("data/towers.qml").read_text(encoding="utf-8")
+    head, body = text.split("<qgis ", 1)
+    root = ET.fromstring("<qgis " + body)
+    symbols = root.find("renderer-v2/symbols")
+    for old in list(symbols):
+        symbols.remove(old)
+    symbols.append(_symbol_xml(*spec["symbol"]))
+    labeling = root.find("labeling")
+    if spec["label"] is None:
+        root.remove(labeling)
+        root.set("labelsEnabled", "0")
+    else:
+        labeling.find("settings/text-style").set("fieldName", spec["label"])
+        labeling.find("settings/placement").set("placement", spec["placement"])
+    aliases = root.find("aliases")
+    for old in list(aliases):
+        aliases.remove(old)
+    for i, (name, f) in enumerate([("fid", None), *fields.items()]):
+        ET.SubElement(aliases, "alias", {"field": name, "index": str(i), "name": f.title if f else ""})
+    root.find("mapTip").text = spec["tip"]
+    root.find("previewExpression").text = '"tower_id"' if "tower_id" in fields else (
+        '"line_id"' if "line_id" in fields else '"fid"')
+    root.find("layerGeometryType").text = _GEOMETRY_CODE[spec["symbol"][0]]
+    ET.indent(root)
+    doctype = head.split("\n", 1)[0]
+    return f"{doctype}\n{ET.tostring(root, encoding='unicode')}\n"
+
+
+def _styles_frame(layers: Sequence[Layer]) -> pd.DataFrame:
+    """The ``layer_styles`` rows (QGIS schema) of the styled layers."""
+    now = datetime.now(timezone.utc).replace(microsecond=0).isoformat()
+    rows = []
+    for lay in layers:
+        if lay.name not in _STYLES or lay.geometry_type is None:
+            continue
+        rows.append({
+            "f_table_catalog": "", "f_table_schema": "", "f_table_name": lay.name,
+            "f_geometry_column": GEOMETRY_NAME, "styleName": f"towerpipe {lay.name}",
+            "styleQML": default_style(lay.name, lay.fields), "styleSLD": "", "useAsDefault": True,
+            "description": "towerpipe default style", "owner": "", "ui": "", "update_time": now,
+        })
+    return pd.DataFrame(rows)
+
+
+# --------------------------------------------------------------------------- metadata
+def run_metadata(*, model_meta: Mapping[str, Any] | None = None, config: Mapping[str, Any] | None = None,
+                 run_time: str | None = None, **extra: Any) -> dict[str, str]:
+    """Run metadata for :func:`write_towers_gpkg`.
+
+    Parameters
+    ----------
+    model_meta
+        ``{"name", "version", "sha256", "choice", ...}`` of the model used; a ``choice``
+        (``{"mode", "reason"}``: why this model) is recorded as ``model_choice``.
+    config
+        The run configuration (hashed into ``config_hash``).
+    run_time
+        ISO timestamp (default: now, UTC).
+    **extra
+        More key/value pairs (e.g. ``zone``, ``block``), stored as strings.
+    """
+    from towerpipe import __version__
+
+    model_meta = dict(model_meta or {})
+    md = {
+        "towerpipe_version": __version__,
+        "model_name": str(model_meta.get("name", "")),
+        "model_version": str(model_meta.get("version", "")),
+        "model_sha256": str(model_meta.get("sha256", "")),
+        # how the model was chosen (inference.model: auto picks per zone; towerpipe.model.choice)
+        "model_choice": str((model_meta.get("choice") or {}).get("reason", "")),
+        "config_hash": config_hash(config or {}),
+        "run_time": run_time or datetime.now(timezone.utc).replace(microsecond=0).isoformat(),
+    }
+    if model_meta.get("choice"):
+        md["model_choice"] = json.dumps(model_meta["choice"], default=str)
+    md.update({str(k): (v if isinstance(v, str) else json.dumps(v, default=str)) for k, v in extra.items()})
+    return md
+
+
+# --------------------------------------------------------------------------- writing
+@dataclass
+class Layer:
+    """One layer to write: its table, schema and GeoPackage identification.
+
+    ``geometry_type`` ``None`` writes an attribute table (no geometry).
+    """
+
+    name: str
+    frame: pd.DataFrame
+    fields: Mapping[str, Field]
+    geometry_type: str | None
+    identifier: str
+    description: str
+
+
+def _data_columns(con: sqlite3.Connection, layers: Sequence[Layer]) -> None:
+    """``gpkg_data_columns`` (title, description) of every field; enums as constraints."""
+    con.executescript("""
+        CREATE TABLE gpkg_data_columns (
+          table_name TEXT NOT NULL, column_name TEXT NOT NULL, name TEXT, title TEXT, description TEXT,
+          mime_type TEXT, constraint_name TEXT,
+          CONSTRAINT pk_gdc PRIMARY KEY (table_name, column_name),
+          CONSTRAINT gdc_tn UNIQUE (table_name, name));
+        CREATE TABLE gpkg_data_column_constraints (
+          constraint_name TEXT NOT NULL, constraint_type TEXT NOT NULL, value TEXT, min NUMERIC,
+          min_is_inclusive BOOLEAN, max NUMERIC, max_is_inclusive BOOLEAN, description TEXT,
+          CONSTRAINT gdcc_ntv UNIQUE (constraint_name, constraint_type, value));
+        INSERT INTO gpkg_extensions (table_name, column_name, extension_name, definition, scope) VALUES
+          ('gpkg_data_columns', NULL, 'gpkg_schema', 'http://www.geopackage.org/spec/#extension_schema', 'read-write'),
+          ('gpkg_data_column_constraints', NULL, 'gpkg_schema', 'http://www.geopackage.org/spec/#extension_schema',
+           'read-write');
+    """)
+    enums: dict[str, tuple[str, ...]] = {}
+    for lay in layers:
+        for name, f in lay.fields.items():
+            cname = None
+            if f.enum:
+                cname = f"{name}_values"
+                if enums.setdefault(cname, f.enum) != f.enum:
+                    cname = f"{lay.name}_{name}_values"
+                    enums[cname] = f.enum
+            con.execute("INSERT INTO gpkg_data_columns (table_name, column_name, name, title, description, "
+                        "constraint_name) VALUES (?, ?, ?, ?, ?, ?)", (lay.name, name, name, f.title, f.description,
+                                                                      cname))
+    for cname, values in enums.items():
+        con.executemany("INSERT INTO gpkg_data_column_constraints (constraint_name, constraint_type, value, "
+                        "description) VALUES (?, 'enum', ?, ?)", [(cname, v, v) for v in values])
+
+
+def _clean(path: Path) -> None:
+    for leftover in (path, Path(str(path) + "-journal"), Path(str(path) + "-wal"), Path(str(path) + "-shm")):
+        if leftover.exists():
+            leftover.unlink()
+
+
+def write_gpkg(path: str | os.PathLike[str], layers: Sequence[Layer], *, crs_wkt: Any = None,
+               metadata: Mapping[str, Any] | None = None) -> Path:
+    """Write layers, their styles, field descriptions and metadata to a GeoPackage, atomically.
+
+    Parameters
+    ----------
+    path
+        Destination ``.gpkg`` (replaced if it exists).
+    layers
+        The layers; each table is conformed to its fields (order, types, rounding).
+    crs_wkt
+        CRS of every spatial layer (WKT or anything pyproj reads); default: the first
+        layer's. Required when no layer has one.
+    metadata
+        GeoPackage metadata (``gpkg_metadata``, GDAL dataset metadata).
+    """
+    path = Path(path)
+    spatial = [lay for lay in layers if lay.geometry_type is not None]
+    crs = crs_wkt if crs_wkt is not None else next(
+        (lay.frame.crs for lay in spatial if getattr(lay.frame, "crs", None) is not None), None)
+    if spatial and crs is None:
+        raise ValueError(f"{path}: no CRS for the tower GeoPackage; pass crs_wkt")
+    md = {str(k): str(v) for k, v in (metadata or {}).items()}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.part.gpkg")  # fixed name: a rerun after a kill replaces it
+    try:
+        _clean(tmp)
+        for i, lay in enumerate(layers):
+            frame = conform(lay.frame, lay.fields, crs if lay.geometry_type else None)
+            opts = {"IDENTIFIER": lay.identifier, "DESCRIPTION": lay.description}
+            if lay.geometry_type is not None:
+                opts.update(GEOMETRY_NAME=GEOMETRY_NAME, SPATIAL_INDEX="YES")
+            pyogrio.write_dataframe(frame, tmp, layer=lay.name, driver="GPKG", geometry_type=lay.geometry_type,
+                                    dataset_options={"VERSION": GPKG_VERSION} if i == 0 else None,
+                                    dataset_metadata=(md or None) if i == 0 else None, layer_options=opts,
+                                    append=False)
+        styles = _styles_frame(layers)
+        if len(styles):
+            pyogrio.write_dataframe(styles, tmp, layer="layer_styles", driver="GPKG", layer_options={"FID": "id"})
+        with sqlite3.connect(tmp) as con:
+            _data_columns(con, layers)
+        con.close()
+        os.replace(tmp, path)
+        stale_pam = Path(str(path) + ".aux.xml")  # GDAL side-car of an older file: would shadow metadata
+        if stale_pam.exists():
+            stale_pam.unlink()
+    finally:
+        _clean(tmp)
+    return path
+
+
+def _tower_layers(towers: gpd.GeoDataFrame | None, crs: Any) -> list[Layer]:
+    from towerpipe.products.fields import empty_frame
+    from towerpipe.towers.extract import TOWER_FIELDS
+
+    gdf = towers if towers is not None and len(towers) else empty_frame(TOWER_FIELDS, crs)
+    gdf = conform(gdf, TOWER_FIELDS, crs)
+    pts = gpd.GeoDataFrame(gdf.drop(columns="geometry"),
+                           geometry=gpd.points_from_xy(gdf["centroid_x"].to_numpy(float),
+                                                       gdf["centroid_y"].to_numpy(float), crs=crs), crs=crs)
+    return [Layer(LAYER_TOWERS, gdf, TOWER_FIELDS, "Polygon", "Towers (footprints)",
+                  "Power transmission towers found by towerpipe: xy footprint of the tower points"),
+            Layer(LAYER_POINTS, pts, TOWER_FIELDS, "Point", "Towers (centroids)",
+                  "Power transmission towers found by towerpipe: footprint centroid")]
+
+
+def write_towers_gpkg(path: str | os.PathLike[str], towers: gpd.GeoDataFrame | None, *,
+                      crs_wkt: str | None = None, metadata: Mapping[str, Any] | None = None,
+                      lines: gpd.GeoDataFrame | None = None, spans: gpd.GeoDataFrame | None = None,
+                      vanished: gpd.GeoDataFrame | None = None,
+                      conductors: gpd.GeoDataFrame | None = None) -> Path:
+    """Write the tower GeoPackage atomically.
+
+    Parameters
+    ----------
+    path
+        Destination ``.gpkg`` (replaced if it exists).
+    towers
+        Tower records as returned by :func:`towerpipe.towers.extract.extract_towers`
+        (None or empty: empty layers with the full schema).
+    crs_wkt
+        CRS of the input point clouds (WKT or any pyproj-readable string);
+        default: the CRS of ``towers``. Required when ``towers`` has no CRS.
+    metadata
+        Run metadata (see :func:`run_metadata`), stored as GeoPackage metadata.
+    lines, spans, vanished
+        The zone's lines, spans (:func:`towerpipe.towers.lines.build_lines`) and vanished towers
+        (:func:`towerpipe.towers.registry.vanished`); each given table (even empty) is written
+        as its layer.
+    conductors
+        Conductor points of a block (:func:`towerpipe.towers.wires.conductor_points`).
+
+    Returns
+    -------
+    pathlib.Path
+        The written file.
+    """
+    from towerpipe.products.fields import empty_frame
+    from towerpipe.towers.lines import LINE_FIELDS, SPAN_FIELDS
+    from towerpipe.towers.registry import REGISTRY_FIELDS
+    from towerpipe.towers.wires import CONDUCTOR_FIELDS
+
+    crs = crs_wkt if crs_wkt is not None else (towers.crs if towers is not None else None)
+    if crs is None:
+        raise ValueError(f"{path}: no CRS for the tower GeoPackage; pass crs_wkt")
+    layers = _tower_layers(towers, crs)
+    extra = [(lines, LAYER_LINES, LINE_FIELDS, "LineString", "Power lines",
+              "Towers linked into lines by the conductors between them; vertices at the towers, in line order"),
+             (spans, LAYER_SPANS, SPAN_FIELDS, "LineString", "Spans",
+              "Tower-to-tower spans: length, bearing, conductor points and clearance below them"),
+             (vanished, LAYER_VANISHED, REGISTRY_FIELDS, "Polygon", "Vanished towers",
+              "Towers of the registry the last run did not find again (last footprint seen)"),
+             (conductors, LAYER_CONDUCTORS, CONDUCTOR_FIELDS, "Point", "Conductor points",
+              "Points on overhead wires found around the block's towers (they link the towers into lines)")]
+    for table, name, fields, gtype, ident, desc in extra:
+        if table is not None:
+            layers.append(Layer(name, table if len(table) else empty_frame(fields, crs), fields, gtype, ident, desc))
+    md = {str(k): str(v) for k, v in (metadata or {}).items()}
+    md.setdefault("n_towers", str(0 if towers is None else len(towers)))
+    return write_gpkg(path, layers, crs_wkt=crs, metadata=md)
+
+
+# --------------------------------------------------------------------------- reading
+@contextmanager
+def _no_pam():
+    """GDAL would otherwise leave a ``.aux.xml`` side-car copy of the metadata next to a file it reads."""
+    previous = pyogrio.get_gdal_config_option("GDAL_PAM_ENABLED")
+    pyogrio.set_gdal_config_options({"GDAL_PAM_ENABLED": "NO"})
+    try:
+        yield
+    finally:
+        pyogrio.set_gdal_config_options({"GDAL_PAM_ENABLED": previous})
+
+
+def list_layers(path: str | os.PathLike[str]) -> list[str]:
+    """Layer names of a GeoPackage."""
+    try:
+        with _no_pam():
+            return [str(name) for name, _ in pyogrio.list_layers(path)]
+    except Exception as exc:  # pyogrio raises several DataSource errors
+        raise InputError(path, f"not a readable GeoPackage ({exc})") from exc
+
+
+def read_towers(path: str | os.PathLike[str], layer: str = LAYER_TOWERS) -> gpd.GeoDataFrame:
+    """Read a layer of a tower GeoPackage (raises :class:`InputError` when unreadable)."""
+    try:
+        with _no_pam():
+            gdf = pyogrio.read_dataframe(path, layer=layer)
+    except Exception as exc:  # pyogrio raises several DataSource/DataLayer errors
+        raise InputError(path, f"not a readable tower GeoPackage ({exc}); rerun the towers step") from exc
+    for col in ("line_id", "line_seq"):  # NULL-able integers come back as float
+        if col in gdf.columns and gdf[col].dtype.kind == "f":
+            gdf[col] = gdf[col].astype("Int64")
+    return gdf
+
+
+def read_metadata(path: str | os.PathLike[str]) -> dict[str, str]:
+    """The run metadata stored by :func:`write_towers_gpkg`."""
+    try:
+        with _no_pam():
+            return dict(pyogrio.read_info(path, layer=LAYER_TOWERS).get("dataset_metadata") or {})
+    except Exception as exc:
+        raise InputError(path, f"not a readable tower GeoPackage ({exc})") from exc
+
+
+def concat_towers(paths: Sequence[str | os.PathLike[str]], layer: str = LAYER_TOWERS, *,
+                  crs_wkt: Any = None) -> gpd.GeoDataFrame:
+    """One layer of several tower GeoPackages, concatenated (one CRS, else :class:`InputError`).
+
+    A tower reported by two blocks or zones (only possible when they overlap: the
+    footprints intersect) is kept once, from the first file, with a warning.
+    """
+    frames, crs = [], None
+    for p in paths:
+        gdf = read_towers(p, layer)
+        if gdf.crs is not None:
+            if crs is None:
+                crs = gdf.crs
+            elif not gdf.crs.equals(crs):
+                raise InputError(p, f"CRS {gdf.crs.name!r} differs from the other tower files ({crs.name!r})")
+        if len(gdf):
+            frames.append(gdf)
+    crs = crs if crs is not None else crs_wkt
+    if not frames:
+        return gpd.GeoDataFrame(geometry=gpd.GeoSeries([], crs=crs), crs=crs)
+    merged = gpd.GeoDataFrame(pd.concat(frames, ignore_index=True), crs=crs)
+    if layer in (LAYER_TOWERS, LAYER_POINTS):
+        # one tower reported twice (blocks or zones that overlap: the footprints intersect) is
+        # kept once, from the first file; two towers with one id that do not overlap are both
+        # kept, for towerpipe.towers.registry.unique_ids to tell apart
+        foot = merged.geometry.values if layer == LAYER_TOWERS else merged.geometry.buffer(0.5).values
+        tree = shapely.STRtree(foot)
+        a, b = tree.query(foot, predicate="intersects")
+        later = np.zeros(len(merged), bool)
+        for i, j in sorted(zip(a.tolist(), b.tolist())):
+            if i < j and not later[i]:
+                later[j] = True
+        if later.any():
+            log.warning("%d tower(s) reported by more than one block or zone, kept once: %s", int(later.sum()),
+                        ", ".join(merged.loc[later, "tower_id"].astype(str).tolist()[:10]))
+            merged = merged.loc[~later]
+        merged = merged.sort_values("tower_id", kind="stable")
+    return merged.reset_index(drop=True)
+
+
+def merge_gpkgs(paths: Sequence[str | os.PathLike[str]], out_path: str | os.PathLike[str], *,
+                metadata: Mapping[str, Any] | None = None, crs_wkt: str | None = None, **layers: Any) -> Path:
+    """Assemble per-block tower GeoPackages into one (zone-level) GeoPackage.
+
+    Parameters
+    ----------
+    paths
+        Per-block files written by :func:`write_towers_gpkg` (empty ones allowed).
+    out_path
+        Destination ``.gpkg`` (written atomically).
+    metadata
+        Run metadata for the merged file; default: that of the first input, with
+        ``blocks`` (number of inputs) and ``n_towers`` updated.
+    crs_wkt
+        CRS when there are no inputs; otherwise all inputs must share one CRS.
+    **layers
+        ``lines``, ``spans``, ``vanished``: zone layers for :func:`write_towers_gpkg`.
+
+    Returns
+    -------
+    pathlib.Path
+        The written file (towers sorted by id, each id once).
+    """
+    from towerpipe.towers.registry import unique_ids
+
+    merged = unique_ids(concat_towers(paths, crs_wkt=crs_wkt))
+    crs = merged.crs if merged.crs is not None else crs_wkt
+    if crs is None:
+        raise ValueError(f"{out_path}: no inputs and no crs_wkt given")
+    md = dict(metadata) if metadata is not None else (read_metadata(paths[0]) if paths else {})
+    md["blocks"] = str(len(paths))
+    md["n_towers"] = str(len(merged))
+    if metadata is None:
+        md.pop("block", None)
+    wkt = crs.to_wkt() if hasattr(crs, "to_wkt") else crs
+    return write_towers_gpkg(out_path, merged if len(merged) else None, crs_wkt=wkt, metadata=md, **layers)
+
+
+def gpkg_version(path: str | os.PathLike[str]) -> int:
+    """``PRAGMA user_version`` of a GeoPackage (10200 for 1.2)."""
+    with sqlite3.connect(f"file:{Path(path).resolve()}?mode=ro", uri=True) as con:
+        version = int(con.execute("PRAGMA user_version").fetchone()[0])
+    con.close()
+    return version
+

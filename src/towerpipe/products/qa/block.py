@@ -1,0 +1,412 @@
+"""The QA page of one block: :func:`block_report`, and the points around its towers.
+
+:func:`block_report` gathers the numbers of one block (points per stage, ground,
+density, HAG, windows, towers, timings and memory, sensor attributes, accuracy against
+input labels when there are any), decides whether the block needs a human look (see
+:data:`towerpipe.products.qa.metrics.DEFAULT_LIMITS`), and writes
+
+* ``out_html``: the page (template ``block.html``), inline CSS and embedded PNG
+  figures (no external assets: it can be mailed or opened from a network share), with
+  relative links to the zone index and the block's products in ``results/<zone>/``;
+* ``out_json``: every number on the page, read by :func:`towerpipe.products.qa.index.zone_index`.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from collections.abc import Mapping, Sequence
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from towerpipe.products import layout
+from towerpipe.io.atomic import write_text_atomic
+from towerpipe.progress import Progress
+from towerpipe.products.qa import plots
+from towerpipe.products.qa.metrics import (
+    DEFAULT_LIMITS,
+    GROUND_CLASS,
+    TOWER_CLASS,
+    data_extent,
+    density_grid,
+    distance_to_data_edge,
+    jsonable,
+    label_accuracy,
+    load_classified,
+    read_benchmark,
+    read_towers,
+    sum_dicts,
+)
+from towerpipe.products.qa.pages import render
+
+log = logging.getLogger(__name__)
+
+#: Half-width (m) of the square around a tower shown in its side views, at least.
+VIEW_RADIUS_M = 30.0
+
+
+def tower_neighbourhoods(tile_files: Sequence[str | os.PathLike[str]], member_files: Sequence[str | os.PathLike[str]],
+                         towers: Any, radius: float = VIEW_RADIUS_M) -> dict[str, dict[str, np.ndarray]]:
+    """The points around each tower, for its side views.
+
+    Parameters
+    ----------
+    tile_files
+        The block's tile files: core and buffer, so a tower across a block edge is seen
+        whole (its neighbour's points are in the buffer).
+    member_files
+        Tower-points files (:func:`towerpipe.towers.extract.save_members`): which points are the
+        towers' own (the points the merge classifies 15).
+    towers
+        The block's towers (GeoDataFrame with ``tower_id``, ``centroid_x``, ``centroid_y``).
+    radius
+        Half-width of the square around each tower's centroid (grown to hold the whole
+        footprint and 15 m around it).
+
+    Returns
+    -------
+    dict
+        ``tower_id`` → ``x, y, z`` (float64) and ``tower`` (bool) of the points in its square.
+    """
+    from towerpipe.io.columns import load_columns
+    from towerpipe.io.tiles import load_tile
+    from towerpipe.towers.extract import MEMBER_ARRAYS
+
+    if not len(towers):
+        return {}
+    member_keys: set[tuple[str, int]] = set()
+    for p in member_files:
+        arrays, meta = load_columns(p, list(MEMBER_ARRAYS), "tower-points", "rerun the towers_block job")
+        names = list(meta.get("blocks") or [])
+        member_keys.update(zip((names[i] for i in arrays["block_id"].tolist()), arrays["point_index"].tolist()))
+    boxes = {}
+    for r in towers.itertuples(index=False):
+        b = r.geometry.bounds
+        half = max(radius, 0.5 * max(b[2] - b[0], b[3] - b[1]) + 15.0)
+        boxes[r.tower_id] = (r.centroid_x - half, r.centroid_y - half, r.centroid_x + half, r.centroid_y + half)
+    parts: dict[str, list[dict[str, np.ndarray]]] = {t: [] for t in boxes}
+    seen: dict[str, set[tuple[int, int]]] = {t: set() for t in boxes}
+    for path in tile_files:
+        tile = load_tile(path, ["x", "y", "z", "block_id", "point_index"])
+        names = list(tile.meta.get("blocks") or [])
+        x, y = tile.arrays["x"], tile.arrays["y"]
+        for tid, (x0, y0, x1, y1) in boxes.items():
+            sel = np.flatnonzero((x >= x0) & (x < x1) & (y >= y0) & (y < y1))
+            if not sel.size:
+                continue
+            bid, pidx = tile.arrays["block_id"][sel], tile.arrays["point_index"][sel]
+            # a buffer point is in several tiles: keep each (block, point) once
+            keys = list(zip((names[i] for i in bid.tolist()), pidx.tolist()))
+            fresh = np.array([k not in seen[tid] for k in keys], dtype=bool)
+            seen[tid].update(keys)
+            sel = sel[fresh]
+            parts[tid].append({"x": x[sel], "y": y[sel], "z": tile.arrays["z"][sel],
+                               "tower": np.array([k in member_keys for k, f in zip(keys, fresh) if f], dtype=bool)})
+    out = {}
+    for tid, ps in parts.items():
+        if ps:
+            out[tid] = {k: np.concatenate([p[k] for p in ps]) for k in ("x", "y", "z", "tower")}
+    return out
+
+
+def _links(block: str) -> list[dict[str, str]]:
+    here = layout.block_product(layout.QA_PAGE, block)
+    return [{"label": f"← {label}", "href": layout.link(here, target)} if i == 0 else
+            {"label": label, "href": layout.link(here, target)}
+            for i, (label, target) in enumerate((
+                ("zone index", layout.QA_INDEX),
+                (f"classified points ({Path(layout.BLOCK_LAZ).name.format(block=block)})",
+                 layout.block_product(layout.BLOCK_LAZ, block)),
+                ("block towers (GeoPackage)", layout.block_product(layout.BLOCK_GPKG, block)),
+                ("zone towers (GeoPackage)", layout.ZONE_GPKG)))]
+
+
+def _summary(n_towers: int, n_look_towers: int, flags: list[dict[str, str]]) -> str:
+    s = f"{n_towers} tower{'s' if n_towers != 1 else ''} found"
+    if n_look_towers:
+        s += f"; {n_look_towers} need{'s' if n_look_towers == 1 else ''} a look"
+    other = [f["reason"] for f in flags if f["code"] != "tower"]
+    if other:
+        s += "; block needs a look: " + "; ".join(other)
+    elif not flags:
+        s += "; nothing to check"
+    return s + "."
+
+
+def block_report(
+    out_html: str | os.PathLike[str],
+    out_json: str | os.PathLike[str],
+    *,
+    block_name: str,
+    zone: str = "",
+    block_bounds: Sequence[float] | None = None,
+    stats: Mapping[str, Any] | None = None,
+    tile_metas: Sequence[Mapping[str, Any]] = (),
+    pred_metas: Sequence[Mapping[str, Any]] = (),
+    towers: Any = None,
+    classified: str | os.PathLike[str] | Mapping[str, np.ndarray] | None = None,
+    raster: str | os.PathLike[str] | None = None,
+    truth: np.ndarray | None = None,
+    timings: Mapping[str, float | str | os.PathLike[str] | Mapping[str, Any]] | None = None,
+    warnings: Sequence[str] = (),
+    limits: Mapping[str, float] | None = None,
+    neighbour_towers: Sequence[Mapping[str, Any]] | None = None,
+    data_bounds: Sequence[Sequence[float]] | None = None,
+    neighbourhoods: Mapping[str, Mapping[str, np.ndarray]] | None = None,
+) -> dict[str, Any]:
+    """Write the QA page and its JSON for one block.
+
+    Parameters
+    ----------
+    out_html, out_json
+        Destinations (written atomically).
+    block_name, zone
+        Names shown on the page.
+    block_bounds
+        ``(xmin, ymin, xmax, ymax)`` of the block (default: the points' extent).
+    stats
+        The block's preprocessing summary or any further numbers: kept in the JSON and
+        shown folded as raw metadata. Its ``attributes`` / ``degenerate_attributes``
+        (sensor-attribute validity, when the split recorded it) get a table and a flag.
+    tile_metas, pred_metas
+        ``meta`` dicts of the block's tile files and prediction files (counts,
+        ``ground_source``, windows, timings, ``peak_rss_mb``, model and its ``choice``).
+    towers
+        The block's towers: GeoDataFrame from :func:`towerpipe.towers.extract.extract_towers`
+        or the path of the block's tower GeoPackage.
+    classified
+        The classified points (mapping with ``x, y, z, classification`` and
+        optionally ``prob``, ``hag``) or the path of the classified LAZ.
+    raster
+        A DTM/DSM GeoTIFF for the hillshade (default: max z of the points per cell).
+    truth
+        Input class labels of the points (Classification before it was
+        overwritten), same order as ``classified``; towers are class 15. When it
+        holds class 15, tower precision/recall and point IoU are reported.
+    timings
+        Stage name → seconds, or → path of a Snakemake benchmark TSV (``s``, ``max_rss``).
+    warnings
+        Messages to show (e.g. logged warnings of the block's jobs).
+    limits
+        Overrides of :data:`~towerpipe.products.qa.metrics.DEFAULT_LIMITS`.
+    neighbour_towers
+        Towers with points in this block that a neighbouring block owns (``tower_id``,
+        ``footprint_wkt``): a labelled tower they match counts as found (recall), not as
+        a tower of this block (precision).
+    data_bounds
+        Boxes of the block and of each neighbour that gave points: a tower whose
+        footprint reaches the edge of their union may be cut and is flagged (default:
+        the block alone). A tower across a seam between blocks that both gave points
+        is whole and is not flagged.
+    neighbourhoods
+        ``tower_id`` → the points around the tower (:func:`tower_neighbourhoods`): two
+        side views per tower.
+
+    Returns
+    -------
+    dict
+        The numbers written to ``out_json`` (``status`` is ``"ok"`` or ``"look"``,
+        ``flags`` lists the reasons).
+    """
+    lim = dict(DEFAULT_LIMITS, **(limits or {}))
+    out_html, out_json = Path(out_html), Path(out_json)
+    gdf = read_towers(towers)
+    pts = load_classified(classified) if classified is not None else None
+    stats = dict(stats or {})
+    flags: list[dict[str, str]] = []
+
+    def flag(code: str, reason: str) -> None:
+        flags.append({"code": code, "reason": reason})
+
+    # ---- extent
+    if block_bounds is None:
+        cb = [m.get("core_bounds") for m in tile_metas if m.get("core_bounds")]
+        if cb:
+            arr = np.asarray(cb, dtype=float)
+            block_bounds = [arr[:, 0].min(), arr[:, 1].min(), arr[:, 2].max(), arr[:, 3].max()]
+        elif pts is not None and len(pts["x"]):
+            block_bounds = [pts["x"].min(), pts["y"].min(), pts["x"].max(), pts["y"].max()]
+    bounds = [float(v) for v in block_bounds] if block_bounds is not None else None
+    area_m2 = (bounds[2] - bounds[0]) * (bounds[3] - bounds[1]) if bounds else None
+
+    # ---- points and ground
+    tile_counts = sum_dicts(m.get("counts") for m in tile_metas)
+    ground_sources = sorted({str(m.get("ground_source")) for m in tile_metas if m.get("ground_source")})
+    ground_classified = any(s != "class2" for s in ground_sources)
+    n_points = int(len(pts["x"])) if pts is not None else None
+    cls = pts["classification"] if pts is not None else None
+    # the ground the pipeline used (class 2, or PDAL's when it had to classify), else class 2
+    n_ground = (int(tile_counts["ground_core"]) if "ground_core" in tile_counts else
+                int(np.count_nonzero(cls == GROUND_CLASS)) if cls is not None else None)
+    n_tower_pts = int(np.count_nonzero(cls == TOWER_CLASS)) if cls is not None else None
+    ground_ratio = (n_ground / n_points) if n_points else None
+    if ground_classified:
+        flag("ground_classified", f"input had no usable ground class; ground classified by towerpipe "
+                                  f"({', '.join(s for s in ground_sources if s != 'class2')})")
+    if ground_ratio is not None and ground_ratio < lim["min_ground_ratio"]:
+        flag("low_ground", f"only {100 * ground_ratio:.1f} % of points are ground")
+
+    # ---- sensor attributes (recorded by the split when it checks them)
+    attributes = stats.get("attributes") or {}
+    degenerate = list(stats.get("degenerate_attributes") or [])
+    if degenerate:
+        flag("degenerate_attributes", "sensor attributes unusable: " + "; ".join(
+            f"{a} ({(attributes.get(a) or {}).get('reason', 'degenerate')})" for a in degenerate))
+
+    # ---- windows, model
+    win = {k: int(sum(int(m.get(k) or 0) for m in pred_metas))
+           for k in ("windows_total", "windows_passed_gate", "windows_segmented")}
+    gate_ratio = win["windows_passed_gate"] / win["windows_total"] if win["windows_total"] else None
+    if gate_ratio is not None and gate_ratio > lim["max_gate_ratio"]:
+        flag("many_windows_gated", f"{100 * gate_ratio:.0f} % of windows passed the classifier gate "
+                                   f"(> {100 * lim['max_gate_ratio']:.0f} %)")
+    model = next((m.get("model") for m in pred_metas if m.get("model")), None) or {}
+    points_model_input = int(sum(int(m.get("points_model_input_core") or 0) for m in pred_metas))
+
+    # ---- per-stage counts
+    stage_counts: list[tuple[str, int]] = [(f"tiles: {k.replace('_', ' ')}", int(v)) for k, v in tile_counts.items()]
+    if pred_metas:
+        stage_counts.append(("model input (core points)", points_model_input))
+    if n_points is not None:
+        stage_counts += [("output: all points", n_points), ("output: ground (class 2)", n_ground),
+                         ("output: tower (class 15)", n_tower_pts)]
+    stage_counts.append(("towers", int(len(gdf))))
+
+    # ---- figures and density
+    figures: list[dict[str, str]] = []
+    density: dict[str, Any] = {}
+    if pts is not None and n_points and bounds:
+        grid, density = density_grid(pts["x"], pts["y"], bounds)
+        density["mean"] = n_points / area_m2 if area_m2 else None
+        figures.append({"src": plots.density_map(grid, bounds, density["density_cell_m"]),
+                        "caption": "Point density: look for stripes, holes and low-density corners"})
+        if density["density_median"] < lim["min_density"]:
+            flag("low_density", f"median density {density['density_median']:.1f} pts/m² "
+                                f"(< {lim['min_density']:.1f})")
+    hag = None
+    hag_source = None
+    if pts is not None and "hag" in pts:
+        hag, hag_source = np.asarray(pts["hag"], dtype=np.float64), "HAG of the pipeline"
+    elif pts is not None and raster is not None:
+        import rasterio
+
+        with rasterio.open(raster) as ds:
+            rows, cols = rasterio.transform.rowcol(ds.transform, pts["x"], pts["y"])
+            rows = np.clip(np.asarray(rows), 0, ds.height - 1)
+            cols = np.clip(np.asarray(cols), 0, ds.width - 1)
+            dtm = ds.read(1, masked=True).astype(np.float64).filled(np.nan)
+            hag, hag_source = pts["z"] - dtm[rows, cols], f"z − {Path(raster).name}"
+    if hag is not None:
+        figures.append({"src": plots.hag_histogram(hag, cls == TOWER_CLASS if cls is not None else None),
+                        "caption": f"Height above ground ({hag_source})"})
+    if raster is not None:
+        grid, gb, cell = plots.raster_grid(raster)
+        map_src = Path(raster).name
+    elif pts is not None and n_points and bounds:
+        grid, cell = plots.max_z_grid(pts["x"], pts["y"], pts["z"], bounds)
+        gb, map_src = bounds, "max point z per cell"
+    else:
+        grid, gb, cell, map_src = None, None, 1.0, "nothing (no points given)"
+    map_png = plots.block_map(gdf, bounds, grid, gb, cell, map_src) if (bounds or len(gdf)) else None
+
+    # ---- towers
+    extent = data_extent(data_bounds if data_bounds is not None else ([bounds] if bounds else []))
+    tower_rows = []
+    views: dict[int, str] = {}
+    progress = Progress(f"qa {block_name}: side views", len(gdf), "towers", logger=log)
+    for i, r in enumerate(gdf.itertuples(index=False), 1):
+        tflags = []
+        to_edge = distance_to_data_edge(r.geometry, extent)
+        if math.isfinite(to_edge) and to_edge < lim["edge_margin_m"]:
+            tflags.append(f"footprint {to_edge:.1f} m from the edge of the data (zone edge, or a neighbour "
+                          f"without points): the tower may be cut")
+        if r.prob_mean < lim["min_tower_prob"]:
+            tflags.append(f"low mean probability {r.prob_mean:.2f}")
+        support = float(getattr(r, "wire_support", float("nan")))
+        if math.isfinite(support) and support < lim["min_wire_support"]:
+            tflags.append(f"no conductors found (support {support:.2f}): a pole, or not a tower?")
+        elif not math.isfinite(support) and "wire_support" in gdf.columns and r.height_m >= lim["wire_min_height"]:
+            tflags.append("conductor ring (80-160 m) outside the data: support not measured, kept")
+        for t in tflags:
+            flag("tower", f"tower {i} ({r.tower_id}): {t}")
+        tower_rows.append({"n": i, "tower_id": r.tower_id, "x": r.centroid_x, "y": r.centroid_y,
+                           "height_m": r.height_m, "base_z": r.base_z, "n_points": int(r.n_points),
+                           "prob_mean": r.prob_mean, "prob_max": r.prob_max,
+                           "wire_support": support, "blocks": r.blocks,
+                           "edge_distance_m": r.edge_distance_m,
+                           "data_edge_m": round(to_edge, 2) if math.isfinite(to_edge) else None, "flags": tflags})
+        hood = (neighbourhoods or {}).get(r.tower_id)
+        if hood is not None and len(hood["x"]):
+            views[i] = plots.tower_elevations(hood, (r.centroid_x, r.centroid_y),
+                                              f"Tower {i} ({r.tower_id}), {r.height_m:.1f} m")
+        progress.update()
+    progress.close()
+
+    # ---- accuracy against input labels
+    accuracy = None
+    if truth is not None and pts is not None:
+        accuracy = label_accuracy(pts, truth, gdf, bounds, min_truth_points=int(lim["min_truth_points"]),
+                                  neighbour_towers=neighbour_towers)
+        if accuracy is not None:
+            if accuracy["recall"] is not None and accuracy["recall"] < lim["min_recall"]:
+                flag("missed_towers", f"{accuracy['fn']} of {accuracy['towers_true']} labelled towers not found "
+                                      f"(recall {accuracy['recall']:.2f})")
+            if accuracy["precision"] is not None and accuracy["precision"] < lim["min_precision"]:
+                flag("false_towers", f"{accuracy['fp']} of {len(gdf)} towers found match no labelled tower "
+                                     f"(precision {accuracy['precision']:.2f})")
+
+    # ---- timings and memory
+    stage_time: list[dict[str, Any]] = []
+    for label, metas in (("preprocess (tiles)", tile_metas), ("inference (tiles)", pred_metas)):
+        for k, v in sum_dicts(m.get("timings") for m in metas).items():
+            stage_time.append({"stage": f"{label}: {k}", "seconds": float(v), "max_rss_mb": None})
+    rss = [float(m["peak_rss_mb"]) for m in pred_metas if m.get("peak_rss_mb") is not None]
+    if rss:
+        stage_time.append({"stage": "inference: peak of tile jobs", "seconds": None, "max_rss_mb": max(rss)})
+    for name, v in (timings or {}).items():
+        if isinstance(v, (str, os.PathLike)):
+            try:
+                b = read_benchmark(v)
+            except OSError as exc:
+                warnings = [*warnings, f"benchmark file of {name} unreadable: {exc}"]
+                continue
+            stage_time.append({"stage": name, "seconds": b.get("seconds"), "max_rss_mb": b.get("max_rss_mb")})
+        elif isinstance(v, Mapping):  # aggregated over several jobs: {"seconds", "max_rss_mb", "jobs"}
+            label = f"{name} ({v['jobs']} jobs)" if v.get("jobs", 1) > 1 else name
+            stage_time.append({"stage": label, "seconds": v.get("seconds"), "max_rss_mb": v.get("max_rss_mb")})
+        else:
+            stage_time.append({"stage": name, "seconds": float(v), "max_rss_mb": None})
+    warnings = [str(w) for w in warnings]
+    if warnings:
+        flag("warnings", f"{len(warnings)} warning(s) during processing")
+
+    status = "look" if flags else "ok"
+    n_look_towers = sum(1 for t in tower_rows if t["flags"])
+    doc = {
+        "block": block_name, "zone": zone, "status": status, "summary": _summary(len(gdf), n_look_towers, flags),
+        "flags": flags, "html": out_html.name,
+        "generated_at": datetime.now(timezone.utc).replace(microsecond=0).isoformat(),
+        "bounds": bounds, "area_m2": area_m2,
+        "points": n_points, "points_ground": n_ground, "points_tower": n_tower_pts, "ground_ratio": ground_ratio,
+        "ground_sources": ground_sources, "ground_classified": ground_classified,
+        "density": density, "stage_counts": dict(stage_counts), "tile_counts": tile_counts,
+        "attributes": attributes, "degenerate_attributes": degenerate,
+        "tiles": len(tile_metas), "pred_files": len(pred_metas), **win, "gate_ratio": gate_ratio,
+        "points_model_input": points_model_input if pred_metas else None,
+        "model": {k: model.get(k) for k in ("name", "version", "feature_set", "sha256", "choice") if k in model},
+        "towers": tower_rows, "n_towers": len(gdf),
+        "tower_prob_mean": float(gdf["prob_mean"].mean()) if len(gdf) else None,
+        "accuracy": accuracy, "timings": stage_time,
+        "timings_total": sum(t["seconds"] or 0 for t in stage_time if ":" not in t["stage"]),
+        "warnings": warnings, "stats": stats, "limits": lim,
+    }
+    doc = jsonable(doc)
+    write_text_atomic(out_json, json.dumps(doc, indent=1))
+    render("block.html", out_html, d=doc, map_png=map_png, figures=figures, views=views,
+           links=_links(block_name), json_name=out_json.name)
+    return doc

@@ -1,0 +1,245 @@
+"""The numbers of the QA pages: inputs read, limits, density, accuracy, the data edge.
+
+Everything here is plain data (numbers, dicts, arrays); :mod:`towerpipe.products.qa.plots` draws
+and :mod:`towerpipe.products.qa.pages` renders.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from towerpipe.towers.extract import f1_score, match_towers
+
+#: Limits that flag a block or a tower for a human look; override via ``limits=``.
+DEFAULT_LIMITS: dict[str, float] = {
+    "min_density": 2.0,            # median points / m² over non-empty cells
+    "min_ground_ratio": 0.05,      # share of points classified ground
+    "edge_margin_m": 2.0,          # tower footprint closer than this to the edge of the data: cut
+    "min_tower_prob": 0.6,         # mean probability of a tower's points
+    "min_wire_support": 0.5,       # conductor support of a tower (a low tower is kept without it)
+    "wire_min_height": 20.0,       # the conductor rule applies from this height (towers.wire_min_height)
+    "max_gate_ratio": 0.25,        # share of windows that passed the classifier gate
+    "min_recall": 1.0,             # tower recall against input labels (when present)
+    "min_precision": 1.0,          # tower precision against input labels (when present)
+    "min_truth_points": 20,        # labelled clusters with fewer points are not towers (paper: < 20 dropped)
+}
+
+TOWER_CLASS = 15
+GROUND_CLASS = 2
+
+#: Header bounds of adjoining blocks meet up to rounding (a block's max is its last point,
+#: not the next block's min): boxes are grown by this much (m) before they are joined.
+SEAM_TOLERANCE_M = 1.0
+
+
+def jsonable(obj: Any) -> Any:
+    """``obj`` with numpy scalars/arrays, paths and non-finite floats made JSON-ready."""
+    if isinstance(obj, Mapping):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (np.floating, float)):
+        return float(obj) if math.isfinite(float(obj)) else None
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def sum_dicts(dicts: Iterable[Mapping[str, Any] | None]) -> dict[str, float]:
+    """Key-wise sum of the numeric values of several dicts."""
+    out: dict[str, float] = {}
+    for d in dicts:
+        for k, v in (d or {}).items():
+            if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool):
+                out[k] = out.get(k, 0) + v
+    return out
+
+
+# --------------------------------------------------------------------------- inputs
+def load_classified(src: str | os.PathLike[str] | Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Points of a classified block: ``x, y, z, classification`` and, when present, ``prob``, ``hag``.
+
+    Parameters
+    ----------
+    src
+        A mapping of arrays, or the path of the classified LAS/LAZ written by the
+        merge step (``prob`` from its ``TowerProbability`` extra dimension).
+    """
+    if isinstance(src, Mapping):
+        out = {k: np.asarray(v) for k, v in src.items()}
+    else:
+        import laspy
+
+        from towerpipe.products.merge import PROB_DIMENSION
+
+        las = laspy.read(src)
+        out = {"x": np.asarray(las.x), "y": np.asarray(las.y), "z": np.asarray(las.z),
+               "classification": np.asarray(las.classification, dtype=np.uint8)}
+        names = {n.lower(): n for n in las.point_format.extra_dimension_names}
+        if PROB_DIMENSION.lower() in names:
+            out["prob"] = np.asarray(las[names[PROB_DIMENSION.lower()]], dtype=np.float32)
+    missing = [k for k in ("x", "y", "z", "classification") if k not in out]
+    if missing:
+        raise ValueError(f"classified points lack {missing}")
+    return out
+
+
+def read_benchmark(path: str | os.PathLike[str]) -> dict[str, float]:
+    """Wall time ``s`` and peak memory ``max_rss`` (MB) of a Snakemake benchmark TSV.
+
+    With several repetitions (rows) the mean time and the largest peak are used;
+    columns that are missing or ``NA``/``-`` are left out.
+    """
+    lines = [ln.rstrip("\n").split("\t") for ln in Path(path).read_text().splitlines() if ln.strip()]
+    if len(lines) < 2:
+        return {}
+    head, rows = lines[0], lines[1:]
+    out: dict[str, float] = {}
+    for col, key, agg in (("s", "seconds", np.mean), ("max_rss", "max_rss_mb", np.max),
+                          ("cpu_time", "cpu_seconds", np.mean)):
+        if col in head:
+            vals = []
+            for r in rows:
+                try:
+                    vals.append(float(r[head.index(col)]))
+                except (ValueError, IndexError):
+                    pass
+            if vals:
+                out[key] = float(agg(vals))
+    return out
+
+
+def read_towers(towers: Any) -> Any:
+    """A GeoDataFrame of towers from ``None``, a GeoPackage path or a frame."""
+    import geopandas as gpd
+
+    if towers is None:
+        from towerpipe.towers.extract import empty_towers
+
+        return empty_towers()
+    if isinstance(towers, (str, os.PathLike)):
+        from towerpipe.products.gpkg import read_towers as read_gpkg
+
+        return read_gpkg(towers)
+    return gpd.GeoDataFrame(towers)
+
+
+# --------------------------------------------------------------------------- density
+def density_grid(x: np.ndarray, y: np.ndarray, bounds: Sequence[float]) -> tuple[np.ndarray, dict[str, float]]:
+    """Points per m² on a grid of about 120 cells a side (north up) and its statistics.
+
+    Returns
+    -------
+    grid, stats
+        ``grid`` (rows north to south); ``stats``: ``density_cell_m``, ``density_median``
+        and ``density_p05`` over non-empty cells, ``empty_cells_pct``.
+    """
+    xmin, ymin, xmax, ymax = bounds
+    cell = max(2.0, max(xmax - xmin, ymax - ymin) / 120)
+    nx = max(1, int(math.ceil((xmax - xmin) / cell)))
+    ny = max(1, int(math.ceil((ymax - ymin) / cell)))
+    # points per cell by integer binning (np.histogram2d is ~10x slower on millions of points)
+    ix = np.clip(((np.asarray(x) - xmin) * (1.0 / cell)).astype(np.int32), 0, nx - 1)
+    iy = np.clip(((np.asarray(y) - ymin) * (1.0 / cell)).astype(np.int32), 0, ny - 1)
+    ix *= ny
+    ix += iy
+    h = np.bincount(ix, minlength=nx * ny).reshape(nx, ny).astype(np.float64)
+    dens = h.T[::-1] / (cell * cell)
+    filled = dens[dens > 0]
+    stats = {
+        "density_cell_m": float(cell),
+        "density_median": float(np.median(filled)) if filled.size else 0.0,
+        "density_p05": float(np.percentile(filled, 5)) if filled.size else 0.0,
+        "empty_cells_pct": float(100.0 * (dens == 0).mean()),
+    }
+    return dens, stats
+
+
+# --------------------------------------------------------------------------- the data edge
+def data_extent(boxes: Iterable[Sequence[float]]) -> Any:
+    """The area the points of a block's towers can come from: the union of block boxes.
+
+    ``boxes`` are ``(xmin, ymin, xmax, ymax)`` of the block and of every neighbour that
+    gave points (a neighbour that could not be read is left out, so a tower reaching
+    into it counts as cut). Boxes are grown by :data:`SEAM_TOLERANCE_M` so that two
+    adjoining blocks join without a slit along their seam.
+    """
+    import shapely
+
+    polys = [shapely.box(*b).buffer(SEAM_TOLERANCE_M, join_style="mitre") for b in boxes if b is not None]
+    return shapely.union_all(polys) if polys else None
+
+
+def distance_to_data_edge(footprint: Any, extent: Any) -> float:
+    """Distance (m) from a tower footprint to the edge of the data; 0 when it reaches it.
+
+    A tower across a seam between two blocks that both gave points is whole: its
+    footprint is far from the edge of their union even though its centroid is near the
+    seam. A tower at the edge of the zone, or next to a block that failed, is not.
+    """
+    if extent is None or footprint is None or footprint.is_empty:
+        return float("nan")
+    if not extent.contains(footprint):
+        return 0.0
+    return float(extent.boundary.distance(footprint))
+
+
+# --------------------------------------------------------------------------- accuracy
+def with_neighbour_towers(m: dict[str, Any], truth: Any, neighbour_towers: Sequence[Mapping[str, Any]]
+                          ) -> dict[str, Any]:
+    """Recall counting labelled towers matched by a neighbour-owned tower as found."""
+    import geopandas as gpd
+    import shapely
+
+    nb = gpd.GeoDataFrame({"tower_id": [t["tower_id"] for t in neighbour_towers]},
+                          geometry=shapely.from_wkt([t["footprint_wkt"] for t in neighbour_towers]), crs=truth.crs)
+    left = truth[truth["tower_id"].astype(str).isin(m["unmatched_truth"])]
+    extra = match_towers(nb, left, max_dist=5.0)["matches"] if len(left) else []
+    found = {x["truth"] for x in extra}
+    tp_recall = m["tp"] + len(extra)
+    m = dict(m, fn=len(truth) - tp_recall, recall=tp_recall / len(truth),
+             matches=[*m["matches"], *({**x, "owner": "neighbour"} for x in extra)],
+             unmatched_truth=[t for t in m["unmatched_truth"] if t not in found])
+    m["f1"] = f1_score(m["precision"], m["recall"])
+    return m
+
+
+def label_accuracy(pts: Mapping[str, np.ndarray], truth: np.ndarray, towers: Any, bounds: Sequence[float] | None,
+                   *, min_truth_points: int, neighbour_towers: Sequence[Mapping[str, Any]] | None = None
+                   ) -> dict[str, Any] | None:
+    """Tower precision/recall and point IoU against the input's class 15 labels (None without any)."""
+    from towerpipe.towers.extract import towers_from_labels
+
+    truth = np.asarray(truth)
+    t_mask = truth.astype(bool) if truth.dtype == bool else truth == TOWER_CLASS
+    if len(t_mask) != len(pts["x"]):
+        raise ValueError(f"truth has {len(t_mask)} labels for {len(pts['x'])} points")
+    if not t_mask.any():
+        return None
+    p_mask = pts["classification"] == TOWER_CLASS
+    inter = int(np.count_nonzero(p_mask & t_mask))
+    union = int(np.count_nonzero(p_mask | t_mask))
+    true_towers = towers_from_labels(pts["x"], pts["y"], pts["z"], pts.get("hag"), t_mask,
+                                     min_points=int(min_truth_points))
+    if bounds is not None and len(true_towers):
+        c = true_towers.geometry.centroid
+        inside = (c.x >= bounds[0]) & (c.x < bounds[2]) & (c.y >= bounds[1]) & (c.y < bounds[3])
+        true_towers = true_towers[inside.to_numpy()]
+    m = match_towers(towers, true_towers, max_dist=5.0)
+    if neighbour_towers and len(true_towers):
+        m = with_neighbour_towers(m, true_towers, neighbour_towers)
+    return {"point_iou": inter / union if union else None, "points_true": int(t_mask.sum()),
+            "points_pred": int(p_mask.sum()), "points_both": inter, "towers_true": int(len(true_towers)),
+            **{k: m[k] for k in ("precision", "recall", "f1", "tp", "fp", "fn", "matches")}}

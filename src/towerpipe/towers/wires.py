@@ -1,0 +1,400 @@
+"""Conductor support: do overhead wires leave a tower candidate toward the next tower?
+
+A transmission tower carries conductors that run in straight lines (in plan) to the
+next tower, 100-500 m away. Tower cranes, lattice telecom masts, chimneys and wind
+turbines can look like a tower inside a 40 m window, but nothing hangs from them that
+continues for a hundred metres. :func:`wire_support` measures that, from the tile's
+points around a candidate, with no model:
+
+1. **Wire points** (:func:`wire_points`): points at least ``min_hag`` above ground
+   that are sparse in plan (at most ``max_neighbours`` points within ``radius`` m),
+   with air above and below them (no neighbour there between ``max_dz`` and
+   ``min_gap`` m higher or lower: a crown has points at every height, while stacked
+   conductors are several metres apart), and whose 3-D
+   neighbourhood (``line_radius`` m) is a nearly horizontal line (linearity
+   ``(l1 - l2) / l1 >= min_linearity`` of the local covariance).
+2. **Pointing at the candidate**: a wire point counts when the straight line through
+   it, along its local direction, passes within ``max_offset`` m of the candidate's
+   centre (conductors hang from crossarms at most ~12 m from the tower axis). A line
+   passing by, or the jib of a crane, does not.
+3. **Reach**: in each angular sector (``sector`` degrees wide, every 5 degrees), the
+   share of the radial bins (``step`` m) between ``r_min`` and ``r_max`` that hold
+   such a point. The support is the best sector's share: 1.0 means a conductor runs
+   out of the candidate over the whole ring, 0.0 that nothing does.
+
+Radial bins outside the data are left out of a sector's share: "the data" is where
+points exist (:class:`Coverage`: 10 m cells holding any point of the tile, ground
+included), not the tile's box, so a tower in a corridor strip a few tens of metres wide,
+or at the edge of a survey, is not scored on the empty land beside it. A sector needs
+``min_bins`` bins in the data, and where no sector has them the support is ``nan``
+(unknown: a candidate is never dropped for lack of data; the QA flags it).
+
+On the `calib` zone, with the defaults, all 17 true towers score 1.0 and the cranes,
+masts, chimneys and turbines at most 0.38 (see ``towers.min_wire_support``).
+
+:func:`conductor_points` keeps the wire points of a block's tiles (each point once, from
+the tile whose core holds it) with the clearance to the vegetation below each: the zone
+links its towers into lines and measures the spans from them (:mod:`towerpipe.towers.lines`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy import sparse
+from scipy.spatial import cKDTree
+
+from towerpipe.products.fields import Field
+
+__all__ = ["Coverage", "TileContext", "wire_points", "wire_support", "conductor_points", "CONDUCTOR_FIELDS",
+           "VEGETATION_CLASSES", "WIRE_CLASSES"]
+
+#: ASPRS classes of vegetation (low, medium, high): the clearance below a conductor is to them.
+VEGETATION_CLASSES = (3, 4, 5)
+
+#: ASPRS classes of overhead wires (13 wire guard, 14 wire conductor): where a provider has
+#: classified them, these points are wire whatever :func:`wire_points` makes of them.
+WIRE_CLASSES = (13, 14)
+
+#: Fields of a conductor point (layer ``conductor_points`` of a block's GeoPackage; Point geometry).
+CONDUCTOR_FIELDS: dict[str, Field] = {
+    "block": Field("str", "Block", "Block of the point"),
+    "z": Field("float64", "Elevation (m)", "Elevation of the point (m)", 2),
+    "hag": Field("float64", "Height above ground (m)", "Height of the point above the ground (m)", 2),
+    "direction_deg": Field("float64", "Wire direction (°)", "Axis of the wire through the point, degrees "
+                                                             "clockwise from grid north (0-180)", 1),
+    "clearance_m": Field("float64", "Clearance (m)", "Vertical distance down to the highest vegetation point "
+                                                     "(classes 3-5) within 2 m in plan below it; NULL when "
+                                                     "there is none", 2),
+}
+
+
+class Coverage:
+    """Where a set of points exists: the occupied cells of a square grid.
+
+    Parameters
+    ----------
+    x, y
+        The points (all of them: ground too).
+    cell
+        Cell size (m).
+    grow
+        Cells added around the occupied ones: a location within about ``grow * cell``
+        of a point counts as covered (the radial bins are tested at their centres).
+    survey, min_ring_share
+        The surveyed area around (boxes: the measured bounds of the block and its
+        neighbours, beyond the points loaded here) and the share of a tower's ring that
+        must lie in it for a support to be judged (see :func:`wire_support`).
+    """
+
+    def __init__(self, x: np.ndarray, y: np.ndarray, cell: float = 10.0, grow: int = 1,
+                 survey: Sequence[Sequence[float]] = (), min_ring_share: float = 0.0):
+        x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+        self.cell = float(cell)
+        self.survey = [tuple(map(float, b)) for b in survey]
+        self.min_ring_share = float(min_ring_share)
+        if len(x) == 0:
+            self.origin, self.mask = (0.0, 0.0), np.zeros((0, 0), dtype=bool)
+            return
+        self.origin = (float(np.floor(x.min())), float(np.floor(y.min())))
+        ix = ((x - self.origin[0]) // self.cell).astype(np.int64)
+        iy = ((y - self.origin[1]) // self.cell).astype(np.int64)
+        self.origin = (self.origin[0] - grow * self.cell, self.origin[1] - grow * self.cell)
+        ix, iy = ix + grow, iy + grow
+        mask = np.zeros((int(iy.max()) + 1 + grow, int(ix.max()) + 1 + grow), dtype=bool)
+        mask[iy, ix] = True
+        if grow:
+            from scipy.ndimage import binary_dilation
+
+            mask = binary_dilation(mask, iterations=grow)
+        self.mask = mask
+
+    def contains(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Whether each location lies in an occupied cell."""
+        ix = np.floor((np.asarray(x) - self.origin[0]) / self.cell).astype(np.int64)
+        iy = np.floor((np.asarray(y) - self.origin[1]) / self.cell).astype(np.int64)
+        ny, nx = self.mask.shape
+        ok = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+        out = np.zeros(np.shape(ix), dtype=bool)
+        out[ok] = self.mask[iy[ok], ix[ok]]
+        return out
+
+    def surveyed(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Whether each location lies in the surveyed area (every location when none is given)."""
+        x, y = np.asarray(x), np.asarray(y)
+        if not self.survey:
+            return np.ones(np.shape(x), dtype=bool)
+        return np.any([(x >= b[0]) & (x <= b[2]) & (y >= b[1]) & (y <= b[3]) for b in self.survey], axis=0)
+
+
+def wire_points(x: np.ndarray, y: np.ndarray, z: np.ndarray, *, radius: float = 1.0, max_neighbours: int = 20,
+                max_dz: float = 1.0, min_gap: float = 2.5, line_radius: float = 2.5, min_linearity: float = 0.9
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Which points look like overhead wire, and the plan direction of their wire.
+
+    Parameters
+    ----------
+    x, y, z
+        Coordinates (m) of candidate points (already above the height floor).
+    radius, max_neighbours, max_dz, min_gap
+        Plan neighbourhood: at most ``max_neighbours`` points (the point included)
+        within ``radius`` m, none of them between ``max_dz`` and ``min_gap`` m above or
+        below the point (a crown has points at every height; conductors stacked one
+        above the other are at least ``min_gap`` apart).
+    line_radius, min_linearity
+        3-D neighbourhood of the surviving points and the linearity it needs.
+
+    Returns
+    -------
+    mask
+        ``(n,)`` bool.
+    direction
+        ``(n, 2)`` unit plan direction of the local line (zeros where not a wire point).
+    """
+    x, y, z = (np.asarray(a, dtype=np.float64) for a in (x, y, z))
+    n = len(x)
+    mask = np.zeros(n, dtype=bool)
+    direction = np.zeros((n, 2))
+    if n < 3:
+        return mask, direction
+    xy = np.c_[x, y]
+    tree = cKDTree(xy)
+    count = tree.query_ball_point(xy, radius, return_length=True)
+    ok = count <= max_neighbours
+    # a sparse point with a neighbour between max_dz and min_gap above or below is in a crown;
+    # only the sparse points' neighbourhoods are looked at (in a forest most points are dense:
+    # the pairs of all points would be ~15 per point)
+    sparse_idx = np.flatnonzero(ok)
+    if len(sparse_idx):
+        near = cKDTree(xy[sparse_idx]).sparse_distance_matrix(tree, radius, output_type="coo_matrix")
+        rows, cols = sparse_idx[near.row], near.col
+        dz = np.abs(z[rows] - z[cols])
+        ok[rows[(dz >= max_dz) & (dz < min_gap)]] = False
+    cand = np.flatnonzero(ok)
+    if len(cand) == 0:
+        return mask, direction
+    # local covariance of each candidate over *all* points within line_radius (3-D), so a
+    # sparse point at the edge of a crown is judged with the crown around it
+    p = np.c_[x, y, z]
+    p -= p.mean(axis=0)
+    near = cKDTree(p[cand]).sparse_distance_matrix(cKDTree(p), line_radius, output_type="coo_matrix")
+    m = len(cand)
+    # the point itself is added: a distance of 0 is not stored in the sparse result
+    rows, cols = np.r_[near.row, np.arange(m)], np.r_[near.col, cand]
+    adj = sparse.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(m, n))
+    adj.sum_duplicates()
+    adj.data[:] = 1.0  # a point listed twice counts once
+    k = np.asarray(adj.sum(axis=1)).ravel()
+    mean = (adj @ p) / k[:, None]
+    second = np.stack([adj @ (p[:, i] * p[:, j]) for i in range(3) for j in range(3)], axis=1).reshape(m, 3, 3)
+    cov = second / k[:, None, None] - mean[:, :, None] * mean[:, None, :]
+    ev, vec = np.linalg.eigh(cov)
+    lin = (ev[:, 2] - ev[:, 1]) / np.maximum(ev[:, 2], 1e-12)
+    axis = vec[:, :2, 2]
+    flat = np.hypot(axis[:, 0], axis[:, 1])
+    good = (k >= 3) & (lin >= min_linearity) & (flat >= 0.9)
+    mask[cand[good]] = True
+    direction[cand[good]] = axis[good] / flat[good, None]
+    return mask, direction
+
+
+def wire_support(x: np.ndarray, y: np.ndarray, z: np.ndarray, hag: np.ndarray, cx: float, cy: float, *,
+                 extent: Sequence[float] | Coverage | None = None, r_min: float = 80.0, r_max: float = 160.0,
+                 step: float = 10.0, sector: float = 20.0, max_offset: float = 12.0, min_hag: float = 5.0,
+                 min_bins: int = 4, min_ring_coverage: float = 0.0) -> float:
+    """Share of the ring ``[r_min, r_max)`` m around ``(cx, cy)`` reached by a conductor.
+
+    Parameters
+    ----------
+    x, y, z, hag
+        The points around the candidate (a tile's model-input points: no ground).
+    cx, cy
+        Candidate centre (the tower's footprint centroid).
+    extent
+        Where data exists: a :class:`Coverage`, or ``(xmin, ymin, xmax, ymax)``; radial
+        bins whose centre lies outside are not counted. ``None``: everything is covered.
+    r_min, r_max, step
+        The ring and its radial bins (m). ``r_min`` is beyond a crane's jib (<= 80 m).
+    sector
+        Angular width of a sector (degrees); sectors start every 5 degrees.
+    max_offset
+        A wire point counts when its line passes this close (m) to the centre.
+    min_hag
+        Height floor (m) of wire points.
+    min_bins
+        Radial bins a sector needs inside ``extent`` to be scored.
+    min_ring_coverage
+        Share of the ring's bins (all sectors) that must lie in the data for the support
+        to be known: below it, where the conductors go may be outside the data (a
+        corridor strip crossing the line, the corner of a survey) and the support is
+        ``nan``. 0 scores any ring with one scored sector. A :class:`Coverage` with a
+        ``survey`` judges this on the surveyed area with its own ``min_ring_share``.
+
+    Returns
+    -------
+    float
+        The best sector's share of bins holding a wire point that points at the
+        candidate, in ``[0, 1]``; ``nan`` when no sector has ``min_bins`` bins in the data.
+    """
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    dx, dy = x - cx, y - cy
+    d = np.hypot(dx, dy)
+    sel = (d >= r_min) & (d < r_max) & (np.asarray(hag) >= min_hag)
+    nbins = int(round((r_max - r_min) / step))
+    starts = np.arange(0.0, 360.0, 5.0)
+    # bins of each sector inside the data: test the bin centres on the sector's mid ray
+    mid = np.radians(starts + sector / 2.0)
+    rc = r_min + step * (np.arange(nbins) + 0.5)
+    bx = cx + np.cos(mid)[:, None] * rc[None, :]
+    by = cy + np.sin(mid)[:, None] * rc[None, :]
+    if extent is None:
+        inside = np.ones((len(starts), nbins), dtype=bool)
+    elif isinstance(extent, Coverage):
+        inside = extent.contains(bx, by)
+        if extent.survey and extent.surveyed(bx, by).mean() < extent.min_ring_share:
+            return float("nan")
+    else:
+        xmin, ymin, xmax, ymax = extent
+        inside = (bx >= xmin) & (bx < xmax) & (by >= ymin) & (by < ymax)
+    avail = inside.sum(axis=1)
+    scored = avail >= min_bins
+    if not scored.any() or inside.mean() < min_ring_coverage:
+        return float("nan")
+    idx = np.flatnonzero(sel)
+    wire, u = wire_points(x[idx], y[idx], np.asarray(z, dtype=np.float64)[idx])
+    idx, u = idx[wire], u[wire]
+    if len(idx) == 0:
+        return 0.0
+    px, py = dx[idx], dy[idx]
+    offset = np.abs(px * u[:, 1] - py * u[:, 0])
+    aim = offset <= max_offset
+    ang = np.degrees(np.arctan2(py[aim], px[aim])) % 360.0
+    rb = np.minimum(((d[idx][aim] - r_min) // step).astype(np.int64), nbins - 1)
+    hit = np.zeros((len(starts), nbins), dtype=bool)
+    for s, a0 in enumerate(starts):
+        in_sector = ((ang - a0) % 360.0) < sector
+        hit[s, rb[in_sector]] = True
+    share = (hit & inside).sum(axis=1) / np.maximum(avail, 1)
+    return float(share[scored].max())
+
+
+class TileContext:
+    """``context(cx, cy)`` for :func:`towerpipe.towers.extract.extract_towers`: the model-input
+    points of the tile whose core holds ``(cx, cy)``, and where the tile has points
+    (:class:`Coverage` of all its points, ground included).
+
+    Tiles without points (a block whose split failed) are skipped, so they never hide the
+    tile of a neighbour that holds the same place.
+
+    Tiles are read lazily (only ``x, y, z, hag, model_input``) and the last one is kept,
+    so towers of the same tile cost one read.
+
+    Parameters
+    ----------
+    tile_paths
+        Tile files (:mod:`towerpipe.io.tiles`) of the block.
+    survey, min_ring_share
+        See :class:`Coverage`: a tower whose conductor ring lies mostly outside the
+        surveyed boxes gets an unknown support (kept, and flagged by the QA).
+    """
+
+    _COLUMNS = ["x", "y", "z", "hag", "model_input"]
+
+    def __init__(self, tile_paths: Sequence[str], *, survey: Sequence[Sequence[float]] = (),
+                 min_ring_share: float = 0.0):
+        from towerpipe.io.columns import read_meta
+
+        self._survey, self._min_ring_share = [b for b in survey if b], min_ring_share
+        self._tiles = []
+        for p in tile_paths:
+            meta = read_meta(p)
+            core = meta.get("core_bounds")
+            if core and meta.get("failed") is None and (meta.get("counts") or {}).get("points", 1) > 0:
+                self._tiles.append((str(p), core))
+        self._cached: tuple[str, dict[str, np.ndarray], Coverage] | None = None
+
+    def __call__(self, cx: float, cy: float) -> tuple[dict[str, np.ndarray], Coverage] | None:
+        from towerpipe.io.tiles import load_tile
+
+        for path, (xmin, ymin, xmax, ymax) in self._tiles:
+            if xmin <= cx < xmax and ymin <= cy < ymax:
+                if self._cached is None or self._cached[0] != path:
+                    arrays = load_tile(path, columns=self._COLUMNS).arrays
+                    keep = np.asarray(arrays.pop("model_input"), dtype=bool)
+                    self._cached = (path, {k: v[keep] for k, v in arrays.items()},
+                                    Coverage(arrays["x"], arrays["y"], survey=self._survey,
+                                             min_ring_share=self._min_ring_share))
+                return self._cached[1], self._cached[2]
+        return None
+
+
+def _clearance(x: np.ndarray, y: np.ndarray, z: np.ndarray, vx: np.ndarray, vy: np.ndarray, vz: np.ndarray,
+               radius: float) -> np.ndarray:
+    """Per point, ``z`` minus the highest of the ``v`` points below it within ``radius`` in plan (nan: none)."""
+    out = np.full(len(x), np.nan)
+    if len(x) == 0 or len(vx) == 0:
+        return out
+    near = cKDTree(np.c_[x, y]).sparse_distance_matrix(cKDTree(np.c_[vx, vy]), radius, output_type="coo_matrix")
+    rows, cols = np.r_[near.row], np.r_[near.col]
+    below = vz[cols] < z[rows]
+    rows, top = rows[below], vz[cols[below]]
+    if len(rows):
+        highest = np.full(len(x), -np.inf)
+        np.maximum.at(highest, rows, top)
+        ok = np.isfinite(highest)
+        out[ok] = z[ok] - highest[ok]
+    return out
+
+
+def conductor_points(tile_paths: Sequence[str], block: str, *, min_hag: float = 5.0,
+                     clearance_radius: float = 2.0) -> dict[str, np.ndarray]:
+    """The wire points of a block, from its tile files.
+
+    Each tile's model-input points at least ``min_hag`` above the ground, core and
+    buffer (so a point at the core's edge is judged with its neighbours), go through
+    :func:`wire_points`; the core's wire points are kept, so each point of the block is
+    considered once.
+
+    Parameters
+    ----------
+    tile_paths
+        Tile files; those of other blocks (``meta["block"]``) are skipped.
+    block
+        The block.
+    min_hag
+        Height floor (m) of a wire point.
+    clearance_radius
+        Plan radius (m) in which the vegetation below a wire point is looked for.
+
+    Returns
+    -------
+    dict
+        ``x, y, z, hag, direction_deg, clearance_m`` (float64) as in
+        :data:`CONDUCTOR_FIELDS`.
+    """
+    from towerpipe.io.columns import read_meta
+    from towerpipe.io.tiles import load_tile
+
+    keys = ("x", "y", "z", "hag", "direction_deg", "clearance_m")
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in keys}
+    for p in tile_paths:
+        if read_meta(p).get("block") != block:
+            continue
+        t = load_tile(p, columns=["x", "y", "z", "hag", "classification", "core", "model_input"]).arrays
+        inp = np.asarray(t["model_input"], dtype=bool)
+        high = np.flatnonzero(inp & (t["hag"] >= min_hag))
+        wire, direction = wire_points(t["x"][high], t["y"][high], t["z"][high])
+        keep = wire & np.asarray(t["core"], dtype=bool)[high]
+        idx = high[keep]
+        veg = np.flatnonzero(inp & np.isin(t["classification"], VEGETATION_CLASSES))
+        veg = np.setdiff1d(veg, high[wire], assume_unique=True)
+        u = direction[keep]
+        parts["x"].append(t["x"][idx])
+        parts["y"].append(t["y"][idx])
+        parts["z"].append(t["z"][idx])
+        parts["hag"].append(t["hag"][idx].astype(np.float64))
+        parts["direction_deg"].append(np.degrees(np.arctan2(u[:, 0], u[:, 1])) % 180.0)
+        parts["clearance_m"].append(_clearance(t["x"][idx], t["y"][idx], t["z"][idx], t["x"][veg], t["y"][veg],
+                                               t["z"][veg], clearance_radius))
+    return {k: (np.concatenate(v) if v else np.empty(0)).astype(np.float64) for k, v in parts.items()}

@@ -1,0 +1,1 @@
+"""Training: the window data set, the training loop, losses, augmentation and the ablation."""
