@@ -28,6 +28,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from towerpipe import classes
 from towerpipe.errors import InputError
 
 __all__ = ["Candidate", "score_zone", "sweep", "zone_predictions"]
@@ -128,14 +129,13 @@ def _labels(input_dir: Path) -> dict[str, np.ndarray]:
     """Block name -> indices of its points labelled 15 in the input."""
     import laspy
 
-    from towerpipe.evaluation.evaluate import TOWER_CLASS
     from towerpipe.io.las import find_blocks, laz_backend
 
     out = {}
     for name, path in find_blocks(input_dir).items():
         with laspy.open(path, laz_backend=laz_backend()) as f:
             cls = np.asarray(f.read().classification)
-        out[name] = np.flatnonzero(cls == TOWER_CLASS)
+        out[name] = np.flatnonzero(cls == classes.TOWER)
     return out
 
 

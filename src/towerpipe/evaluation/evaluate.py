@@ -27,10 +27,10 @@ import geopandas as gpd
 import laspy
 import numpy as np
 
+from towerpipe import classes
 from towerpipe.errors import InputError
 from towerpipe.io.las import find_blocks, laz_backend
 
-TOWER_CLASS = 15
 
 
 def _read_pair(input_block: str | os.PathLike[str], classified_block: str | os.PathLike[str]
@@ -44,7 +44,7 @@ def _read_pair(input_block: str | os.PathLike[str], classified_block: str | os.P
 
 
 def _confusion(truth_class: np.ndarray, pred_class: np.ndarray) -> dict[str, int]:
-    truth, pred = truth_class == TOWER_CLASS, pred_class == TOWER_CLASS
+    truth, pred = truth_class == classes.TOWER, pred_class == classes.TOWER
     return {"tp": int((truth & pred).sum()), "fp": int((~truth & pred).sum()), "fn": int((truth & ~pred).sum())}
 
 
@@ -71,7 +71,7 @@ def zone_points(input_dir: str | os.PathLike[str], results_dir: str | os.PathLik
         src, pred = _read_pair(path, Path(results_dir) / "blocks" / f"{name}.laz")
         truth = np.asarray(src.classification)
         per_block[name] = _confusion(truth, pred)
-        sel = np.flatnonzero(pred == TOWER_CLASS)
+        sel = np.flatnonzero(pred == classes.TOWER)
         parts["x"].append(np.asarray(src.x)[sel])
         parts["y"].append(np.asarray(src.y)[sel])
         parts["classification"].append(truth[sel])

@@ -23,11 +23,13 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from towerpipe import classes
+
 #: The point dimensions a swap replaces (everything a feature set may read besides x, y, z).
 SWAPPED = ("intensity", "return_number", "number_of_returns", "red", "green", "blue", "nir")
 #: Where the replacing attributes come from: ASPRS classes (``None``: every non-tower point).
-SOURCES: dict[str, tuple[int, ...] | None] = {"vegetation": (3, 4, 5), "ground": (2,), "surroundings": None}
-_NOISE = (7, 18)
+SOURCES: dict[str, tuple[int, ...] | None] = {"vegetation": classes.VEGETATION, "ground": (classes.GROUND,),
+                                                "surroundings": None}
 
 
 def tower_windows(block_paths: Sequence[str | os.PathLike[str]], truth, *, window: float = 40.0
@@ -55,11 +57,11 @@ def tower_windows(block_paths: Sequence[str | os.PathLike[str]], truth, *, windo
              "classification": np.asarray(las.classification)}
         for d in SWAPPED:
             a[d] = np.asarray(las[d]) if d in dims else np.zeros(len(a["x"]), np.uint16)
-        ground = a["classification"] == 2
+        ground = a["classification"] == classes.GROUND
         tree = cKDTree(np.c_[a["x"][ground], a["y"][ground]])
         _, k = tree.query(np.c_[a["x"], a["y"]], k=6)
         a["hag"] = (a["z"] - a["z"][ground][k].mean(axis=1)).astype(np.float32)
-        a["model_input"] = ~ground & ~np.isin(a["classification"], _NOISE) & (a["hag"] > -2) & (a["hag"] < 100)
+        a["model_input"] = ~ground & ~np.isin(a["classification"], classes.NOISE) & (a["hag"] > -2) & (a["hag"] < 100)
         has_rgb = "red" in dims and a["red"].max() > 0
         meta = {"color_bits": 16, "valid_attributes": ["intensity", "returns"] + (["rgb"] if has_rgb else [])
                 + (["nir"] if "nir" in dims and a["nir"].max() > 0 else [])}
@@ -68,7 +70,7 @@ def tower_windows(block_paths: Sequence[str | os.PathLike[str]], truth, *, windo
             c = np.array([float(t["x"]), float(t["y"])])
             sel = np.flatnonzero((np.abs(a["x"] - c[0]) <= window / 2) & (np.abs(a["y"] - c[1]) <= window / 2))
             win = {k: v[sel] for k, v in a.items()}
-            tower = win["classification"] == 15
+            tower = win["classification"] == classes.TOWER
             if tower.sum() < 20:
                 continue
             out.append({"tower_id": int(t["tower_id"]), "design": str(t["design"]), "center": c, "arrays": win,
@@ -106,8 +108,8 @@ def swap_scores(bundle, win: Mapping[str, Any], *, seed: int = 0, sources: Mappi
     variants = {"own": a}
     rng = np.random.default_rng(seed + 1)
     others = np.flatnonzero(~tower)
-    for name, classes in sources.items():
-        pool = others if classes is None else others[np.isin(a["classification"][others], classes)]
+    for name, codes in sources.items():
+        pool = others if codes is None else others[np.isin(a["classification"][others], codes)]
         if not len(pool):
             continue
         b = dict(a)

@@ -42,6 +42,7 @@ from typing import Any, Mapping, Protocol
 
 import numpy as np
 
+from towerpipe import classes
 from towerpipe.errors import ConfigError, ModelError
 from towerpipe.io.predictions import save_pred
 from towerpipe.progress import Progress
@@ -169,18 +170,17 @@ def _model_info(bundle: BundleLike, model_path: str | os.PathLike[str] | None) -
 
 def _classified_wire(arrays: Mapping[str, np.ndarray], idx: np.ndarray) -> np.ndarray:
     """Bool mask over ``idx``: the points the input classifies as wire
-    (:data:`towerpipe.towers.wires.WIRE_CLASSES`); none when the tile has no classification."""
-    from towerpipe.towers.wires import WIRE_CLASSES
+    (:data:`towerpipe.classes.WIRE`); none when the tile has no classification."""
 
     if "classification" not in arrays:
         return np.zeros(len(idx), bool)
-    return np.isin(np.asarray(arrays["classification"])[idx], WIRE_CLASSES)
+    return np.isin(np.asarray(arrays["classification"])[idx], classes.WIRE)
 
 
 def overhead_wires(arrays: Mapping[str, np.ndarray], idx: np.ndarray, min_height: float) -> np.ndarray:
     """Bool mask over ``idx``: the points at least ``min_height`` high that look like overhead
     wire (:func:`towerpipe.towers.wires.wire_points`, or classified as wire:
-    :data:`towerpipe.towers.wires.WIRE_CLASSES`). A conductor is as high as the tower it hangs
+    :data:`towerpipe.classes.WIRE`). A conductor is as high as the tower it hangs
     from, and one passing over a lower tower hides that tower's height peak."""
     from towerpipe.towers.wires import wire_points
 
@@ -219,7 +219,7 @@ def predict_tile(
     arrays
         Prediction arrays (:data:`towerpipe.io.predictions.PRED_ARRAYS`) of the core points
         inside at least one segmented window, in tile order; points the input classifies as
-        wire (:data:`towerpipe.towers.wires.WIRE_CLASSES`) have probability 0, so reprocessing a
+        wire (:data:`towerpipe.classes.WIRE`) have probability 0, so reprocessing a
         classified block gives the same towers.
     stats
         ``windows_total``, ``windows_passed_gate``, ``windows_segmented``,

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from towerpipe import classes
 from towerpipe import __version__
 
 from towerpipe.products import layout
@@ -191,8 +192,8 @@ def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_fi
     summary = _json(summary_json)
     truth = None
     cls = np.load(Path(cache_dir) / "classification.npy", mmap_mode="r")
-    if summary.get("class_counts", {}).get("15"):
-        truth = np.asarray(cls) == 15
+    if summary.get("class_counts", {}).get(str(classes.TOWER)):
+        truth = np.asarray(cls) == classes.TOWER
     timings: dict[str, Any] = {}
     for stage, tsvs in benchmarks.items():
         rows = [read_benchmark(t) for t in tsvs if Path(t).exists()]

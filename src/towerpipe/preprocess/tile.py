@@ -37,6 +37,7 @@ import numpy as np
 import rasterio
 from rasterio.fill import fillnodata
 
+from towerpipe import classes
 from towerpipe.preprocess import tiling
 from towerpipe.io.atomic import write_text_atomic
 from towerpipe.preprocess.attributes import AttributeStats, degenerate, describe, valid_set
@@ -52,8 +53,6 @@ from towerpipe.io.tiles import Tile, empty_arrays, save_tile
 
 log = logging.getLogger(__name__)
 
-NOISE_CLASSES = (7, 18)
-GROUND_CLASS = 2
 CACHE_META = "meta.json"
 NODATA = -9999.0
 #: The stages of a tile after gathering its points (each logged as done, with the time left).
@@ -318,7 +317,7 @@ def _stream_block(it, tmp: Path, header: BlockHeader, n: int, cfg: PreprocessCon
     _, _, color_bits = color_info(header.dimensions, maxima)
     attributes = stats.result()
     has_rgb, has_nir = attributes["rgb"]["valid"], attributes["nir"]["valid"]
-    n_ground = int(class_counts[GROUND_CLASS])
+    n_ground = int(class_counts[classes.GROUND])
     ground_fraction = n_ground / n
     return {
         "bounds": [float(mins[0]), float(mins[1]), float(maxs[0]), float(maxs[1])],
@@ -416,7 +415,7 @@ def classify_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, workdir: Path, 
         ground_stage,
         {"type": "writers.las", "filename": str(dst), "minor_version": 2, "dataformat_id": 0},
     ], what=f"{what}: ground classification ({method})")
-    return np.asarray(laspy.read(dst).classification) == GROUND_CLASS
+    return np.asarray(laspy.read(dst).classification) == classes.GROUND
 
 
 def build_dtm(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray, box: tiling.Bounds, out_tif: Path,
@@ -664,10 +663,10 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
             progress = Progress(f"preprocess {what} ({n:,} points)", len(TILE_STAGES), "stages", logger=log,
                                 interval=0.0, show_rate=False)
             x, y, z, cls = t["x"], t["y"], t["z"], t["classification"]
-            noise_cls = np.isin(cls, NOISE_CLASSES)
+            noise_cls = np.isin(cls, classes.NOISE)
             s = time.perf_counter()
             if t.meta["ground_source"] == "class2":
-                ground = cls == GROUND_CLASS
+                ground = cls == classes.GROUND
             else:
                 ground = classify_ground(x, y, z, work, method=t.meta["ground_source"], what=what) & ~noise_cls
             timings["ground"] = time.perf_counter() - s

@@ -51,6 +51,7 @@ from laspy import ExtraBytesParams, LazBackend, PackedPointRecord
 from laspy.vlrs.known import ExtraBytesVlr
 from laspy.vlrs.vlrlist import VLRList
 
+from towerpipe import classes
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.io.predictions import load_pred
 from towerpipe.progress import Progress
@@ -58,13 +59,9 @@ from towerpipe.progress import peak_rss_mb
 
 log = logging.getLogger(__name__)
 
-__all__ = ["TOWER_CLASS", "OTHER_CLASS", "PROB_DIMENSION", "TOWER_ID_DIMENSION", "OWN_DIMENSIONS",
+__all__ = ["classes.TOWER", "classes.OTHER", "PROB_DIMENSION", "TOWER_ID_DIMENSION", "OWN_DIMENSIONS",
            "SUPPORTED_FORMATS", "check_format", "merge_block", "block_probabilities", "relabel", "own_dimensions"]
 
-#: ASPRS class of transmission towers.
-TOWER_CLASS = 15
-#: Class given to input class-15 points that are not predicted as tower.
-OTHER_CLASS = 1
 #: Name of the extra dimension holding the tower probability.
 PROB_DIMENSION = "TowerProbability"
 #: Name of the extra dimension holding the tower id of each point (``tower_id`` of the
@@ -177,8 +174,8 @@ def relabel(classification: np.ndarray, prob: np.ndarray, threshold: float, *,
     """
     if tower is None:
         tower = prob >= threshold
-    out = np.where(classification == TOWER_CLASS, OTHER_CLASS, classification).astype(classification.dtype)
-    out[tower] = TOWER_CLASS
+    out = np.where(classification == classes.TOWER, classes.OTHER, classification).astype(classification.dtype)
+    out[tower] = classes.TOWER
     return out
 
 
@@ -457,10 +454,10 @@ def merge_block(
                         cls = raw_cls & 0x1F
                         new = relabel(cls, p, threshold, tower=tm)
                         out[cls_field] = (raw_cls & 0xE0) | new
-                    n_in15 += int((cls == TOWER_CLASS).sum())
-                    n_tower += int((new == TOWER_CLASS).sum())
+                    n_in15 += int((cls == classes.TOWER).sum())
+                    n_tower += int((new == classes.TOWER).sum())
                     n_above += int((p >= threshold).sum())
-                    n_relab += int(((cls == TOWER_CLASS) & (new == OTHER_CLASS)).sum())
+                    n_relab += int(((cls == classes.TOWER) & (new == classes.OTHER)).sum())
                     tc = time.perf_counter()
                     t_proc += tc - tb
                     writer.write_points(PackedPointRecord(out, out_pf))

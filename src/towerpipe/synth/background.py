@@ -33,6 +33,7 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
+from towerpipe import classes
 from towerpipe.errors import ConfigError, InputError
 from towerpipe.synth import color as col
 from towerpipe.synth.lasout import write_block
@@ -279,7 +280,7 @@ def _insert(las: laspy.LasData, rng: np.random.Generator, dx: float, first_id: i
     for tid, design, h, base_z, pts, _, material in towers:
         own_share = float(rng.uniform(*params.tower_own_color))
         factor = float(np.exp(rng.uniform(*np.log(params.tower_intensity))))
-        parts.append((pts, 15, tid, material, own_share, factor))
+        parts.append((pts, classes.TOWER, tid, material, own_share, factor))
         fp = shapely.convex_hull(shapely.MultiPoint(pts[:, :2])).buffer(0.25, quad_segs=2)
         base = pts[pts[:, 2] < base_z + 0.1 * h]
         rows.append({"tower_id": tid, "design": design, "height": round(h, 3), "base_z": round(base_z, 3),

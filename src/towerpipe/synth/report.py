@@ -16,6 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from towerpipe import classes
 from towerpipe.errors import InputError  # noqa: E402
 from towerpipe.synth.terrain import Terrain  # noqa: E402
 
@@ -48,7 +49,7 @@ def zone_stats(zone: str | Path) -> dict:
             from towerpipe.synth.real import _ground_fn
             g = _ground_fn(np.c_[x, y, z], cls)(x, y)
         hag = z - g
-        ok = ~np.isin(cls, [7, 18])
+        ok = ~np.isin(cls, classes.NOISE)
         hag_all.append(hag[ok])
         cls_all.append(cls[ok])
         tid = np.asarray(las["TowerId"])

@@ -27,9 +27,9 @@ from towerpipe.synth.towers import WOODEN, Tower
 from towerpipe.synth.vegetation import Trees, make_trees, noise_field, rasterize
 from towerpipe.synth.wires import PowerLines, distance_to_polylines, make_power_lines
 
-#: ASPRS classes used
-GROUND, LOW_VEG, MED_VEG, HIGH_VEG, BUILDING, LOW_NOISE, ROAD, WIRE, TOWER, HIGH_NOISE, OTHER = (
-    2, 3, 4, 5, 6, 7, 11, 14, 15, 18, 1)
+from towerpipe.classes import (BUILDING, GROUND, HIGH_NOISE, LOW_NOISE, OTHER, ROAD, TOWER,
+                               HIGH_VEGETATION as HIGH_VEG, LOW_VEGETATION as LOW_VEG,
+                               MEDIUM_VEGETATION as MED_VEG, WIRE_CONDUCTOR as WIRE)
 
 _NEG_MATERIAL = {"crane": col.STEEL, "telecom_mast": col.STEEL, "wind_turbine": col.CONCRETE,
                  "chimney": col.CONCRETE, "street_light": col.STEEL, "wooden_pole": col.WOOD}

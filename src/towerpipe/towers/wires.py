@@ -45,17 +45,13 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
 
+from towerpipe import classes
 from towerpipe.products.fields import Field
 
 __all__ = ["Coverage", "TileContext", "wire_points", "wire_support", "conductor_points", "CONDUCTOR_FIELDS",
-           "VEGETATION_CLASSES", "WIRE_CLASSES"]
+           "classes.VEGETATION", "classes.WIRE"]
 
-#: ASPRS classes of vegetation (low, medium, high): the clearance below a conductor is to them.
-VEGETATION_CLASSES = (3, 4, 5)
 
-#: ASPRS classes of overhead wires (13 wire guard, 14 wire conductor): where a provider has
-#: classified them, these points are wire whatever :func:`wire_points` makes of them.
-WIRE_CLASSES = (13, 14)
 
 #: Fields of a conductor point (layer ``conductor_points`` of a block's GeoPackage; Point geometry).
 CONDUCTOR_FIELDS: dict[str, Field] = {
@@ -387,7 +383,7 @@ def conductor_points(tile_paths: Sequence[str], block: str, *, min_hag: float = 
         wire, direction = wire_points(t["x"][high], t["y"][high], t["z"][high])
         keep = wire & np.asarray(t["core"], dtype=bool)[high]
         idx = high[keep]
-        veg = np.flatnonzero(inp & np.isin(t["classification"], VEGETATION_CLASSES))
+        veg = np.flatnonzero(inp & np.isin(t["classification"], classes.VEGETATION))
         veg = np.setdiff1d(veg, high[wire], assume_unique=True)
         u = direction[keep]
         parts["x"].append(t["x"][idx])

@@ -24,24 +24,12 @@ from typing import Any
 
 import numpy as np
 
+from towerpipe import classes
 from towerpipe.products import layout
 from towerpipe.io.atomic import write_text_atomic
 from towerpipe.progress import Progress
 from towerpipe.products.qa import plots
-from towerpipe.products.qa.metrics import (
-    DEFAULT_LIMITS,
-    GROUND_CLASS,
-    TOWER_CLASS,
-    data_extent,
-    density_grid,
-    distance_to_data_edge,
-    jsonable,
-    label_accuracy,
-    load_classified,
-    read_benchmark,
-    read_towers,
-    sum_dicts,
-)
+from towerpipe.products.qa.metrics import DEFAULT_LIMITS, data_extent, density_grid, distance_to_data_edge, jsonable, label_accuracy, load_classified, read_benchmark, read_towers, sum_dicts
 from towerpipe.products.qa.pages import render
 
 log = logging.getLogger(__name__)
@@ -242,8 +230,8 @@ def block_report(
     cls = pts["classification"] if pts is not None else None
     # the ground the pipeline used (class 2, or PDAL's when it had to classify), else class 2
     n_ground = (int(tile_counts["ground_core"]) if "ground_core" in tile_counts else
-                int(np.count_nonzero(cls == GROUND_CLASS)) if cls is not None else None)
-    n_tower_pts = int(np.count_nonzero(cls == TOWER_CLASS)) if cls is not None else None
+                int(np.count_nonzero(cls == classes.GROUND)) if cls is not None else None)
+    n_tower_pts = int(np.count_nonzero(cls == classes.TOWER)) if cls is not None else None
     ground_ratio = (n_ground / n_points) if n_points else None
     if ground_classified:
         flag("ground_classified", f"input had no usable ground class; ground classified by towerpipe "
@@ -302,7 +290,7 @@ def block_report(
             dtm = ds.read(1, masked=True).astype(np.float64).filled(np.nan)
             hag, hag_source = pts["z"] - dtm[rows, cols], f"z − {Path(raster).name}"
     if hag is not None:
-        figures.append({"src": plots.hag_histogram(hag, cls == TOWER_CLASS if cls is not None else None),
+        figures.append({"src": plots.hag_histogram(hag, cls == classes.TOWER if cls is not None else None),
                         "caption": f"Height above ground ({hag_source})"})
     if raster is not None:
         grid, gb, cell = plots.raster_grid(raster)

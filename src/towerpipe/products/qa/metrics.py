@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from towerpipe import classes
 from towerpipe.towers.extract import f1_score, match_towers
 
 #: Limits that flag a block or a tower for a human look; override via ``limits=``.
@@ -30,8 +31,6 @@ DEFAULT_LIMITS: dict[str, float] = {
     "min_truth_points": 20,        # labelled clusters with fewer points are not towers (paper: < 20 dropped)
 }
 
-TOWER_CLASS = 15
-GROUND_CLASS = 2
 
 #: Header bounds of adjoining blocks meet up to rounding (a block's max is its last point,
 #: not the next block's min): boxes are grown by this much (m) before they are joined.
@@ -223,12 +222,12 @@ def label_accuracy(pts: Mapping[str, np.ndarray], truth: np.ndarray, towers: Any
     from towerpipe.towers.extract import towers_from_labels
 
     truth = np.asarray(truth)
-    t_mask = truth.astype(bool) if truth.dtype == bool else truth == TOWER_CLASS
+    t_mask = truth.astype(bool) if truth.dtype == bool else truth == classes.TOWER
     if len(t_mask) != len(pts["x"]):
         raise ValueError(f"truth has {len(t_mask)} labels for {len(pts['x'])} points")
     if not t_mask.any():
         return None
-    p_mask = pts["classification"] == TOWER_CLASS
+    p_mask = pts["classification"] == classes.TOWER
     inter = int(np.count_nonzero(p_mask & t_mask))
     union = int(np.count_nonzero(p_mask | t_mask))
     true_towers = towers_from_labels(pts["x"], pts["y"], pts["z"], pts.get("hag"), t_mask,
