@@ -1,6 +1,6 @@
 # towerpipe — the two commands of the README:
 #   make demo    set everything up (idempotent) and run the demo zone
-#   make test    set everything up (idempotent) and run the test suite
+#   make test    set everything up (idempotent), run the linters (make lint) and the test suite
 SHELL := /bin/bash
 PYTHON ?= python3
 VENV ?= .venv
@@ -36,10 +36,14 @@ $(VENV)/.installed: requirements.txt pyproject.toml
 demo: setup
 	$(BIN)/snakemake --cores $(CORES) results/demo/
 
-test: setup slurm
+test: setup slurm lint
 	$(BIN)/python -m pytest -q
 
+# ruff (src, tests, workflow scripts; pyproject.toml), snakefmt (Snakefile and rules), Snakemake's own lint
 lint: setup
+	$(BIN)/ruff check
+	$(BIN)/ruff format --check
+	$(BIN)/snakefmt --check workflow/
 	$(BIN)/snakemake --lint
 
 bench: setup

@@ -7,7 +7,7 @@
 #   Snakefile, whatever started the run); a start while one is alive exits with status 75;
 # - a run that was killed (power cut, OOM killer, kill -9) leaves Snakemake's own lock
 #   behind: it is cleared (`snakemake --unlock`) only when no towerpipe run is alive, and the
-#   incomplete outputs of the killed jobs are redone (rerun-incomplete in profiles/default);
+#   incomplete outputs of the killed jobs are redone (rerun-incomplete in workflow/profiles/default);
 # - --keep-going: a bad block costs only itself; the exit status is then non-zero and
 #   results/<zone>/INCOMPLETE.txt plus the QA index name the block and the reason.
 set -euo pipefail

@@ -66,7 +66,8 @@ def pdal_cli():
 def random_model_factory(tmp_path_factory):
     """``make(feature_set)`` -> a randomly initialised model bundle directory (plumbing tests)."""
     from towerpipe.model.features import FEATURE_SETS
-    from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter, save_bundle
+    from towerpipe.model.bundle import save_bundle
+    from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter
     from towerpipe.model.cards import code_version, config_hash
 
     made = {}
@@ -151,3 +152,32 @@ def same_points(a_path, b_path):
     a, b = laspy.read(a_path), laspy.read(b_path)
     assert list(a.point_format.dimension_names) == list(b.point_format.dimension_names)
     np.testing.assert_array_equal(a.points.array, b.points.array)
+
+
+#: The tower rules the tower tests start from (over the schema's defaults): towers from the
+#: points at 0.5, no confident-core rule, no conductor rule.
+LENIENT_TOWERS = {"threshold": 0.5, "min_core_prob": 0.0, "min_wire_support": 0.0}
+
+
+def tower_rules(**towers):
+    """:class:`towerpipe.config.TowersConfig` of a config whose ``towers`` section is ``towers``
+    (the schema fills in the rest)."""
+    from towerpipe.config import SCHEMA_FILE, TowersConfig, load_yaml, validate_config
+
+    config = validate_config({"zones": {"z": {"input": "in"}}, "towers": towers},
+                             load_yaml(REPO / SCHEMA_FILE, "schema"))
+    return TowersConfig.from_config(config)
+
+
+def extract(preds, block_name, block_bounds, *, point_threshold=None, **kw):
+    """:func:`towerpipe.towers.extract.extract_towers` with :data:`LENIENT_TOWERS` rules: ``kw``
+    naming a rule (a :class:`~towerpipe.config.TowersConfig` field) sets it, the rest is passed on."""
+    from dataclasses import fields
+
+    from towerpipe.config import TowersConfig
+    from towerpipe.towers.extract import extract_towers
+
+    names = {f.name for f in fields(TowersConfig)}
+    rules = tower_rules(**{**LENIENT_TOWERS, **{k: v for k, v in kw.items() if k in names}})
+    return extract_towers(preds, block_name, block_bounds, rules, point_threshold=point_threshold,
+                          **{k: v for k, v in kw.items() if k not in names})

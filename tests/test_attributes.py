@@ -81,7 +81,8 @@ def test_missing_dimensions_are_absent_not_degenerate():
 @pytest.mark.usefixtures("pdal_cli")
 def test_split_records_validity_of_a_real_tile(tmp_path):
     """ign_rgb_subset.laz has a NIR channel of zeros: recorded, flagged, the block keeps its RGB."""
-    from towerpipe.preprocess.tile import split_block, summarize_block
+    from towerpipe.preprocess.split import split_block
+    from towerpipe.preprocess.tile import summarize_block
 
     meta = split_block(need(RGB_SUBSET), tmp_path / "cache", block="b", zone="z")
     assert meta["attributes"]["nir"] == {"present": True, "valid": False, "reason": "all 0"}
@@ -96,7 +97,7 @@ def test_split_records_validity_of_a_real_tile(tmp_path):
 @pytest.mark.usefixtures("pdal_cli")
 def test_split_of_a_zeroed_reexport(tmp_path):
     """A real tile re-exported with intensity and returns zeroed (as public derivatives are)."""
-    from towerpipe.preprocess.tile import split_block
+    from towerpipe.preprocess.split import split_block
 
     las = laspy.read(need(RGBNIR_SMALL))
     las.intensity[:] = 0

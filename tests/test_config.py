@@ -123,3 +123,16 @@ def test_profile_keys_are_all_applied():
     assert prof["resources"]["cores"] == 2
     assert {t.item_to_choice() for t in prof["dag"]["rerun_triggers"]} == {"mtime", "params", "input", "code"}
     assert (REPO / CONFIG_FILE).is_file()
+
+
+def test_defaults_live_only_in_the_schema_and_towerpipe_config_prints_them(tmp_path, capsys):
+    shipped = load_yaml(REPO / CONFIG_FILE)
+    assert set(shipped) == {"zones", "workdir"}  # every other setting: the schema's default
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("inference: {gate: 0.2}\n")
+    assert main(["config", str(mine)]) == 0
+    cfg = yaml.safe_load(capsys.readouterr().out)
+    # the shipped, calibrated values, and the file given merged over them
+    assert cfg["inference"]["gate"] == 0.2 and cfg["inference"]["tta"] == 2 and cfg["inference"]["threshold"] == 0.3
+    assert cfg["towers"]["min_core_prob"] == 0.7 and cfg["towers"]["max_base_ratio"] == 0.7
+    assert "demo" in cfg["zones"] and cfg["training"]["models"]  # config/models.yaml too, as the workflow loads it

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from towerpipe.training.dataset import KINDS, SPLITS, build_windows, load_windows, split_blocks, tall_objects, tower_instances
+from towerpipe.training.dataset import build_windows, split_blocks, tall_objects, tower_instances
+from towerpipe.training.windowset import KINDS, SPLITS, load_windows
 from towerpipe.errors import ConfigError
 from towerpipe.io.tiles import Tile, empty_arrays, save_tile
 
@@ -208,7 +209,7 @@ def test_windows_know_their_tower_family(tmp_path):
     import geopandas as gpd
     import shapely
 
-    from towerpipe.training.dataset import FAMILY_BITS
+    from towerpipe.training.windowset import FAMILY_BITS
 
     paths = make_tiles(tmp_path, n_blocks=3)
     rows = []

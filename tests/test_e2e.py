@@ -16,9 +16,9 @@ import laspy
 import numpy as np
 import pyogrio
 import pytest
-import yaml
 
 from conftest import REPO
+from towerpipe.config import effective_config
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow]
 
@@ -49,7 +49,7 @@ def test_every_point_and_attribute_survives(zone_run):
     out, data, _ = zone_run
     inputs = sorted(data.glob("*.laz"))
     assert inputs
-    threshold = yaml.safe_load((REPO / "config" / "config.yaml").read_text())["inference"]["threshold"]
+    threshold = effective_config(root=REPO)["inference"]["threshold"]
     towers = pyogrio.read_dataframe(out / "towers.gpkg", layer="towers")
     n15 = 0
     for src in inputs:
@@ -105,7 +105,7 @@ def test_calibration_sweep_reproduces_the_pipeline(zone_run):
 
     out, data, cmd = zone_run
     work = next(a.split("=", 1)[1] for a in cmd if a.startswith("workdir="))
-    cfg = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    cfg = effective_config(root=REPO)
     inf, tow = cfg["inference"], cfg["towers"]
     configured = (inf["tta"], tow["threshold"], inf["threshold"], tow["min_core_prob"])
     rows = sweep({ZONE: data}, [configured, (1, tow["threshold"], 0.6, tow["min_core_prob"])], work=work,

@@ -11,12 +11,12 @@ import pytest
 import shapely
 from pyproj import CRS as ProjCRS
 
+from conftest import extract
 from towerpipe import __version__
 from towerpipe.errors import InputError
 from towerpipe.products.gpkg import (
     LAYER_POINTS,
     LAYER_TOWERS,
-    config_hash,
     default_style,
     merge_gpkgs,
     read_metadata,
@@ -24,7 +24,8 @@ from towerpipe.products.gpkg import (
     run_metadata,
     write_towers_gpkg,
 )
-from towerpipe.towers.extract import TOWER_COLUMNS, empty_towers, extract_towers
+from towerpipe.model.cards import config_hash
+from towerpipe.towers.extract import TOWER_COLUMNS, empty_towers
 
 X0, Y0 = 400_000.0, 4_600_000.0
 WKT = ProjCRS.from_epsg(25831).to_wkt()
@@ -46,8 +47,8 @@ def towers_for(block: str, bounds: tuple[float, float, float, float], centres: l
               "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "hag": (xyz[:, 2] - 100).astype(np.float32),
               "prob": np.full(n, 0.9, np.float32)}
     meta = {"blocks": [block], "crs_wkt": WKT, "model": MODEL}
-    return extract_towers([(arrays, meta)], block, bounds, zone="z1", source_files={block: f"/in/{block}.laz"},
-                          processed_at="2024-05-01T12:00:00+00:00")
+    return extract([(arrays, meta)], block, bounds, zone="z1", source_files={block: f"/in/{block}.laz"},
+                   processed_at="2024-05-01T12:00:00+00:00").towers
 
 
 @pytest.fixture
@@ -176,7 +177,8 @@ def test_geometry_roundtrip_exact(tmp_path):
 def zone_file(tmp_path):
     """A zone-like GeoPackage with every layer: towers, lines, spans, vanished towers."""
     from towerpipe.towers.lines import build_lines
-    from towerpipe.towers.registry import read_registry, update_registry, vanished
+    from towerpipe.products.registry_file import read_registry
+    from towerpipe.towers.registry import update_registry, vanished
 
     towers = towers_for("b1", (X0, Y0, X0 + 500, Y0 + 500), [(X0 + 50, Y0 + 50), (X0 + 350, Y0 + 50)])
     u = np.linspace(0, 300, 600)

@@ -416,11 +416,11 @@ def test_all_bad_zone_publishes_incomplete_with_a_qa_index(tmp_path, ci_scene):
 
 
 def test_previous_runs_classified_blocks_as_input(request, tmp_path):
-    from towerpipe.products import merge
+    from towerpipe.io import lasformat
 
-    if not [n for n in vars(merge) if n.endswith("_DIMENSION") and n != "PROB_DIMENSION"]:
+    if not [n for n in vars(lasformat) if n.endswith("_DIMENSION") and n != "PROB_DIMENSION"]:
         pytest.skip("replacing the pipeline's own dimensions in an input comes with the tower-id dimension "
-                    "(towerpipe.products.merge, products)")
+                    "(towerpipe.io.lasformat, products)")
     ci_reference = request.getfixturevalue("ci_reference")
     zone = _zone("again")
     cfg = write_zone_config(tmp_path / "c.yaml", {zone: {"input": str(ci_reference / "blocks")}}, tmp_path / "work",

@@ -376,10 +376,11 @@ def test_bad_config_rejected():
 def test_random_initialised_real_bundle_runs(tmp_path):
     torch = pytest.importorskip("torch")
     model = pytest.importorskip("towerpipe.model.pointnet")
+    bundles = pytest.importorskip("towerpipe.model.bundle")
     torch.manual_seed(0)
     c = len(features.FEATURE_SETS["geometry"])
-    bundle = model.ModelBundle(name="random", version="0", feature_set="geometry", card={}, n_points=2048,
-                               classifier=model.PointNetClassifier(c), segmenter=model.PointNetSegmenter(c))
+    bundle = bundles.ModelBundle(name="random", version="0", feature_set="geometry", card={}, n_points=2048,
+                                 classifier=model.PointNetClassifier(c), segmenter=model.PointNetSegmenter(c))
     tile = make_tile(density=0.1)
     save_tile(tmp_path / "t.npz", tile)
     kw = dict(gate=0.0, stride=40.0)  # 25 windows, all segmented: keeps the CPU test short

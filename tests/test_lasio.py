@@ -8,7 +8,8 @@ import pytest
 
 from conftest import RGBNIR_SMALL, need
 from towerpipe.errors import InputError
-from towerpipe.io.las import find_blocks, las_header_for, read_block, read_header
+from towerpipe.io.inputs import find_blocks
+from towerpipe.io.las import las_header_for, read_block, read_header
 
 
 def write_points(path, n=100, *, crs="EPSG:25831", point_format=8, version="1.4", colour_max=65535):

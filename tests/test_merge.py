@@ -11,13 +11,10 @@ from laspy.vlrs.known import ExtraBytesVlr, LasZipVlr
 from laspy.vlrs.vlrlist import VLRList
 
 from towerpipe.errors import InputError, TowerpipeError
+from towerpipe.io.lasformat import OWN_DIMENSIONS, PROB_DIMENSION, TOWER_ID_DIMENSION, own_dimensions
 from towerpipe.products.merge import (
-    OWN_DIMENSIONS,
-    PROB_DIMENSION,
-    TOWER_ID_DIMENSION,
     block_probabilities,
     merge_block,
-    own_dimensions,
     relabel,
 )
 from towerpipe.io.predictions import PRED_META_KEYS, save_pred
@@ -245,7 +242,7 @@ def test_merge_rejects_bad_threshold(tmp_path):
 def test_own_output_is_reprocessed_values_replaced(tmp_path, version, pf):
     """A classified block as input: the same layout and descriptors, the values replaced; merging
     it again with the same predictions and towers gives the same file, byte for byte."""
-    from towerpipe.towers.extract import save_members
+    from towerpipe.io.members import save_members
 
     n = 6000
     src = make_las(tmp_path / "b.laz", version=version, point_format=pf, n=n, extra=True)
@@ -277,7 +274,7 @@ def test_own_output_is_reprocessed_values_replaced(tmp_path, version, pf):
                                                (PROB_DIMENSION, "float32", True)])
 def test_a_foreign_dimension_with_towerpipes_name_is_refused(tmp_path, name, dtype, scaled):
     """Same name, another type (or scaled): somebody else's dimension, refused at the split."""
-    from towerpipe.preprocess.tile import split_block
+    from towerpipe.preprocess.split import split_block
 
     header = laspy.LasHeader(point_format=6, version="1.4")
     scale = {"scales": np.array([0.5]), "offsets": np.array([0.0])} if scaled else {}
@@ -327,8 +324,8 @@ def test_merge_several_extra_byte_blocks_described_in_output(tmp_path):
 @pytest.mark.parametrize("version,pf", [("1.2", 3), ("1.4", 8)])
 def test_merge_from_split_records_equals_merge_from_laz(tmp_path, version, pf):
     """The split's copy of the point records gives the same file as decoding the LAZ again."""
-    from towerpipe.io.las import RECORDS_FILE
-    from towerpipe.preprocess.tile import split_block
+    from towerpipe.io.blockcache import BlockCache
+    from towerpipe.preprocess.split import split_block
 
     n = 12_000
     src = make_las(tmp_path / "b.laz", version=version, point_format=pf, n=n, extra=True)
@@ -338,7 +335,7 @@ def test_merge_from_split_records_equals_merge_from_laz(tmp_path, version, pf):
     pred = write_pred(tmp_path / "t.npz", "b", idx, rng.random(2000).astype(np.float32))
     a, b = tmp_path / "a.laz", tmp_path / "b_out.laz"
     merge_block(src, [pred], a, chunk_size=5_000)
-    merge_block(src, [pred], b, chunk_size=5_000, records=tmp_path / "cache" / RECORDS_FILE)
+    merge_block(src, [pred], b, chunk_size=5_000, records=BlockCache(tmp_path / "cache").records_path)
     assert a.read_bytes() == b.read_bytes()
 
 
@@ -352,7 +349,7 @@ def test_merge_refuses_stale_records(tmp_path):
 
 def test_merge_with_tower_points_classifies_only_reported_towers(tmp_path):
     """Classification 15 on exactly the points of reported towers; TowerProbability as predicted."""
-    from towerpipe.towers.extract import save_members
+    from towerpipe.io.members import save_members
 
     n = 5000
     src = make_las(tmp_path / "b.laz", version="1.4", point_format=6, n=n)
@@ -384,7 +381,7 @@ def test_every_las_version_and_point_format_is_accepted_at_split_and_merge():
     import pytest
 
     from towerpipe.errors import InputError
-    from towerpipe.products.merge import SUPPORTED_FORMATS, check_format
+    from towerpipe.io.lasformat import SUPPORTED_FORMATS, check_format
 
     assert sum(len(v) for v in SUPPORTED_FORMATS.values()) == 2 + 4 + 6 + 11
     for (major, minor), pfs in SUPPORTED_FORMATS.items():

@@ -10,9 +10,10 @@ import torch
 
 from towerpipe.errors import ModelError
 from towerpipe.model.features import FEATURE_SETS
-from towerpipe.model.pointnet import (PointNetClassifier, PointNetSegmenter, count_parameters, default_model_path,
-                             load_bundle, save_bundle, segment_points)
-from towerpipe.model.cards import MODEL_RELEASES, code_version, config_hash, validate_card
+from towerpipe.model.bundle import load_bundle, save_bundle
+from towerpipe.model.folded import segment_points
+from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter, count_parameters
+from towerpipe.model.cards import MODEL_RELEASES, code_version, config_hash, default_model_path, validate_card
 
 torch.set_num_threads(2)
 

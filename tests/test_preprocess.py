@@ -11,7 +11,9 @@ import rasterio
 
 from conftest import HIGH_NOISE, RGB_SUBSET, RGBNIR_BLOCK, RGBNIR_SMALL, need
 from towerpipe.preprocess import tiling
-from towerpipe.preprocess.tile import PreprocessConfig, preprocess_tile, split_block, summarize_block
+from towerpipe.preprocess.settings import PreprocessConfig
+from towerpipe.preprocess.split import split_block
+from towerpipe.preprocess.tile import preprocess_tile, summarize_block
 from towerpipe.io.tiles import load_tile
 
 pytestmark = pytest.mark.usefixtures("pdal_cli")

@@ -81,7 +81,7 @@ def test_layers_and_geopackage_bars(demo):
 def test_each_line_holds_its_towers_in_order(demo):
     """Against the generator's truth: the towers of a true line (ids in line order) are one line
     of ours, in order (either way), and each true span is a span."""
-    from towerpipe.towers.extract import match_towers
+    from towerpipe.towers.matching import match_towers
 
     towers, spans = demo["first"]["towers"], demo["first"]["spans"]
     truth = demo["truth"].towers
@@ -105,7 +105,7 @@ def test_each_line_holds_its_towers_in_order(demo):
 
 
 def test_point_tower_ids_join_the_geopackage(demo):
-    from towerpipe.products.merge import TOWER_ID_DIMENSION
+    from towerpipe.io.lasformat import TOWER_ID_DIMENSION
 
     towers = demo["first"]["towers"]
     counts: dict[int, int] = {}
@@ -122,7 +122,7 @@ def test_point_tower_ids_join_the_geopackage(demo):
 def test_rerun_with_other_thresholds_keeps_ids_and_lists_vanished(demo):
     """The ids of the towers found both times are kept; towers no longer found are listed,
     and keep their ids when found again."""
-    from towerpipe.towers.extract import match_towers
+    from towerpipe.towers.matching import match_towers
 
     tmp, name, indir = demo["tmp"], demo["name"], demo["tmp"] / "in"
     first = demo["first"]["towers"]

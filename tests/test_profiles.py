@@ -34,7 +34,7 @@ def test_slurm_profile_dry_run(tmp_path):
     local = _dry(tmp_path, "--cores", "2")
     slurm = _dry(tmp_path, "--profile", "workflow/profiles/slurm")
     # the cluster profile, and the workflow profile Snakemake adds to every run
-    assert re.search(r"Using profiles? workflow/profiles/slurm and workflow specific profile profiles/default", slurm)
+    assert re.search(r"Using profiles? workflow/profiles/slurm and workflow specific profile workflow/profiles/default", slurm)
     assert _jobs(slurm) == _jobs(local) and _jobs(slurm)["total"] > 0
     resources = re.findall(r"^\s+resources: (.*)$", slurm, re.M)
     assert resources and all("slurm_partition=cpu" in r and "slurm_account=mapping" in r for r in resources)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from test_qa import BOUNDS, SIZE, X0, Y0, make_block, metas, towers_of
-from towerpipe.products.qa import block_report, zone_index
+from towerpipe.products.qa.block import BlockInputs, block_report
+from towerpipe.products.qa.index import zone_index
 from towerpipe.products.qa.browser import PAGE_WIDTH, Browser, find_chromium
 
 
@@ -36,10 +37,10 @@ def pages(tmp_path_factory):
     summary = {"crs_wkt": 'PROJCRS["ETRS89 / UTM zone 31N",BASEGEOGCRS["ETRS89",' * 30, "path": long_path,
                "attributes": {"returns": {"valid": False, "reason": "return numbers all 0"}},
                "degenerate_attributes": ["returns"]}
-    block_report(qa / "b1.html", qa / "b1.json", block_name="b1", zone="z1", block_bounds=BOUNDS, tile_metas=tiles,
+    block_report(qa / "b1.html", qa / "b1.json", BlockInputs(block_name="b1", zone="z1", block_bounds=BOUNDS, tile_metas=tiles,
                  pred_metas=preds, towers=gdf, classified=pts, truth=pts["classification"].copy(), stats=summary,
                  warnings=[f"tile 0_0: neighbour block {long_path} could not be read"], neighbourhoods=hood,
-                 timings={"infer_tile": 12.5})
+                 timings={"infer_tile": 12.5}))
     index = zone_index(qa / "index.html", [qa / "b1.json"], zone="z1",
                        failures={"b2": f"split_block: InputError: {long_path}: not a readable LAS/LAZ file"},
                        block_bounds={"b2": (X0 + SIZE, Y0, X0 + 2 * SIZE, Y0 + SIZE)})

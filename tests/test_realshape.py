@@ -16,7 +16,8 @@ pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.shared]
 def bare_zone(tmp_path_factory):
     """A tiny benchmark zone: TS40K towers on a real tile, exported without colour, preprocessed."""
     from towerpipe.preprocess import tiling
-    from towerpipe.preprocess.tile import preprocess_tile, split_block
+    from towerpipe.preprocess.split import split_block
+    from towerpipe.preprocess.tile import preprocess_tile
     from towerpipe.synth import generate_zone
 
     tmp = tmp_path_factory.mktemp("realshape")

@@ -8,22 +8,20 @@ import pandas as pd
 import pytest
 import shapely
 
+from conftest import extract
 from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
 from towerpipe.products.gpkg import write_towers_gpkg
+from towerpipe.products.registry_file import published_reviews, read_registry, write_registry
 from towerpipe.towers.registry import (
     ACTIVE,
     MATCH_DISTANCE,
     VANISHED,
     assign_ids,
     location_id,
-    published_reviews,
-    read_registry,
     unique_ids,
     update_registry,
     vanished,
-    write_registry,
 )
-from towerpipe.towers.extract import extract_towers
 
 CRS = "EPSG:25831"
 T1 = pd.Timestamp("2024-05-01T12:00:00Z")
@@ -86,11 +84,11 @@ def test_a_new_id_never_takes_a_registered_one():
 def test_ids_survive_a_shift_that_changes_the_location_id():
     """Rerun with other thresholds: the tower's centroid moves by a metre, its id stays."""
     xyz, hag = synthetic_tower(X0 + 50.3, Y0 + 50.3, seed=1)
-    first = extract_towers([pred_pair(xyz, hag, 0.9, ["b1"])], "b1", BOUNDS, zone="z1")
+    first = extract([pred_pair(xyz, hag, 0.9, ["b1"])], "b1", BOUNDS, zone="z1").towers
     reg = update_registry(read_registry(), first, run_time=T1)
     moved = xyz + [0.9, -0.8, 0.0]
-    plain = extract_towers([pred_pair(moved, hag, 0.9, ["b1"])], "b1", BOUNDS, zone="z1")
-    kept = extract_towers([pred_pair(moved, hag, 0.9, ["b1"])], "b1", BOUNDS, zone="renamed", registry=reg)
+    plain = extract([pred_pair(moved, hag, 0.9, ["b1"])], "b1", BOUNDS, zone="z1").towers
+    kept = extract([pred_pair(moved, hag, 0.9, ["b1"])], "b1", BOUNDS, zone="renamed", registry=reg).towers
     assert plain.iloc[0]["tower_id"] != first.iloc[0]["tower_id"]  # the location alone would change it
     assert kept.iloc[0]["tower_id"] == first.iloc[0]["tower_id"]
     assert kept.iloc[0]["first_seen"] == first.iloc[0]["first_seen"]
@@ -99,8 +97,8 @@ def test_ids_survive_a_shift_that_changes_the_location_id():
 def test_update_registry_vanished_failed_blocks_and_found_again(tmp_path):
     a, ha = synthetic_tower(X0 + 50, Y0 + 50, seed=1)
     b, hb = synthetic_tower(X0 + 300, Y0 + 50, seed=2)
-    both = extract_towers([pred_pair(np.r_[a, b], np.r_[ha, hb], 0.9, ["b1"])], "b1", BOUNDS, zone="z",
-                          processed_at=str(T1))
+    both = extract([pred_pair(np.r_[a, b], np.r_[ha, hb], 0.9, ["b1"])], "b1", BOUNDS, zone="z",
+                   processed_at=str(T1)).towers
     reg = update_registry(read_registry(), both, run_time=T1)
     assert list(reg["status"]) == [ACTIVE, ACTIVE] and (reg["first_seen"] == T1).all()
     only_a = both.iloc[:1]
@@ -115,7 +113,7 @@ def test_update_registry_vanished_failed_blocks_and_found_again(tmp_path):
     # a later run still lists it (vanished since T2), and finds it again with its id
     later = update_registry(after, only_a, run_time=T2 + pd.Timedelta(days=1))
     assert vanished(later).iloc[0]["vanished_since"] == T2
-    again = extract_towers([pred_pair(b, hb, 0.9, ["b1"])], "b1", BOUNDS, zone="z", registry=later)
+    again = extract([pred_pair(b, hb, 0.9, ["b1"])], "b1", BOUNDS, zone="z", registry=later).towers
     assert again.iloc[0]["tower_id"] == both.iloc[1]["tower_id"]
     now = gpd.GeoDataFrame(pd.concat([only_a, again], ignore_index=True), crs=again.crs)
     back = update_registry(later, now, run_time=T2 + pd.Timedelta(days=2))
@@ -130,7 +128,7 @@ def test_registry_from_the_published_file_and_analyst_reviews(tmp_path):
     """Without its registry file (work/ deleted), the zone's published towers.gpkg seeds the
     registry; review statuses analysts set there are carried into it."""
     a, ha = synthetic_tower(X0 + 50, Y0 + 50, seed=1)
-    towers = extract_towers([pred_pair(a, ha, 0.9, ["b1"])], "b1", BOUNDS, zone="z")
+    towers = extract([pred_pair(a, ha, 0.9, ["b1"])], "b1", BOUNDS, zone="z").towers
     reg = update_registry(read_registry(), towers, run_time=T1)
     edited = towers.copy()
     edited["review_status"] = "rejected"

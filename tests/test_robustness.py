@@ -14,6 +14,7 @@ import pytest
 import yaml
 
 from conftest import BACKGROUNDS, REPO, TOWERS, need
+from towerpipe.config import effective_config
 from towerpipe.evaluation.robustness import SWAPPED, swap_scores, tower_windows
 
 
@@ -79,9 +80,9 @@ def calibration_towers():
 @pytest.mark.slow
 def test_every_shipped_model_keeps_its_calibration_towers_when_attributes_swap(calibration_towers):
     from towerpipe.model.cards import MODEL_RELEASES, default_model_path
-    from towerpipe.model.pointnet import load_bundle
+    from towerpipe.model.bundle import load_bundle
 
-    gate = yaml.safe_load((REPO / "config" / "config.yaml").read_text())["inference"]["gate"]
+    gate = effective_config(root=REPO)["inference"]["gate"]
     assert len(calibration_towers) >= 15
     for fs in MODEL_RELEASES:
         bundle = load_bundle(default_model_path(fs))

@@ -1,4 +1,5 @@
-"""Tests of towerpipe.towers.extract: clustering predicted points into tower records."""
+"""Tests of towerpipe.towers.extract, .cluster and .matching: clustering predicted points into
+tower records, the tower rules, and matching towers; and of the tower-points files (towerpipe.io.members)."""
 
 from __future__ import annotations
 
@@ -7,17 +8,14 @@ import pandas as pd
 import pytest
 import shapely
 
+from conftest import LENIENT_TOWERS, REPO, extract, tower_rules
+from towerpipe.config import SCHEMA_FILE, TowersConfig, load_yaml
 from towerpipe.io.predictions import save_pred
 from towerpipe.errors import InputError
-from towerpipe.towers.extract import (
-    TOWER_COLUMNS,
-    cluster_towers,
-    extract_towers,
-    match_towers,
-    member_mask,
-    save_members,
-    towers_from_labels,
-)
+from towerpipe.io.members import member_mask, save_members
+from towerpipe.towers.cluster import cluster_towers
+from towerpipe.towers.extract import TOWER_COLUMNS, extract_towers
+from towerpipe.towers.matching import match_towers, towers_from_labels
 from towerpipe.towers.registry import location_id
 
 X0, Y0 = 400_000.0, 4_600_000.0
@@ -75,8 +73,9 @@ def test_two_towers_records():
     allxyz = np.concatenate([xyz, clutter])
     allhag = np.concatenate([hag, (clutter[:, 2] - 100).astype(np.float32)])
     prob = np.concatenate([np.full(len(xyz), 0.9), np.full(len(clutter), 0.2)])
-    gdf = extract_towers([pred_pair(allxyz, allhag, prob, ["b1"])], "b1", BOUNDS, zone="z1",
-                         model_meta=MODEL, source_files={"b1": "/data/b1.laz"}, processed_at=STAMP)
+    gdf = extract_towers([pred_pair(allxyz, allhag, prob, ["b1"])], "b1", BOUNDS, tower_rules(**LENIENT_TOWERS),
+                         zone="z1", point_threshold=None, model_meta=MODEL, source_files={"b1": "/data/b1.laz"},
+                         processed_at=STAMP).towers
     assert len(gdf) == 2
     assert list(gdf.columns) == list(TOWER_COLUMNS) + ["geometry"]
     assert str(gdf.crs.to_epsg()) == "25831"
@@ -106,19 +105,28 @@ def test_two_towers_records():
     assert gdf.loc[0, "edge_distance_m"] == pytest.approx(50.0, abs=0.3)
 
 
+def test_tower_rules_are_the_config_schemas():
+    """TowersConfig holds no defaults: a config without a towers section gets the schema's."""
+    schema = load_yaml(REPO / SCHEMA_FILE, "schema")["properties"]["towers"]["properties"]
+    rules = tower_rules()
+    assert isinstance(rules, TowersConfig)
+    assert {k: getattr(rules, k) for k in vars(rules)} == {k: schema[k]["default"] for k in vars(rules)}
+    assert tower_rules(min_core_prob=0.9).min_core_prob == 0.9
+
+
 def test_ids_independent_of_order_and_file_split():
     xyz, hag = scene()
-    ref = extract_towers([pred_pair(xyz, hag, 0.9, ["b1"])], "b1", BOUNDS, zone="z1", processed_at=STAMP)
+    ref = extract([pred_pair(xyz, hag, 0.9, ["b1"])], "b1", BOUNDS, zone="z1", processed_at=STAMP).towers
     perm = np.random.default_rng(3).permutation(len(xyz))
     half = len(perm) // 2
     p1 = pred_pair(xyz[perm[:half]], hag[perm[:half]], 0.9, ["b1"], tile="t1")
     p2 = pred_pair(xyz[perm[half:]], hag[perm[half:]], 0.9, ["b1"], tile="t2")
     p2[0]["point_index"] += half
-    other = extract_towers([p2, p1], "b1", BOUNDS, zone="z1", processed_at=STAMP)
+    other = extract([p2, p1], "b1", BOUNDS, zone="z1", processed_at=STAMP).towers
     assert list(ref["tower_id"]) == list(other["tower_id"])
     assert all(a.equals(b) for a, b in zip(ref.geometry, other.geometry))
     # the same file given twice is not counted twice
-    twice = extract_towers([p1, p2, p1], "b1", BOUNDS, zone="z1", processed_at=STAMP)
+    twice = extract([p1, p2, p1], "b1", BOUNDS, zone="z1", processed_at=STAMP).towers
     assert list(twice["n_points"]) == list(ref["n_points"])
 
 
@@ -130,9 +138,10 @@ def test_tower_across_block_edge_reported_once():
     bw = (X0, Y0, edge, Y0 + 500)
     be = (edge, Y0, X0 + 500, Y0 + 500)
     # each block's job sees its own and its neighbour's predictions
-    west_nb, east_nb = [], []
-    west_towers = extract_towers([(arrays, meta)], "bw", bw, zone="z1", processed_at=STAMP, neighbours=west_nb)
-    east_towers = extract_towers([(arrays, meta)], "be", be, zone="z1", processed_at=STAMP, neighbours=east_nb)
+    west_found = extract([(arrays, meta)], "bw", bw, zone="z1", processed_at=STAMP)
+    east_found = extract([(arrays, meta)], "be", be, zone="z1", processed_at=STAMP)
+    west_towers, west_nb = west_found.towers, west_found.neighbours
+    east_towers, east_nb = east_found.towers, east_found.neighbours
     assert len(west_towers) == 0
     assert len(east_towers) == 1
     row = east_towers.iloc[0]
@@ -147,9 +156,9 @@ def test_tower_across_block_edge_reported_once():
 def test_half_open_bounds_exactly_one_owner():
     xyz, hag = synthetic_tower(X0 + 250.0, Y0 + 100)
     arrays, meta = pred_pair(xyz, hag, 0.9, ["b"])
-    cx = extract_towers([(arrays, meta)], "b", BOUNDS, zone="z", processed_at=STAMP).iloc[0]["centroid_x"]
-    left = extract_towers([(arrays, meta)], "b", (X0, Y0, cx, Y0 + 500), zone="z")
-    right = extract_towers([(arrays, meta)], "b", (cx, Y0, X0 + 500, Y0 + 500), zone="z")
+    cx = extract([(arrays, meta)], "b", BOUNDS, zone="z", processed_at=STAMP).towers.iloc[0]["centroid_x"]
+    left = extract([(arrays, meta)], "b", (X0, Y0, cx, Y0 + 500), zone="z").towers
+    right = extract([(arrays, meta)], "b", (cx, Y0, X0 + 500, Y0 + 500), zone="z").towers
     assert (len(left), len(right)) == (0, 1)
 
 
@@ -163,11 +172,11 @@ def test_filters_and_threshold():
     xyz = np.concatenate([big, low, few, weak])
     hag = np.concatenate([hb, hl, hf, hw])
     prob = np.concatenate([np.full(len(big) + len(low) + len(few), 0.8), np.full(len(weak), 0.3)])
-    gdf = extract_towers([pred_pair(xyz, hag, prob, ["b"])], "b", BOUNDS, zone="z", min_points=20,
-                         min_height=10.0, threshold=0.5)
+    gdf = extract([pred_pair(xyz, hag, prob, ["b"])], "b", BOUNDS, zone="z", min_points=20,
+                  min_height=10.0, threshold=0.5).towers
     assert len(gdf) == 1 and gdf.iloc[0]["centroid_x"] == pytest.approx(X0 + 50, abs=0.3)
-    gdf = extract_towers([pred_pair(xyz, hag, prob, ["b"])], "b", BOUNDS, zone="z", threshold=0.25,
-                         min_height=5.0)
+    gdf = extract([pred_pair(xyz, hag, prob, ["b"])], "b", BOUNDS, zone="z", threshold=0.25,
+                  min_height=5.0).towers
     assert len(gdf) == 3
 
 
@@ -181,9 +190,9 @@ def test_towers_without_a_confident_core_are_dropped():
     core = ~first & (rng.random(len(xyz)) < 0.15)
     prob[core] = 0.99
     pair = pred_pair(xyz, hag, prob, ["b1"])
-    kept = extract_towers([pair], "b1", BOUNDS, zone="z1", min_core_prob=0.9)
+    kept = extract([pair], "b1", BOUNDS, zone="z1", min_core_prob=0.9).towers
     assert len(kept) == 1 and kept.iloc[0]["centroid_x"] > X0 + 120
-    assert len(extract_towers([pair], "b1", BOUNDS, zone="z1")) == 2
+    assert len(extract([pair], "b1", BOUNDS, zone="z1").towers) == 2
 
 
 def test_wire_chain_is_split_into_towers():
@@ -214,10 +223,10 @@ def test_split_footprints_are_merged():
 
 def test_empty_predictions_give_empty_schema():
     arrays, meta = pred_pair(np.zeros((0, 3)), np.zeros(0), 0.9, ["b"])
-    gdf = extract_towers([(arrays, meta)], "b", BOUNDS, zone="z")
+    gdf = extract([(arrays, meta)], "b", BOUNDS, zone="z").towers
     assert len(gdf) == 0 and list(gdf.columns) == list(TOWER_COLUMNS) + ["geometry"]
     assert gdf.crs is not None
-    assert len(extract_towers([], "b", BOUNDS, zone="z", crs=CRS)) == 0
+    assert len(extract([], "b", BOUNDS, zone="z", crs=CRS).towers) == 0
 
 
 def test_reads_prediction_files(tmp_path):
@@ -227,7 +236,7 @@ def test_reads_prediction_files(tmp_path):
                  "combine": "max", "points_core": len(xyz), "points_model_input_core": len(xyz),
                  "timings": {}, "peak_rss_mb": 1.0})
     save_pred(tmp_path / "t.npz", arrays, meta)
-    gdf = extract_towers([tmp_path / "t.npz"], "b1", BOUNDS, zone="z1")
+    gdf = extract([tmp_path / "t.npz"], "b1", BOUNDS, zone="z1").towers
     assert len(gdf) == 2 and set(gdf["model_name"]) == {"pointnet_l"}
 
 
@@ -235,7 +244,7 @@ def test_degenerate_footprint_is_buffered():
     # a vertical pole: all points on one xy spot
     z = np.linspace(100, 120, 50)
     xyz = np.column_stack([np.full(50, X0 + 10), np.full(50, Y0 + 10), z])
-    gdf = extract_towers([pred_pair(xyz, z - 100, 0.9, ["b"])], "b", BOUNDS, zone="z", min_width=1.0)
+    gdf = extract([pred_pair(xyz, z - 100, 0.9, ["b"])], "b", BOUNDS, zone="z", min_width=1.0).towers
     assert len(gdf) == 1
     geom = gdf.geometry.iloc[0]
     assert geom.is_valid and geom.geom_type == "Polygon" and geom.area > 0.5
@@ -266,7 +275,7 @@ def test_towers_from_labels_and_evaluation():
     is_tower = np.ones(len(xyz), dtype=bool)
     truth = towers_from_labels(xyz[:, 0], xyz[:, 1], xyz[:, 2], hag, is_tower, crs=CRS)
     assert len(truth) == 2
-    pred = extract_towers([pred_pair(xyz, hag, 0.9, ["b"])], "b", BOUNDS, zone="z")
+    pred = extract([pred_pair(xyz, hag, 0.9, ["b"])], "b", BOUNDS, zone="z").towers
     r = match_towers(pred, truth)
     assert (r["precision"], r["recall"]) == (1.0, 1.0)
     assert max(m["distance_m"] for m in r["matches"]) < 0.5
@@ -280,8 +289,8 @@ def test_floating_cluster_is_not_a_tower():
     allxyz = np.concatenate([xyz, piece])
     allhag = np.concatenate([hag, (piece[:, 2] - 100).astype(np.float32)])
     pair = pred_pair(allxyz, allhag, 0.95, ["b1"])
-    assert len(extract_towers([pair], "b1", BOUNDS, zone="z1", max_base_ratio=1.0)) == 2
-    kept = extract_towers([pair], "b1", BOUNDS, zone="z1", max_base_ratio=0.7)
+    assert len(extract([pair], "b1", BOUNDS, zone="z1", max_base_ratio=1.0).towers) == 2
+    kept = extract([pair], "b1", BOUNDS, zone="z1", max_base_ratio=0.7).towers
     assert len(kept) == 1 and abs(kept.iloc[0]["centroid_x"] - (X0 + 50)) < 1
 
 
@@ -299,16 +308,16 @@ def test_tall_tower_without_conductors_is_dropped_and_support_recorded():
     def context(cx, cy):
         return ctx_arrays, (X0 - 40, Y0 - 40, X0 + 540, Y0 + 540)
 
-    everything = extract_towers([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.0)
+    everything = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.0).towers
     assert len(everything) == 2
     sup = everything.sort_values("centroid_x")["wire_support"].to_numpy()
     assert sup[0] == 1.0 and sup[1] == 0.0
-    kept = extract_towers([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.5)
+    kept = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.5).towers
     assert len(kept) == 1 and abs(kept.iloc[0]["centroid_x"] - (X0 + 50)) < 1
     # exempt below wire_min_height, and no context means unknown support (NaN), never a drop
-    assert len(extract_towers([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.5,
-                              wire_min_height=50.0)) == 2
-    plain = extract_towers([pair], "b1", BOUNDS, zone="z1", min_wire_support=0.5)
+    assert len(extract([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.5,
+                       wire_min_height=50.0).towers) == 2
+    plain = extract([pair], "b1", BOUNDS, zone="z1", min_wire_support=0.5).towers
     assert len(plain) == 2 and plain["wire_support"].isna().all()
 
 
@@ -317,10 +326,10 @@ def test_members_round_trip_selects_each_blocks_points(tmp_path):
     xyz, hag = synthetic_tower(X0 + 499, Y0 + 50, seed=4)  # straddles x = x0 + 500
     east = xyz[:, 0] >= X0 + 500
     pair = pred_pair(xyz, hag, 0.9, ["b1", "b2"], block_id=east.astype(np.int32))
-    members: dict = {}
-    members2: dict = {}
-    gdf = extract_towers([pair], "b1", (X0, Y0, X0 + 500, Y0 + 500), zone="z1", members=members)
-    gdf2 = extract_towers([pair], "b2", (X0 + 500, Y0, X0 + 1000, Y0 + 500), zone="z1", members=members2)
+    found = extract([pair], "b1", (X0, Y0, X0 + 500, Y0 + 500), zone="z1")
+    found2 = extract([pair], "b2", (X0 + 500, Y0, X0 + 1000, Y0 + 500), zone="z1")
+    gdf, members = found.towers, found.members
+    gdf2, members2 = found2.towers, found2.members
     assert len(gdf) + len(gdf2) == 1  # reported once
     # but both blocks know its points: each classifies its own part
     tid = (gdf if len(gdf) else gdf2)["tower_id"].iloc[0]
@@ -344,12 +353,12 @@ def test_point_threshold_trims_a_towers_points_not_the_tower():
     xyz, hag = synthetic_tower(X0 + 50, Y0 + 50, seed=6)
     prob = np.where(np.arange(len(xyz)) % 4 == 0, 0.55, 0.95)
     pair = pred_pair(xyz, hag, prob, ["b1"])
-    members: dict = {}
-    gdf = extract_towers([pair], "b1", BOUNDS, zone="z1", point_threshold=0.6, members=members)
+    found = extract([pair], "b1", BOUNDS, zone="z1", point_threshold=0.6)
+    gdf, members = found.towers, found.members
     assert len(gdf) == 1
     kept = int((prob >= 0.6).sum())
     assert gdf.iloc[0]["n_points"] == kept and len(members[gdf.iloc[0]["tower_id"]][1]) == kept
-    full = extract_towers([pair], "b1", BOUNDS, zone="z1")
+    full = extract([pair], "b1", BOUNDS, zone="z1").towers
     assert full.iloc[0]["n_points"] == len(xyz)
     assert full.iloc[0]["footprint_area_m2"] == pytest.approx(gdf.iloc[0]["footprint_area_m2"])
 
@@ -364,16 +373,16 @@ def test_towers_found_on_the_single_view_points_chosen_on_the_view_mean():
     arrays["prob"][~crown] = 0.45
     arrays["prob"][crown] = 0.2
     arrays["prob_single"] = np.full(len(xyz), 0.97, np.float32)
-    members: dict = {}
-    gdf = extract_towers([(arrays, meta)], "b1", BOUNDS, zone="z1", threshold=0.5, point_threshold=0.4,
-                         min_core_prob=0.9, members=members)
+    found = extract([(arrays, meta)], "b1", BOUNDS, zone="z1", threshold=0.5, point_threshold=0.4,
+                    min_core_prob=0.9)
+    gdf, members = found.towers, found.members
     assert len(gdf) == 1
     row = gdf.iloc[0]
     assert row["n_points"] == int((~crown).sum()) and len(members[row["tower_id"]][1]) == row["n_points"]
     assert row["prob_mean"] == pytest.approx(0.97)
     # found on the view mean instead, there would be no tower at all
     mean_only = dict(arrays, prob_single=arrays["prob"])
-    assert len(extract_towers([(mean_only, meta)], "b1", BOUNDS, zone="z1", threshold=0.5)) == 0
+    assert len(extract([(mean_only, meta)], "b1", BOUNDS, zone="z1", threshold=0.5).towers) == 0
 
 
 def test_a_tower_reports_at_least_min_points():
@@ -385,9 +394,8 @@ def test_a_tower_reports_at_least_min_points():
     arrays["prob"][:12] = 0.9
     arrays["prob_single"] = np.full(len(xyz), 0.95, np.float32)
     kw = dict(zone="z1", threshold=0.5, min_points=20, min_height=5.0)
-    assert len(extract_towers([(arrays, meta)], "b1", BOUNDS, **kw)) == 1
-    members: dict = {}
-    assert len(extract_towers([(arrays, meta)], "b1", BOUNDS, point_threshold=0.4, members=members, **kw)) == 0
-    assert members == {}
+    assert len(extract([(arrays, meta)], "b1", BOUNDS, **kw).towers) == 1
+    found = extract([(arrays, meta)], "b1", BOUNDS, point_threshold=0.4, **kw)
+    assert len(found.towers) == 0 and found.members == {}
     arrays["prob"][:25] = 0.9
-    assert len(extract_towers([(arrays, meta)], "b1", BOUNDS, point_threshold=0.4, **kw)) == 1
+    assert len(extract([(arrays, meta)], "b1", BOUNDS, point_threshold=0.4, **kw).towers) == 1

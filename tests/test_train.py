@@ -10,8 +10,9 @@ import pytest
 from test_dataset import make_tiles
 from towerpipe.training.ablation import run_ablation
 from towerpipe.training.dataset import build_windows
-from towerpipe.model.pointnet import load_bundle
-from towerpipe.training.train import classification_metrics, segmentation_metrics, train_bundle, train_classifier
+from towerpipe.model.bundle import load_bundle
+from towerpipe.training.metrics import classification_metrics, segmentation_metrics
+from towerpipe.training.train import train_bundle, train_classifier
 
 TINY = {"epochs": 6, "batch_size": 8, "threads": 2, "seed": 0, "progress": False, "arch": "light"}
 

@@ -18,12 +18,13 @@ from towerpipe.errors import TowerpipeError
 #: Modules that add sub-commands, in --help order.
 COMMAND_MODULES = [
     "towerpipe.jobs.run",
+    "towerpipe.config",
     "towerpipe.synth.cli",
-    "towerpipe.training.train",
+    "towerpipe.training.cli",
     "towerpipe.evaluation.evaluate",
     "towerpipe.evaluation.calibrate",
     "towerpipe.evaluation.realshape",
-    "towerpipe.towers.lines",
+    "towerpipe.jobs.lines",
     "towerpipe.bench",
 ]
 

@@ -1,4 +1,4 @@
-"""The configuration: loading, validating against ``config/schema.yaml``, one line per problem.
+"""The configuration: loading, validating against the schema, one line per problem; ``towerpipe config``.
 
 The schema holds every default; :func:`validate_config` fills them in (as Snakemake's
 ``validate(..., set_default=True)`` does) and reports each problem on a line of its own,
@@ -8,7 +8,9 @@ naming the key and, for an unknown key, the closest valid one::
     config: inference.gate: 1.5 is greater than the maximum of 1
 
 The Snakefile calls :func:`validate_or_exit`, so a bad config stops ``snakemake`` with
-those lines only (no traceback, no schema dump).
+those lines only (no traceback, no schema dump). The schema
+(``workflow/schemas/config.schema.yaml``) is the only place of the defaults: ``config/config.yaml``
+holds the zones and comments; ``towerpipe config`` prints the effective configuration.
 """
 
 from __future__ import annotations
@@ -27,7 +29,9 @@ from towerpipe.errors import ConfigError
 
 #: The shipped configuration and its schema, relative to the repository root.
 CONFIG_FILE = "config/config.yaml"
-SCHEMA_FILE = "config/schema.yaml"
+SCHEMA_FILE = "workflow/schemas/config.schema.yaml"
+#: The config files the Snakefile loads (``configfile:``), in order.
+WORKFLOW_CONFIG_FILES = (CONFIG_FILE, "config/models.yaml")
 
 #: Longest message of one problem (a value printed in full could be a whole section).
 MAX_PROBLEM_CHARS = 240
@@ -153,9 +157,81 @@ def exit_with(message: str) -> None:
     raise SystemExit(1)
 
 
+def repo_root(start: str | os.PathLike[str] | None = None) -> Path:
+    """The towerpipe checkout: ``start`` (the working directory) when it holds the schema, else
+    the checkout this package was installed from (editable install)."""
+    for cand in (Path(start or os.getcwd()), Path(__file__).resolve().parents[2]):
+        if (cand / SCHEMA_FILE).is_file():
+            return cand
+    raise ConfigError(f"no {SCHEMA_FILE} here: run in the towerpipe directory")
+
+
+def effective_config(configfiles: Sequence[str | os.PathLike[str]] = (), *,
+                     root: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+    """What the workflow runs with: :data:`WORKFLOW_CONFIG_FILES`, then ``configfiles`` merged
+    over them (as ``snakemake --configfile``), validated, every default filled in."""
+    root = repo_root(root)
+    config: dict[str, Any] = {}
+    for f in [*(root / f for f in WORKFLOW_CONFIG_FILES), *configfiles]:
+        update_config(config, load_yaml(f))
+    return validate_config(config, root / SCHEMA_FILE)
+
+
+def _config_cmd(args: Any) -> int:
+    config = effective_config(args.configfiles)
+    sys.stdout.write(yaml.safe_dump(config, sort_keys=False, allow_unicode=True, width=100))
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    """Add ``towerpipe config``."""
+    p = subparsers.add_parser(
+        "config", help="print the effective configuration (schema defaults filled in) as YAML",
+        description="Print the configuration the workflow runs with, as YAML: config/config.yaml and "
+                    "config/models.yaml, the FILEs merged over them (as `snakemake --configfile FILE`), "
+                    f"and every default of {SCHEMA_FILE} filled in.")
+    p.add_argument("configfiles", nargs="*", metavar="FILE", help="YAML merged over the shipped config (your zones)")
+    p.set_defaults(func=_config_cmd)
+
+
 def validate_or_exit(config: MutableMapping[str, Any], schema: str | os.PathLike[str]) -> None:
     """:func:`validate_config`, or exit with status 1 printing only the problems (for the Snakefile)."""
     try:
         validate_config(config, schema)
     except ConfigError as exc:
         exit_with(str(exc))
+
+
+from dataclasses import dataclass, fields  # noqa: E402  (the section classes below)
+
+
+@dataclass(frozen=True)
+class TowersConfig:
+    """The tower rules of :func:`towerpipe.towers.extract.extract_towers`: the keys of the
+    ``towers`` section it uses (``wire_ring_coverage`` is the conductor context's).
+
+    No defaults here: the schema holds them; :meth:`from_config` reads a validated config.
+    """
+
+    #: Towers are clustered from the points whose single-view probability reaches this.
+    threshold: float
+    #: Points closer than this (m, 3-D) belong to one tower.
+    linkage: float
+    #: Towers with fewer points are dropped.
+    min_points: int
+    #: Towers lower than this (m, max HAG) are dropped.
+    min_height: float
+    #: Towers whose 90th percentile of point probabilities is lower are dropped.
+    min_core_prob: float
+    #: Towers at least ``wire_min_height`` high with a lower conductor support are dropped.
+    min_wire_support: float
+    #: The conductor rule applies to towers at least this high (m).
+    wire_min_height: float
+    #: Towers whose lowest point is above this share of their height are dropped.
+    max_base_ratio: float
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any]) -> TowersConfig:
+        """The rules of a validated config's ``towers`` section (:func:`validate_config`)."""
+        section = config["towers"]
+        return cls(**{f.name: section[f.name] for f in fields(cls)})

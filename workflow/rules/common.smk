@@ -1,4 +1,5 @@
-# Helpers shared by the rules: zones, blocks, tiles and neighbours.
+# Helpers shared by the rules: zones, blocks, tiles and neighbours, the paths of the
+# intermediates, logs and benchmarks, and the jobs' memory.
 # Logic lives in src/towerpipe; this file only maps config and files to paths.
 import functools
 import json
@@ -16,6 +17,37 @@ from towerpipe.preprocess.pdal import pdal_version
 
 WORK = config["workdir"]
 PREP = config["preprocess"]
+
+# Patterns (wildcards zone, block, tile) of the per-block and per-tile intermediates, and of
+# the logs and benchmarks of the rules: work/<zone>/logs/<rule>[/<block>[/<tile>]].log
+ZONE_DIR = f"{WORK}/{{zone}}"
+PREP_SUMMARY = f"{ZONE_DIR}/prep/{{block}}.json"
+TILE = f"{ZONE_DIR}/tiles/{{block}}/{{tile}}.npz"
+PRED = f"{ZONE_DIR}/pred/{{block}}/{{tile}}.npz"
+TOWERS_GPKG = f"{ZONE_DIR}/towers/{{block}}.gpkg"
+TOWERS_NEIGHBOURS = f"{ZONE_DIR}/towers/{{block}}.neighbours.json"
+TOWER_MEMBERS = f"{ZONE_DIR}/towers/{{block}}.points.npz"
+BLOCK_LAZ = f"{ZONE_DIR}/out/{{block}}.laz"
+CACHE = f"{ZONE_DIR}/cache/{{block}}"
+DTM = f"{ZONE_DIR}/dtm/{{block}}/{{tile}}.tif"
+QA_HTML = f"{ZONE_DIR}/qa/{{block}}.html"
+QA_JSON = f"{ZONE_DIR}/qa/{{block}}.json"
+
+
+def log_of(rule, per=""):
+    """``log:`` of a rule: per "" (zone), "block" or "tile"."""
+    return _per_job(f"{ZONE_DIR}/logs", rule, per) + ".log"
+
+
+def benchmark_of(rule, per=""):
+    """``benchmark:`` of a rule: per "" (zone), "block" or "tile"."""
+    return _per_job(f"{ZONE_DIR}/benchmarks", rule, per) + ".tsv"
+
+
+def _per_job(base, rule, per):
+    """``base/rule``, then ``{block}`` and ``{tile}`` as the rule's jobs are per zone, block or tile."""
+    wildcards = {"": [], "block": ["{block}"], "tile": ["{block}", "{tile}"]}[per]
+    return os.path.join(base, rule, *wildcards)
 
 
 wildcard_constraints:
@@ -135,8 +167,13 @@ def plan_or_none(zone):
 
 
 def planned(zone, block):
-    return plan(zone).get(block) or {"tiles": [], "neighbours": [], "tile_blocks": {}, "points": 0,
-                                     "missing_neighbours": []}
+    return plan(zone).get(block) or {
+        "tiles": [],
+        "neighbours": [],
+        "tile_blocks": {},
+        "points": 0,
+        "missing_neighbours": [],
+    }
 
 
 def tiles(zone, block):
@@ -155,11 +192,11 @@ def block_points(zone, block):
 
 
 def cache_dir(zone, block):
-    return f"{WORK}/{zone}/cache/{block}"
+    return CACHE.format(zone=zone, block=block)
 
 
 def tile_file(zone, block, tile):
-    return f"{WORK}/{zone}/tiles/{block}/{tile}.npz"
+    return TILE.format(zone=zone, block=block, tile=tile)
 
 
 def tile_files(zone):
@@ -168,6 +205,16 @@ def tile_files(zone):
 
 def mem_mb_for_points(points, per_point_bytes, base_mb=400):
     return int(base_mb + points * per_point_bytes / 2**20)
+
+
+def tile_mem_mb(per_point_bytes, base_mb=400):
+    """``resources: mem_mb`` of a per-tile job: the block's points in a tile and its buffer."""
+
+    def mem_mb(wc):
+        share = min(1.0, ((PREP["tile_size"] + 2 * PREP["buffer"]) ** 2) / 1e6)
+        return mem_mb_for_points(block_points(wc.zone, wc.block) * share, per_point_bytes, base_mb=base_mb)
+
+    return mem_mb
 
 
 def registry_file(zone):
@@ -184,10 +231,10 @@ def zone_products(zone):
     """Relative path in results/<zone>/ -> per-block product."""
     files = {}
     for b in blocks(zone):
-        files[layout.block_product(layout.BLOCK_LAZ, b)] = f"{WORK}/{zone}/out/{b}.laz"
-        files[layout.block_product(layout.BLOCK_GPKG, b)] = f"{WORK}/{zone}/towers/{b}.gpkg"
-        files[layout.block_product(layout.QA_PAGE, b)] = f"{WORK}/{zone}/qa/{b}.html"
-        files[layout.block_product(layout.QA_JSON, b)] = f"{WORK}/{zone}/qa/{b}.json"
+        files[layout.block_product(layout.BLOCK_LAZ, b)] = BLOCK_LAZ.format(zone=zone, block=b)
+        files[layout.block_product(layout.BLOCK_GPKG, b)] = TOWERS_GPKG.format(zone=zone, block=b)
+        files[layout.block_product(layout.QA_PAGE, b)] = QA_HTML.format(zone=zone, block=b)
+        files[layout.block_product(layout.QA_JSON, b)] = QA_JSON.format(zone=zone, block=b)
     return files
 
 
@@ -228,7 +275,7 @@ def model_files(zone):
 
 
 def pred_file(zone, block, tile):
-    return f"{WORK}/{zone}/pred/{block}/{tile}.npz"
+    return PRED.format(zone=zone, block=block, tile=tile)
 
 
 def block_preds(zone, block):
@@ -245,13 +292,17 @@ def run_params():
 
 
 def block_benchmarks(zone, block):
-    bench = f"{WORK}/{zone}/benchmarks"
+    """The benchmark files of a block's jobs (its QA page reports their time and memory)."""
+
+    def of(rule, per):
+        return [benchmark_of(rule, per).format(zone=zone, block=block, tile=t) for t in tiles(zone, block)]
+
     return {
-        "split": [f"{bench}/split_block/{block}.tsv"],
-        "preprocess": [f"{bench}/preprocess_tile/{block}/{t}.tsv" for t in tiles(zone, block)],
-        "inference": [f"{bench}/infer_tile/{block}/{t}.tsv" for t in tiles(zone, block)],
-        "merge": [f"{bench}/merge_block/{block}.tsv"],
-        "towers": [f"{bench}/towers_block/{block}.tsv"],
+        "split": [benchmark_of("split_block", "block").format(zone=zone, block=block)],
+        "preprocess": of("preprocess_tile", "tile"),
+        "inference": of("infer_tile", "tile"),
+        "merge": [benchmark_of("merge_block", "block").format(zone=zone, block=block)],
+        "towers": [benchmark_of("towers_block", "block").format(zone=zone, block=block)],
     }
 
 
@@ -304,20 +355,22 @@ def model_train_config(name, ablation=False):
 
 def realshape_zones():
     """The zones of the real-shape benchmark (towerpipe.evaluation.realshape), of the variants judged."""
-    variants = TRAIN.get("benchmark_variants") or []
-    return [z for z in config["zones"] if z.startswith("realshape_")
-            and (not variants or any(z.endswith(f"_{v}") for v in variants))]
+    variants = TRAIN["benchmark_variants"]
+    return [
+        z
+        for z in config["zones"]
+        if z.startswith("realshape_") and (not variants or any(z.endswith(f"_{v}") for v in variants))
+    ]
 
 
 def loso_models():
     """Recipe (feature set) -> real family -> the recipe's model trained without that family."""
     from towerpipe.synth.real import FAMILIES
 
-    judged = TRAIN.get("benchmark") or list(TRAIN["models"])
+    judged = TRAIN["benchmark"] or list(TRAIN["models"])
     unknown = sorted(set(judged) - set(TRAIN["models"]))
     if unknown:
         raise WorkflowError(f"training.benchmark: {', '.join(unknown)} not in training.models")
     return {
-        TRAIN["models"][name]["feature_set"]: {f: f"{WORK}/models/{name}{LOSO}{f}" for f in FAMILIES}
-        for name in judged
+        TRAIN["models"][name]["feature_set"]: {f: f"{WORK}/models/{name}{LOSO}{f}" for f in FAMILIES} for name in judged
     }

@@ -1,4 +1,5 @@
-# Preprocessing (paper 3.1): decode once per block, then ground/DTM/HAG/noise per tile.
+# Preprocessing (paper 3.1): decode once per block (split), plan the zone's tiles from the
+# measured bounds, then ground/DTM/HAG/noise per tile, and the block's summary.
 
 
 # The block file is a parameter, not an input: its fingerprint (towerpipe.io.inputs) reruns the
@@ -6,23 +7,23 @@
 # braces in an input path as wildcards).
 rule split_block:
     output:
-        cache=directory(f"{WORK}/{{zone}}/cache/{{block}}"),
-    params:
-        block=lambda wc: block_path(wc.zone, wc.block),
-        source=lambda wc: describe(block_input(wc.zone, wc.block)),
-        crs=lambda wc: zone_config(wc.zone).get("crs"),
-        zone_crs=lambda wc: zone_crs(wc.zone),
-        preprocess=PREP,
+        cache=directory(CACHE),
     log:
-        f"{WORK}/{{zone}}/logs/split_block/{{block}}.log",
+        log_of("split_block", "block"),
     benchmark:
-        f"{WORK}/{{zone}}/benchmarks/split_block/{{block}}.tsv"
+        benchmark_of("split_block", "block")
     conda:
         "../envs/towerpipe.yaml"
     threads: 2
     resources:
         mem_mb=lambda wc: mem_mb_for_points(block_points(wc.zone, wc.block), 160),
         runtime=30,
+    params:
+        block=lambda wc: block_path(wc.zone, wc.block),
+        source=lambda wc: describe(block_input(wc.zone, wc.block)),
+        crs=lambda wc: zone_config(wc.zone).get("crs"),
+        zone_crs=lambda wc: zone_crs(wc.zone),
+        preprocess=PREP,
     script:
         "../scripts/split_block.py"
 
@@ -33,20 +34,20 @@ checkpoint plan_zone:
     input:
         caches=lambda wc: [cache_dir(wc.zone, b) for b in blocks(wc.zone)],
     output:
-        plan=f"{WORK}/{{zone}}/plan.json",
-    params:
-        blocks=lambda wc: list(blocks(wc.zone)),
-        preprocess=PREP,
+        plan=f"{ZONE_DIR}/plan.json",
     log:
-        f"{WORK}/{{zone}}/logs/plan_zone.log",
+        log_of("plan_zone"),
     benchmark:
-        f"{WORK}/{{zone}}/benchmarks/plan_zone.tsv"
+        benchmark_of("plan_zone")
     conda:
         "../envs/towerpipe.yaml"
     threads: 1
     resources:
         mem_mb=lambda wc: 500 + len(blocks(wc.zone)) // 10,
         runtime=10,
+    params:
+        blocks=lambda wc: list(blocks(wc.zone)),
+        preprocess=PREP,
     script:
         "../scripts/plan_zone.py"
 
@@ -55,30 +56,26 @@ rule preprocess_tile:
     input:
         caches=lambda wc: [cache_dir(wc.zone, b) for b in tile_blocks(wc.zone, wc.block, wc.tile)],
     output:
-        tile=f"{WORK}/{{zone}}/tiles/{{block}}/{{tile}}.npz",
-        dtm=f"{WORK}/{{zone}}/dtm/{{block}}/{{tile}}.tif",
+        tile=TILE,
+        dtm=DTM,
+    log:
+        log_of("preprocess_tile", "tile"),
+    benchmark:
+        benchmark_of("preprocess_tile", "tile")
+    # all tiles before any inference: the longer inference jobs then fill both cores to the
+    # end instead of one core idling while a late tile is preprocessed
+    priority: 10
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 1
+    resources:
+        mem_mb=tile_mem_mb(260),
+        runtime=30,
     params:
         blocks=lambda wc: tile_blocks(wc.zone, wc.block, wc.tile),
         # blocks nearby that could not be split: named in the tile's warnings
         missing=lambda wc: {b: cache_dir(wc.zone, b) for b in planned(wc.zone, wc.block)["missing_neighbours"]},
         preprocess=PREP,
-    log:
-        f"{WORK}/{{zone}}/logs/preprocess_tile/{{block}}/{{tile}}.log",
-    benchmark:
-        f"{WORK}/{{zone}}/benchmarks/preprocess_tile/{{block}}/{{tile}}.tsv"
-    conda:
-        "../envs/towerpipe.yaml"
-    threads: 1
-    resources:
-        mem_mb=lambda wc: mem_mb_for_points(
-            block_points(wc.zone, wc.block)
-            * min(1.0, ((PREP["tile_size"] + 2 * PREP["buffer"]) ** 2) / 1e6),
-            260,
-        ),
-        runtime=30,
-    # all tiles before any inference: the longer inference jobs then fill both cores to the
-    # end instead of one core idling while a late tile is preprocessed
-    priority: 10
     script:
         "../scripts/preprocess_tile.py"
 
@@ -88,11 +85,11 @@ rule preprocess_block:
         cache=lambda wc: cache_dir(wc.zone, wc.block),
         tiles=lambda wc: [tile_file(wc.zone, wc.block, t) for t in tiles(wc.zone, wc.block)],
     output:
-        summary=f"{WORK}/{{zone}}/prep/{{block}}.json",
+        summary=PREP_SUMMARY,
     log:
-        f"{WORK}/{{zone}}/logs/preprocess_block/{{block}}.log",
+        log_of("preprocess_block", "block"),
     benchmark:
-        f"{WORK}/{{zone}}/benchmarks/preprocess_block/{{block}}.tsv"
+        benchmark_of("preprocess_block", "block")
     conda:
         "../envs/towerpipe.yaml"
     threads: 1
@@ -108,13 +105,13 @@ rule prepared_zone:
     input:
         tiles=lambda wc: tile_files(wc.zone),
     output:
-        touch(f"{WORK}/{{zone}}/prepared.done"),
+        touch(f"{ZONE_DIR}/prepared.done"),
     log:
-        f"{WORK}/{{zone}}/logs/prepared_zone.log",
+        log_of("prepared_zone"),
     benchmark:
-        f"{WORK}/{{zone}}/benchmarks/prepared_zone.tsv"
+        benchmark_of("prepared_zone")
+    localrule: True
     threads: 1
     resources:
         mem_mb=100,
         runtime=1,
-    localrule: True

@@ -4,17 +4,17 @@
 checkpoint synth_zone:
     output:
         directory("data/{zone}"),
-    params:
-        synth=lambda wc: config["zones"][wc.zone]["synth"],
     log:
-        f"{WORK}/{{zone}}/logs/synth_zone.log",
+        log_of("synth_zone"),
     benchmark:
-        f"{WORK}/{{zone}}/benchmarks/synth_zone.tsv"
+        benchmark_of("synth_zone")
     conda:
         "../envs/towerpipe.yaml"
     threads: 1
     resources:
         mem_mb=4000,
         runtime=30,
+    params:
+        synth=lambda wc: config["zones"][wc.zone]["synth"],
     script:
         "../scripts/synth_zone.py"

@@ -10,28 +10,28 @@ rule assemble_zone:
         lambda wc: planned_products(wc.zone),
     output:
         manifest=f"{WORK}/{{zone}}/published.json",
-    params:
-        results="results/{zone}",
-        # the published zone is kept beside its manifest: work/<zone>/published/
-        stage=lambda wc, output: os.path.splitext(output.manifest)[0],
-        files=lambda wc: zone_products(wc.zone),
-        gpkgs=lambda wc: [f"{WORK}/{wc.zone}/towers/{b}.gpkg" for b in blocks(wc.zone)],
-        qa=lambda wc: [f"{WORK}/{wc.zone}/qa/{b}.json" for b in blocks(wc.zone)],
-        sources=lambda wc: {b: i.relpath for b, i in inputs(wc.zone).items()},
-        run=run_params(),
-        block_bounds=lambda wc: bounds(wc.zone),
-        # the tower registry: updated by each assembly (state kept across runs, not an output)
-        registry=lambda wc: registry_file(wc.zone),
     log:
-        f"{WORK}/{{zone}}/logs/assemble_zone.log",
+        log_of("assemble_zone"),
     benchmark:
-        f"{WORK}/{{zone}}/benchmarks/assemble_zone.tsv"
+        benchmark_of("assemble_zone")
     conda:
         "../envs/towerpipe.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,
+    params:
+        results="results/{zone}",
+        # the published zone is kept beside its manifest: work/<zone>/published/
+        stage=lambda wc, output: os.path.splitext(output.manifest)[0],
+        files=lambda wc: zone_products(wc.zone),
+        gpkgs=lambda wc: [TOWERS_GPKG.format(zone=wc.zone, block=b) for b in blocks(wc.zone)],
+        qa=lambda wc: [QA_JSON.format(zone=wc.zone, block=b) for b in blocks(wc.zone)],
+        sources=lambda wc: {b: i.relpath for b, i in inputs(wc.zone).items()},
+        run=run_params(),
+        block_bounds=lambda wc: bounds(wc.zone),
+        # the tower registry: updated by each assembly (state kept across runs, not an output)
+        registry=lambda wc: registry_file(wc.zone),
     script:
         "../scripts/assemble_zone.py"
 
@@ -48,12 +48,10 @@ rule zone_results:
             category="Zone",
             subcategory="{zone}",
         ),
-    params:
-        stage=lambda wc, input: os.path.splitext(input[0])[0],
     log:
-        f"{WORK}/{{zone}}/logs/zone_results.log",
+        log_of("zone_results"),
     benchmark:
-        f"{WORK}/{{zone}}/benchmarks/zone_results.tsv"
+        benchmark_of("zone_results")
     localrule: True
     conda:
         "../envs/towerpipe.yaml"
@@ -61,5 +59,7 @@ rule zone_results:
     resources:
         mem_mb=500,
         runtime=5,
+    params:
+        stage=lambda wc, input: os.path.splitext(input[0])[0],
     script:
         "../scripts/zone_results.py"

@@ -2,7 +2,19 @@ from towerpipe.jobs.smk import run_step
 from towerpipe.jobs.steps import zone_step
 
 p = snakemake.params
-run_step(snakemake, lambda: zone_step(
-    snakemake.wildcards.zone, p.results, p.files, tower_gpkgs=p.gpkgs, qa_jsons=p.qa, run_cfg=p.run,
-    stage_dir=p.stage, manifest=snakemake.output.manifest, sources=p.sources,
-    block_bounds=p.block_bounds, registry=p.registry))
+run_step(
+    snakemake,
+    lambda: zone_step(
+        snakemake.wildcards.zone,
+        p.results,
+        p.files,
+        tower_gpkgs=p.gpkgs,
+        qa_jsons=p.qa,
+        run_cfg=p.run,
+        stage_dir=p.stage,
+        manifest=snakemake.output.manifest,
+        sources=p.sources,
+        block_bounds=p.block_bounds,
+        registry=p.registry,
+    ),
+)

@@ -1,6 +1,12 @@
 from towerpipe.jobs.smk import run_step
 from towerpipe.preprocess.tiling import plan_zone_step
 
-run_step(snakemake, lambda: plan_zone_step(
-    dict(zip(snakemake.params.blocks, snakemake.input.caches)), snakemake.output.plan,
-    tile_size=snakemake.params.preprocess["tile_size"], buffer=snakemake.params.preprocess["buffer"]))
+run_step(
+    snakemake,
+    lambda: plan_zone_step(
+        dict(zip(snakemake.params.blocks, snakemake.input.caches, strict=True)),
+        snakemake.output.plan,
+        tile_size=snakemake.params.preprocess["tile_size"],
+        buffer=snakemake.params.preprocess["buffer"],
+    ),
+)

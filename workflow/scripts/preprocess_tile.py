@@ -1,8 +1,16 @@
-from towerpipe.preprocess.tile import preprocess_tile
 from towerpipe.jobs.smk import run_step
+from towerpipe.preprocess.tile import preprocess_tile
 
-run_step(snakemake, lambda: preprocess_tile(
-    snakemake.wildcards.zone, snakemake.wildcards.block, snakemake.wildcards.tile,
-    dict(zip(snakemake.params.blocks, snakemake.input.caches)), snakemake.output.tile,
-    dtm_path=snakemake.output.dtm, config=snakemake.params.preprocess,
-    missing=snakemake.params.missing))
+run_step(
+    snakemake,
+    lambda: preprocess_tile(
+        snakemake.wildcards.zone,
+        snakemake.wildcards.block,
+        snakemake.wildcards.tile,
+        dict(zip(snakemake.params.blocks, snakemake.input.caches, strict=True)),
+        snakemake.output.tile,
+        dtm_path=snakemake.output.dtm,
+        config=snakemake.params.preprocess,
+        missing=snakemake.params.missing,
+    ),
+)

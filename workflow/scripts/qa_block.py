@@ -2,9 +2,23 @@ from towerpipe.jobs.smk import run_step
 from towerpipe.jobs.steps import qa_step
 
 i = snakemake.input
-run_step(snakemake, lambda: qa_step(
-    snakemake.wildcards.zone, snakemake.wildcards.block, summary_json=i.summary, cache_dir=i.cache,
-    tile_files=i.tiles, pred_files=i.preds, towers_gpkg=i.towers, threshold=snakemake.params.threshold,
-    dtm_files=i.dtms, benchmarks=snakemake.params.benchmarks, out_html=snakemake.output.html,
-    out_json=snakemake.output.json, neighbours_json=i.neighbours,
-    member_files=[i.members], block_bounds=snakemake.params.block_bounds))
+run_step(
+    snakemake,
+    lambda: qa_step(
+        snakemake.wildcards.zone,
+        snakemake.wildcards.block,
+        summary_json=i.summary,
+        cache_dir=i.cache,
+        tile_files=i.tiles,
+        pred_files=i.preds,
+        towers_gpkg=i.towers,
+        threshold=snakemake.params.threshold,
+        dtm_files=i.dtms,
+        benchmarks=snakemake.params.benchmarks,
+        out_html=snakemake.output.html,
+        out_json=snakemake.output.json,
+        neighbours_json=i.neighbours,
+        member_files=[i.members],
+        block_bounds=snakemake.params.block_bounds,
+    ),
+)

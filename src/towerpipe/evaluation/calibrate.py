@@ -31,15 +31,18 @@ import numpy as np
 from towerpipe import classes
 from towerpipe.errors import InputError
 
-__all__ = ["Candidate", "score_zone", "sweep", "zone_predictions"]
+__all__ = ["Candidate", "INFERENCE_PACKAGES", "score_zone", "sweep", "tower_labels", "zone_predictions",
+           "zone_tiles"]
 
 #: One candidate: (views, towers.threshold, inference.threshold, towers.min_core_prob), optionally
 #: followed by inference.gate and towers.min_wire_support (default: the config's).
 Candidate = tuple[float, ...]
 
 _UNBOUNDED = (-1e18, -1e18, 1e18, 1e18)
-# the towers config keys that extract_towers takes as they are
-_TOWER_KEYS = ("linkage", "min_points", "min_height", "min_wire_support", "wire_min_height", "max_base_ratio")
+
+#: The subpackages whose code makes a tile's predictions: all of their modules are part of
+#: the key of the cached predictions (:func:`zone_predictions`).
+INFERENCE_PACKAGES = ("towerpipe.inference", "towerpipe.model", "towerpipe.towers")
 
 
 def _survey(work: str | os.PathLike[str], zone: str) -> list[list[float]]:
@@ -51,7 +54,7 @@ def _survey(work: str | os.PathLike[str], zone: str) -> list[list[float]]:
     return [list(map(float, b["bounds"])) for b in blocks.values() if b.get("bounds")]
 
 
-def _zone_tiles(work: str | os.PathLike[str], zone: str) -> list[Path]:
+def zone_tiles(work: str | os.PathLike[str], zone: str) -> list[Path]:
     tiles = sorted(Path(work, zone, "tiles").glob("*/*.npz"))
     if not tiles:
         raise InputError(Path(work, zone, "tiles"), f"no tiles of zone {zone!r}; run "
@@ -84,10 +87,10 @@ def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.Pa
         the hash covers the inference settings and the model's weights.
     """
     from towerpipe.inference.infer import infer_tile
-    from towerpipe.model.pointnet import load_bundle
+    from towerpipe.model.bundle import load_bundle
     from towerpipe.model.cards import config_hash, read_card
 
-    tiles = _zone_tiles(work, zone)
+    tiles = zone_tiles(work, zone)
     keys = ("window", "windows", "stride", "gate", "combine", "batch_size", "min_points", "min_height")
     kw = {k: inference[k] for k in keys if k in inference}
     # the weights' hashes and the inference code are part of the key: a retrained model or
@@ -106,30 +109,30 @@ def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.Pa
 
 
 def _inference_code() -> str:
-    """SHA-256 of the modules that turn a tile into predictions."""
+    """SHA-256 of the code that turns a tile into predictions.
+
+    Every module of :data:`INFERENCE_PACKAGES` (path and content, in sorted order): the
+    windows, the networks, their features and sampling, and the tower code (the peaks
+    leave overhead wires out), wherever in those subpackages it lives.
+    """
     import hashlib
-
-    from towerpipe.model import features
-
-    from towerpipe.inference import infer
-
-    from towerpipe.model import sampling
-
-    from towerpipe.inference import windows
-
-    from towerpipe.towers import wires
+    from importlib.util import find_spec
 
     h = hashlib.sha256()
-    for mod in (infer, windows, wires, features, sampling):  # wires: the peaks leave overhead wires out
-        h.update(Path(mod.__file__).read_bytes())
+    for name in INFERENCE_PACKAGES:
+        root = Path(find_spec(name).origin).parent
+        for path in sorted(root.rglob("*.py")):
+            h.update(path.relative_to(root.parent).as_posix().encode())
+            h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
 
-def _labels(input_dir: Path) -> dict[str, np.ndarray]:
+def tower_labels(input_dir: Path) -> dict[str, np.ndarray]:
     """Block name -> indices of its points labelled 15 in the input."""
     import laspy
 
-    from towerpipe.io.las import find_blocks, laz_backend
+    from towerpipe.io.inputs import find_blocks
+    from towerpipe.io.las import laz_backend
 
     out = {}
     for name, path in find_blocks(input_dir).items():
@@ -161,7 +164,8 @@ def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: M
     threshold, point_threshold, min_core_prob
         The candidate (``towers.threshold``, ``inference.threshold``, ``towers.min_core_prob``).
     towers
-        The config's ``towers`` section: the other rules.
+        The config's ``towers`` section: the other rules (every key of
+        :class:`towerpipe.config.TowersConfig` but the candidate's).
     min_truth_points
         True towers with fewer points are left out of the tower scores, and a prediction
         matching one is not a false tower (the paper's floor: 20 points).
@@ -174,17 +178,19 @@ def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: M
         ``gate_recall`` (share of the true towers that some window passing the gate
         covers: they have segmented points) and ``false_towers`` (height, points).
     """
-    from towerpipe.towers.extract import extract_towers, match_towers
+    from towerpipe.config import TowersConfig
+    from towerpipe.towers.extract import extract_towers
+    from towerpipe.towers.matching import match_towers
     from towerpipe.towers.wires import TileContext
 
-    members: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    gdf = extract_towers(preds, zone, _UNBOUNDED, zone=zone, threshold=threshold, point_threshold=point_threshold,
-                         min_core_prob=min_core_prob, context=TileContext(list(tile_paths), survey=survey,
-                                            min_ring_share=float(towers.get("wire_ring_coverage", 0.0))),
-                         members=members, model_meta={}, crs=truth.crs,
-                         **{k: towers[k] for k in _TOWER_KEYS if k in towers})
+    rules = TowersConfig.from_config({"towers": {**towers, "threshold": threshold, "min_core_prob": min_core_prob}})
+    found = extract_towers(preds, zone, _UNBOUNDED, rules, zone=zone, point_threshold=point_threshold,
+                           context=TileContext(list(tile_paths), survey=survey,
+                                               min_ring_share=float(towers.get("wire_ring_coverage", 0.0))),
+                           model_meta={}, crs=truth.crs)
+    gdf = found.towers
     chosen: dict[str, list[np.ndarray]] = {}
-    for blocks, idx in members.values():
+    for blocks, idx in found.members.values():
         blocks = np.asarray(blocks).astype(str)
         for b in np.unique(blocks):
             chosen.setdefault(str(b), []).append(np.asarray(idx)[blocks == b])
@@ -255,15 +261,15 @@ def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Cand
         truth_path = Path(input_dir) / "towers_truth.gpkg"
         if not truth_path.exists():
             raise InputError(truth_path, "calibration needs the zone's true towers (a synthetic zone has them)")
-        data[zone] = (gpd.read_file(truth_path, layer="towers"), _labels(Path(input_dir)),
-                      [str(p) for p in _zone_tiles(work, zone)], _survey(work, zone))
+        data[zone] = (gpd.read_file(truth_path, layer="towers"), tower_labels(Path(input_dir)),
+                      [str(p) for p in zone_tiles(work, zone)], _survey(work, zone))
     preds: dict[tuple[str, int, float], list[Any]] = {}
     rows = []
     for cand in candidates:
         tta, thr, pthr, mcp, *rest = cand
         tta = int(tta)
-        gate = float(rest[0]) if rest else float(inference.get("gate", 0.5))
-        wire = float(rest[1]) if len(rest) > 1 else float(towers.get("min_wire_support", 0.0))
+        gate = float(rest[0]) if rest else float(inference["gate"])
+        wire = float(rest[1]) if len(rest) > 1 else float(towers["min_wire_support"])
         row: dict[str, Any] = {"tta": tta, "threshold": thr, "point_threshold": pthr, "min_core_prob": mcp,
                                "gate": gate, "min_wire_support": wire}
         for zone, (truth, labels, tiles, survey) in data.items():
@@ -297,28 +303,27 @@ def _zone_model(work: str, zone: str, spec: str) -> str:
 
 
 def _cli(args: argparse.Namespace) -> int:
-    import yaml
+    from towerpipe.config import SCHEMA_FILE, load_yaml, repo_root, update_config, validate_config
 
     cfg: dict[str, Any] = {}
-    for path in args.config:                     # later files win, zones are merged
-        more = yaml.safe_load(Path(path).read_text()) or {}
-        zones_so_far = {**(cfg.get("zones") or {}), **(more.get("zones") or {})}
-        cfg = {**cfg, **more, "zones": zones_so_far}
-    inference, towers = dict(cfg.get("inference") or {}), dict(cfg.get("towers") or {})
-    work = args.workdir or cfg.get("workdir", "work")
+    for path in args.config:                     # later files win, merged as Snakemake merges them
+        update_config(cfg, load_yaml(path))
+    validate_config(cfg, repo_root() / SCHEMA_FILE)  # every default from the schema
+    inference, towers = dict(cfg["inference"]), dict(cfg["towers"])
+    work = args.workdir or cfg["workdir"]
     zones, models = {}, {}
     for z in args.zones.split(","):
         spec = (cfg.get("zones") or {}).get(z)
         if spec is None:
             raise InputError(args.config[-1], f"zone {z!r} is not defined in {', '.join(args.config)}")
         zones[z] = spec["input"]
-        models[z] = args.model or _zone_model(work, z, str(spec.get("model") or inference.get("model", "auto")))
-    tta = [int(v) for v in args.tta.split(",")] if args.tta else [int(inference.get("tta", 1))]
-    thr = _floats(args.threshold) if args.threshold else [float(towers.get("threshold", 0.5))]
-    pthr = _floats(args.point_threshold) if args.point_threshold else [float(inference.get("threshold", 0.5))]
-    mcp = _floats(args.min_core_prob) if args.min_core_prob else [float(towers.get("min_core_prob", 0.0))]
-    gates = _floats(args.gate) if args.gate else [float(inference.get("gate", 0.5))]
-    wires = _floats(args.min_wire_support) if args.min_wire_support else [float(towers.get("min_wire_support", 0.0))]
+        models[z] = args.model or _zone_model(work, z, str(spec.get("model") or inference["model"]))
+    tta = [int(v) for v in args.tta.split(",")] if args.tta else [int(inference["tta"])]
+    thr = _floats(args.threshold) if args.threshold else [float(towers["threshold"])]
+    pthr = _floats(args.point_threshold) if args.point_threshold else [float(inference["threshold"])]
+    mcp = _floats(args.min_core_prob) if args.min_core_prob else [float(towers["min_core_prob"])]
+    gates = _floats(args.gate) if args.gate else [float(inference["gate"])]
+    wires = _floats(args.min_wire_support) if args.min_wire_support else [float(towers["min_wire_support"])]
     rows = sweep(zones, list(itertools.product(tta, thr, pthr, mcp, gates, wires)), work=work, model=models,
                  inference=inference, towers=towers)
     print("models: " + ", ".join(f"{z}: {Path(m).name}" for z, m in models.items()))

@@ -29,7 +29,8 @@ import numpy as np
 
 from towerpipe import classes
 from towerpipe.errors import InputError
-from towerpipe.io.las import find_blocks, laz_backend
+from towerpipe.io.inputs import find_blocks
+from towerpipe.io.las import laz_backend
 
 
 
@@ -128,7 +129,7 @@ def evaluate_zone(input_dir: str | os.PathLike[str], results_dir: str | os.PathL
         paper drops towers under 20 points from its data. 0 evaluates every tower.
     """
     from towerpipe.products.gpkg import read_towers
-    from towerpipe.towers.extract import match_towers
+    from towerpipe.towers.matching import match_towers
 
     input_dir, results_dir = Path(input_dir), Path(results_dir)
     truth_path = Path(truth_gpkg) if truth_gpkg else input_dir / "towers_truth.gpkg"
@@ -205,8 +206,8 @@ def evaluate_windows(model_dir: str | os.PathLike[str], tile_paths: list[str], *
         (IoU tower, IoU background, mIoU, points, windows), ``windows``, ``towers``.
     """
     from towerpipe.training.dataset import build_windows
-    from towerpipe.model.pointnet import load_bundle
-    from towerpipe.training.train import classification_metrics, predict_windows, segment_windows_metrics
+    from towerpipe.model.bundle import load_bundle
+    from towerpipe.training.metrics import classification_metrics, predict_windows, segment_windows_metrics
 
     bundle = load_bundle(model_dir)
     paths = sorted(str(p) for p in tile_paths)

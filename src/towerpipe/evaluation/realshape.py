@@ -57,11 +57,11 @@ def zone_name(family: str, variant: str) -> str:
 
 def zone_valid_attributes(work: str | os.PathLike[str], zone: str) -> set[str]:
     """The sensor attributes valid on every tile of a preprocessed zone."""
-    from towerpipe.evaluation.calibrate import _zone_tiles
+    from towerpipe.evaluation.calibrate import zone_tiles
     from towerpipe.io.columns import read_meta
     from towerpipe.model.features import valid_attributes
 
-    sets = [valid_attributes(read_meta(p)) for p in _zone_tiles(work, zone)]
+    sets = [valid_attributes(read_meta(p)) for p in zone_tiles(work, zone)]
     return set.intersection(*sets) if sets else set()
 
 
@@ -75,12 +75,12 @@ def evaluate_model(model: str | os.PathLike[str], zone: str, input_dir: str | os
     """
     import geopandas as gpd
 
-    from towerpipe.evaluation.calibrate import _labels, _zone_tiles, score_zone, zone_predictions
+    from towerpipe.evaluation.calibrate import tower_labels, zone_tiles, score_zone, zone_predictions
     from towerpipe.io.predictions import load_pred
 
-    preds = [load_pred(p) for p in zone_predictions(work, zone, model, int(inference.get("tta", 1)), inference)]
+    preds = [load_pred(p) for p in zone_predictions(work, zone, model, int(inference["tta"]), inference)]
     truth = gpd.read_file(Path(input_dir) / "towers_truth.gpkg", layer="towers")
-    return score_zone(preds, [str(p) for p in _zone_tiles(work, zone)], truth, _labels(Path(input_dir)),
+    return score_zone(preds, [str(p) for p in zone_tiles(work, zone)], truth, tower_labels(Path(input_dir)),
                       threshold=float(towers["threshold"]), point_threshold=float(inference["threshold"]),
                       min_core_prob=float(towers["min_core_prob"]), towers=towers, zone=zone,
                       min_truth_points=int(towers["min_points"]))

@@ -85,7 +85,7 @@ def swap_scores(bundle, win: Mapping[str, Any], *, seed: int = 0, sources: Mappi
     Parameters
     ----------
     bundle
-        A model bundle (:class:`towerpipe.model.pointnet.ModelBundle`).
+        A model bundle (:class:`towerpipe.model.bundle.ModelBundle`).
     win
         One item of :func:`tower_windows`.
     seed

@@ -48,7 +48,7 @@ from towerpipe.io.predictions import save_pred
 from towerpipe.progress import Progress
 from towerpipe.progress import peak_rss_mb
 from towerpipe.io.tiles import Tile, load_tile
-from towerpipe.inference.windows import CandidateWindows, WindowSet, candidate_windows, sliding_windows
+from towerpipe.inference.windows import CandidateWindows, TileWindows, candidate_windows, sliding_windows
 
 __all__ = ["TTA_CHOICES", "BundleLike", "check_model_compatibility", "infer_tile", "predict_tile", "segment_views",
            "window_rng"]
@@ -70,7 +70,7 @@ def _check_views(views: int) -> None:
 
 
 class BundleLike(Protocol):
-    """The part of :class:`towerpipe.model.pointnet.ModelBundle` inference uses."""
+    """The part of :class:`towerpipe.model.bundle.ModelBundle` inference uses."""
 
     name: str
     version: str
@@ -254,7 +254,7 @@ def predict_tile(
     hag = arrays["hag"]
     if windows == "candidates":
         floor = 0.0 if min_height is None else min_height
-        ws: WindowSet | CandidateWindows = candidate_windows(
+        ws: TileWindows | CandidateWindows = candidate_windows(
             arrays["x"][mi], arrays["y"][mi], hag[mi], core[mi], window=window,
             min_height=floor, min_points=max(int(min_points), 1),
             canonical_order=canon, exclude=overhead_wires(arrays, mi, floor))
@@ -404,7 +404,7 @@ def infer_tile(
     tile_path
         Tile file (:mod:`towerpipe.io.tiles`).
     model
-        A model bundle, or the path of a checkpoint directory (:func:`towerpipe.model.pointnet.load_bundle`);
+        A model bundle, or the path of a checkpoint directory (:func:`towerpipe.model.bundle.load_bundle`);
         ``None``: the model of ``choice``.
     out_path
         Prediction file (:mod:`towerpipe.io.predictions`), written atomically.
@@ -451,7 +451,7 @@ def infer_tile(
             raise ConfigError(f"{tile_path}: no model given and no model choice to read it from")
         model = choice["path"]
     if isinstance(model, (str, os.PathLike)):
-        from towerpipe.model.pointnet import load_bundle
+        from towerpipe.model.bundle import load_bundle
 
         model_path = model
         bundle = load_bundle(model)

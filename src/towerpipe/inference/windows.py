@@ -42,7 +42,7 @@ from typing import Iterator
 
 import numpy as np
 
-__all__ = ["CandidateWindows", "WindowSet", "candidate_windows", "sliding_windows"]
+__all__ = ["CandidateWindows", "TileWindows", "candidate_windows", "sliding_windows"]
 
 #: Candidate windows: cell (m) of the height raster, and the radius (m) within which a
 #: candidate is the highest point (a tower's crossarm reach). With the overhead wires left
@@ -52,7 +52,7 @@ PEAK_RES, PEAK_RADIUS = 1.0, 10.0
 
 
 @dataclass(frozen=True)
-class WindowSet:
+class TileWindows:
     """The non-empty windows of one tile and a way to list their points.
 
     Attributes
@@ -125,9 +125,9 @@ class WindowSet:
             idx = idx[(self._x[idx] < xe) & (self._y[idx] < ye)]
         return idx
 
-    def select(self, mask_or_index: np.ndarray) -> "WindowSet":
+    def select(self, mask_or_index: np.ndarray) -> "TileWindows":
         """A window set with only the selected windows (same points and grid)."""
-        return WindowSet(self.window, self.stride, self.keys[mask_or_index], self.counts[mask_or_index],
+        return TileWindows(self.window, self.stride, self.keys[mask_or_index], self.counts[mask_or_index],
                          self.core_counts[mask_or_index], self._x, self._y, self._order, self._cell_start,
                          self._c0, self._shape)
 
@@ -169,7 +169,7 @@ def sliding_windows(
     stride: float = 20.0,
     min_points: int = 1,
     canonical_order: np.ndarray | None = None,
-) -> WindowSet:
+) -> TileWindows:
     """The sliding windows covering every core point, with at least ``min_points`` points.
 
     Parameters
@@ -194,7 +194,7 @@ def sliding_windows(
 
     Returns
     -------
-    WindowSet
+    TileWindows
     """
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
@@ -207,7 +207,7 @@ def sliding_windows(
     n = len(x)
     if n == 0 or not core.any():
         empty = np.empty((0, 2), dtype=np.int64)
-        return WindowSet(float(window), float(stride), empty, np.empty(0, np.int64), np.empty(0, np.int64),
+        return TileWindows(float(window), float(stride), empty, np.empty(0, np.int64), np.empty(0, np.int64),
                          x, y, np.empty(0, np.int64), np.zeros(1, np.int64), (0, 0), (0, 0))
 
     cx = np.floor(x / stride).astype(np.int64)
@@ -231,7 +231,7 @@ def sliding_windows(
     if exact_cells:
         keys, counts, core_counts = _windows_from_cells(cell, core, c0, (nx, ny), m)
         keep = counts >= max(int(min_points), 1)
-        return WindowSet(float(window), float(stride), keys[keep], counts[keep], core_counts[keep],
+        return TileWindows(float(window), float(stride), keys[keep], counts[keep], core_counts[keep],
                          x, y, order, cell_start, c0, (nx, ny))
 
     # general case (window not a multiple of stride): candidate windows from core points
@@ -249,11 +249,11 @@ def sliding_windows(
     keys = np.stack([keycodes >> 32, (keycodes & 0xFFFFFFFF).astype(np.int64)], axis=1)
     keys[:, 1] = np.where(keys[:, 1] >= 2**31, keys[:, 1] - 2**32, keys[:, 1])
 
-    ws = WindowSet(float(window), float(stride), keys, np.empty(0, np.int64), np.empty(0, np.int64),
+    ws = TileWindows(float(window), float(stride), keys, np.empty(0, np.int64), np.empty(0, np.int64),
                    x, y, order, cell_start, c0, (nx, ny))
     counts, core_counts = _window_counts(ws, cx, cy, core)
     keep = counts >= max(int(min_points), 1)
-    return WindowSet(float(window), float(stride), keys[keep], counts[keep], core_counts[keep],
+    return TileWindows(float(window), float(stride), keys[keep], counts[keep], core_counts[keep],
                      x, y, order, cell_start, c0, (nx, ny))
 
 
@@ -287,7 +287,7 @@ def _windows_from_cells(
     return keys, wt[ia, ib], wc[ia, ib]
 
 
-def _window_counts(ws: WindowSet, cx: np.ndarray, cy: np.ndarray, core: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _window_counts(ws: TileWindows, cx: np.ndarray, cy: np.ndarray, core: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Points and core points per window of ``ws`` (vectorised over points)."""
     s, w = ws.stride, ws.window
     m = ws.cells_per_window

@@ -2,7 +2,8 @@
 
 A *block* is one input file. :func:`read_header` is cheap (header only) and is
 used when the workflow is planned; :func:`read_block` decodes the points once,
-checks them, and returns columns ready for the preprocessing.
+checks them, and returns columns ready for the preprocessing. Which files are a
+zone's blocks, and their ids, is :mod:`towerpipe.io.inputs`'s (it reads headers from here).
 """
 
 from __future__ import annotations
@@ -18,12 +19,6 @@ from pyproj import CRS
 from pyproj.exceptions import CRSError
 
 from towerpipe.errors import InputError
-
-LAS_SUFFIXES = (".las", ".laz")
-
-#: File of a block cache holding the block's point records as decoded (``(points, record
-#: size)`` uint8): the merge copies them instead of decoding the LAZ a second time.
-RECORDS_FILE = "records.npy"
 
 #: Columns every block provides after :func:`read_block` (absent ones are zeros).
 BLOCK_COLUMNS = (
@@ -58,7 +53,7 @@ class BlockHeader:
         LAS version (``"1.4"``) and point format id.
     mins, maxs, scales
         ``(x, y, z)`` bounds and scales from the header (only ever compared with the
-        points: see :func:`towerpipe.preprocess.tile.header_warnings`).
+        points: see :func:`towerpipe.preprocess.split.header_warnings`).
     """
 
     path: str
@@ -297,17 +292,6 @@ def read_block(path: str | os.PathLike[str], *, crs: str | None = None, zone: st
     maxima = {c: int(cols[c].max()) for c in ("red", "green", "blue", "nir")}
     has_rgb, has_nir, bits = color_info(header.dimensions, maxima)
     return Block(cols, header, crs_wkt, has_rgb, has_nir, bits)
-
-
-def find_blocks(input_dir: str | os.PathLike[str]) -> dict[str, str]:
-    """Map block id → path for every ``.las``/``.laz`` under ``input_dir`` (sorted by id).
-
-    The ids are those of the workflow (:func:`towerpipe.io.inputs.find_blocks`): safe,
-    unique names whatever the files are called; flight subfolders give ``folder__name``.
-    """
-    from towerpipe.io.inputs import find_blocks as _find
-
-    return _find(input_dir)
 
 
 def las_header_for(template: laspy.LasHeader | None = None, *, point_format: int = 8,

@@ -21,20 +21,22 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from towerpipe.config import load_config, load_yaml
+from towerpipe.config import SCHEMA_FILE, load_config, load_yaml
 from towerpipe.errors import ConfigError, TowerpipeError
 
 log = logging.getLogger(__name__)
 
 #: The workflow profile Snakemake applies to every run, relative to the repository root.
 PROFILE = "workflow/profiles/default/config.yaml"
+#: The workflow, relative to the repository root (where Snakemake finds it).
+SNAKEFILE = "workflow/Snakefile"
 
 
 def find_root(start: str | os.PathLike[str] | None = None) -> Path:
     """The towerpipe checkout to run in: the working directory when it holds the Snakefile,
     else the checkout this package was installed from (editable install)."""
     for cand in (Path(start or os.getcwd()), Path(__file__).resolve().parents[3]):
-        if (cand / "Snakefile").is_file() and (cand / "config" / "schema.yaml").is_file():
+        if (cand / SNAKEFILE).is_file() and (cand / SCHEMA_FILE).is_file():
             return cand
     raise ConfigError("no towerpipe Snakefile here: run `towerpipe run` in the towerpipe directory")
 
@@ -112,7 +114,7 @@ def run_zone(zone: str, configfile: str | os.PathLike[str] | None = None, *, cor
         with SnakemakeApi(OutputSettings(dryrun=dry_run, **prof["output"])) as api:
             workflow = api.workflow(resource_settings=ResourceSettings(**resources),
                                     config_settings=ConfigSettings(configfiles=configfiles),
-                                    snakefile=root / "Snakefile", workdir=root)
+                                    snakefile=root / SNAKEFILE, workdir=root)
             dag = workflow.dag(DAGSettings(targets={target}, **prof["dag"]))
             dag.execute_workflow(executor="local", pseudo_executor="dryrun" if dry_run else None,
                                  execution_settings=ExecutionSettings(keep_going=keep_going))

@@ -1,7 +1,8 @@
 """One function per workflow job that combines several library calls.
 
 The scripts in ``workflow/scripts/`` call exactly one function each, from here
-or from the module that owns the concept (``preprocess``, ``infer``, ``merge``).
+or from the module that owns the concept (:mod:`towerpipe.preprocess.split`,
+:mod:`towerpipe.inference.infer`, :mod:`towerpipe.products.merge`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from towerpipe import __version__
 
 from towerpipe.products import layout
 from towerpipe.io.atomic import assemble_directory, publish_copy, write_text_atomic
+from towerpipe.io.blockcache import BlockCache
 from towerpipe.io.columns import read_meta
 from towerpipe.model.cards import config_hash
 
@@ -49,25 +51,27 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
     each tower (:class:`towerpipe.towers.wires.TileContext`) and the block's conductor points
     (layer ``conductor_points``, from which the zone builds its lines); ``out_members``
     receives the points of every accepted tower with points in the block, owned or not
-    (:func:`towerpipe.towers.extract.save_members`): the merge classifies them 15 and writes
+    (:func:`towerpipe.io.members.save_members`): the merge classifies them 15 and writes
     their tower id. ``survey`` (measured bounds of the block and its neighbours) and
     ``towers_cfg["wire_ring_coverage"]`` leave the support of a tower whose conductor ring
     is mostly outside the data unknown. ``registry`` lists where the zone's tower registry
-    may be, first found first (:func:`towerpipe.towers.registry.read_registry`): matched towers
+    may be, first found first (:func:`towerpipe.products.registry_file.read_registry`): matched towers
     keep their ids.
     """
     import geopandas as gpd
 
     from towerpipe.products.gpkg import run_metadata, write_towers_gpkg
     from towerpipe.io.predictions import load_pred
-    from towerpipe.towers.registry import read_registry
-    from towerpipe.towers.extract import extract_towers, save_members
+    from towerpipe.products.registry_file import read_registry
+    from towerpipe.config import TowersConfig
+    from towerpipe.io.members import save_members
+    from towerpipe.towers.extract import extract_towers
     from towerpipe.towers.wires import TileContext, conductor_points
 
     from towerpipe.errors import ModelError
 
-    towers_cfg = dict(towers_cfg)
-    ring_share = float(towers_cfg.pop("wire_ring_coverage", 0.0))
+    rules = TowersConfig.from_config({"towers": towers_cfg})
+    ring_share = float(towers_cfg["wire_ring_coverage"])
     loaded = [load_pred(p) for p in preds]
     for p in loaded:  # an inference that could not run on a tile (infer_step recorded why)
         if p.meta.get("error"):
@@ -77,14 +81,13 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
     own = [p for p in loaded if p.meta.get("block") == block] or loaded
     model_meta = own[0].meta.get("model") if own else None
     crs_wkt = own[0].meta.get("crs_wkt") if own else None
-    neighbours: list[dict[str, Any]] = []
-    members: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    gdf = extract_towers(loaded, block, block_bounds, zone=zone, model_meta=model_meta,
-                         source_files=source_files, crs=crs_wkt, neighbours=neighbours, point_threshold=point_threshold,
-                         context=TileContext(tile_files, survey=survey, min_ring_share=ring_share) if tile_files else None,
-                         members=members, registry=read_registry(*registry), **dict(towers_cfg))
+    found = extract_towers(loaded, block, block_bounds, rules, zone=zone, model_meta=model_meta,
+                           source_files=source_files, crs=crs_wkt, point_threshold=point_threshold,
+                           context=TileContext(tile_files, survey=survey, min_ring_share=ring_share) if tile_files else None,
+                           registry=read_registry(*registry))
+    gdf, neighbours = found.towers, found.neighbours
     if out_members is not None:
-        save_members(out_members, members)
+        save_members(out_members, found.members)
     wires = conductor_points(tile_files, block)
     conductors = gpd.GeoDataFrame({"block": [block] * len(wires["x"]), **{k: wires[k] for k in
                                    ("z", "hag", "direction_deg", "clearance_m")}},
@@ -126,58 +129,28 @@ def infer_step(tile_path: str | os.PathLike[str], model: str | os.PathLike[str] 
         return rec
 
 
-def _block_dtm(dtm_paths: Sequence[str], out: Path) -> Path | None:
-    """Mosaic of a block's tile DTMs (for the QA hillshade)."""
-    import rasterio
-    from rasterio.merge import merge
-
-    srcs = []
-    try:
-        for p in dtm_paths:
-            ds = rasterio.open(p)
-            if ds.width > 1 or ds.height > 1:
-                srcs.append(ds)
-            else:
-                ds.close()
-        if not srcs:
-            return None
-        mosaic, transform = merge(srcs)
-        profile = srcs[0].profile | {"width": mosaic.shape[2], "height": mosaic.shape[1], "transform": transform,
-                                     "tiled": False}
-        profile.pop("blockxsize", None)
-        profile.pop("blockysize", None)
-        with rasterio.open(out, "w", **profile) as dst:
-            dst.write(mosaic)
-        return out
-    finally:
-        for ds in srcs:
-            ds.close()
-
-
 def classified_points(cache_dir: str | os.PathLike[str], pred_files: Sequence[str], block: str,
                       threshold: float, member_files: Sequence[str] | None = None) -> dict[str, np.ndarray]:
     """The block's points as the merge step classifies them, from the decoded cache.
 
-    ``x, y, z`` (memory-mapped), the output ``classification`` and ``prob``: the same
-    :func:`towerpipe.products.merge.block_probabilities`, tower-points files
-    (:func:`towerpipe.towers.extract.member_mask`) and :func:`towerpipe.products.merge.relabel` the
-    merge step applies, so the QA does not decode the written LAZ a second time.
+    ``x, y, z`` (memory-mapped), the output ``classification`` and ``prob``, as
+    :func:`towerpipe.products.merge.block_labels` gives them to the merge step, so the QA
+    does not decode the written LAZ a second time.
     """
-    from towerpipe.products.merge import block_probabilities, relabel
-    from towerpipe.towers.extract import member_mask
+    from towerpipe.products.merge import block_labels
 
-    cache = Path(cache_dir)
-    cols = {c: np.load(cache / f"{c}.npy", mmap_mode="r") for c in ("x", "y", "z", "classification")}
-    prob, _ = block_probabilities(pred_files, len(cols["x"]), block=block, block_path=str(cache))
-    tower = None if member_files is None else member_mask(member_files, block, len(cols["x"]))
-    cols["classification"] = relabel(np.asarray(cols["classification"]), prob, threshold, tower=tower)
-    cols["prob"] = prob
+    cache = BlockCache(cache_dir)
+    cols = {c: cache.column(c) for c in ("x", "y", "z", "classification")}
+    labels = block_labels(pred_files, len(cols["x"]), block=block, block_path=str(cache.directory),
+                          tower_points=member_files)
+    cols["classification"] = labels.classes(np.asarray(cols["classification"]), threshold)
+    cols["prob"] = labels.prob
     return cols
 
 
 def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_files: Sequence[str],
             pred_files: Sequence[str], towers_gpkg: str, dtm_files: Sequence[str],
-            benchmarks: Mapping[str, Sequence[str]], out_html: str, out_json: str, threshold: float = 0.5,
+            benchmarks: Mapping[str, Sequence[str]], out_html: str, out_json: str, threshold: float,
             neighbours_json: str | None = None, member_files: Sequence[str] | None = None,
             block_bounds: Mapping[str, Sequence[float]] | None = None) -> dict[str, Any]:
     """The block's QA page: preprocessing summary, gate counts, towers, side views, labels if any.
@@ -186,12 +159,13 @@ def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_fi
     edge of the data: a tower reaching it may be cut. Only the neighbours that gave
     points to the block's tiles count (a neighbour that failed did not).
     """
-    from towerpipe.products.qa import block_report, read_benchmark, tower_neighbourhoods
-    from towerpipe.products.qa.metrics import read_towers
+    from towerpipe.preprocess.ground import mosaic_dtm
+    from towerpipe.products.qa.block import BlockInputs, block_report, tower_neighbourhoods
+    from towerpipe.products.qa.metrics import read_benchmark, read_towers
 
     summary = _json(summary_json)
     truth = None
-    cls = np.load(Path(cache_dir) / "classification.npy", mmap_mode="r")
+    cls = BlockCache(cache_dir).column("classification")
     if summary.get("class_counts", {}).get(str(classes.TOWER)):
         truth = np.asarray(cls) == classes.TOWER
     timings: dict[str, Any] = {}
@@ -208,16 +182,16 @@ def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_fi
     towers = read_towers(towers_gpkg)
     hoods = tower_neighbourhoods(tile_files, member_files or [], towers)
     with tempfile.TemporaryDirectory(prefix="towerpipe-qa-") as tmp:
-        raster = _block_dtm(dtm_files, Path(tmp) / "dtm.tif")
-        return block_report(
-            out_html, out_json, block_name=block, zone=zone, block_bounds=summary["bounds"], stats=summary,
+        raster = mosaic_dtm(dtm_files, Path(tmp) / "dtm.tif")
+        return block_report(out_html, out_json, BlockInputs(
+            block_name=block, zone=zone, block_bounds=summary["bounds"], stats=summary,
             tile_metas=tile_metas, pred_metas=[read_meta(p) for p in pred_files], data_bounds=data_bounds,
             neighbourhoods=hoods,
             towers=towers, classified=classified_points(cache_dir, pred_files, block, threshold, member_files),
             raster=str(raster) if raster else None, truth=truth,
             timings=timings, warnings=summary.get("warnings", []),
             neighbour_towers=_json(neighbours_json)["towers_owned_by_neighbours"] if neighbours_json else None,
-        )
+        ))
 
 
 def zone_towers(tower_gpkgs: Sequence[str], *, registry: gpd.GeoDataFrame, run_time: Any,
@@ -240,7 +214,8 @@ def zone_towers(tower_gpkgs: Sequence[str], *, registry: gpd.GeoDataFrame, run_t
 
     from towerpipe.products.gpkg import LAYER_CONDUCTORS, concat_towers, list_layers, read_metadata
     from towerpipe.towers.lines import build_lines
-    from towerpipe.towers.registry import published_reviews, unique_ids, update_registry, vanished
+    from towerpipe.products.registry_file import published_reviews
+    from towerpipe.towers.registry import unique_ids, update_registry, vanished
 
     towers = unique_ids(concat_towers(tower_gpkgs, crs_wkt=crs_wkt))
     crs = towers.crs if towers.crs is not None else crs_wkt
@@ -288,8 +263,8 @@ def zone_step(zone: str, out_dir: str, files: Mapping[str, str], *, tower_gpkgs:
     directory is in place. Towers of ``failures`` blocks are left as they were.
     """
     from towerpipe.products.gpkg import write_towers_gpkg
-    from towerpipe.products.qa import zone_index
-    from towerpipe.towers.registry import read_registry, write_registry
+    from towerpipe.products.qa.index import zone_index
+    from towerpipe.products.registry_file import read_registry, write_registry
 
     run_time = datetime.now(timezone.utc).replace(microsecond=0)
     failures = dict(failures or {})
@@ -358,37 +333,6 @@ def model_results_step(bundle_dir: str, ablation_dirs: Sequence[str], out_dir: s
     return assemble_directory(out_dir, files, build)
 
 
-def failures_from_log(snakemake_log: str | os.PathLike[str] | Sequence[str], work: str) -> dict[str, dict[str, str]]:
-    """Failed blocks per zone, with their one-line reason, from Snakemake's main log.
-
-    The reason is the job log's ``towerpipe`` error line (``InputError: <file>: <cause>``)
-    or its last line.
-    """
-    import re
-
-    failures: dict[str, dict[str, str]] = {}
-    logs = [snakemake_log] if isinstance(snakemake_log, (str, os.PathLike)) else list(snakemake_log or [])
-    text = "\n".join(Path(p).read_text(errors="replace") for p in logs if Path(p).exists())
-    work_abs = Path(work).resolve()
-    for rule, job_log in re.findall(r"Error in rule (\w+):.*?\n\s+log: (\S+)", text, re.S):
-        p = Path(job_log).resolve()
-        try:
-            rel = p.relative_to(work_abs).parts  # zone/logs/rule/block(.log | /tile.log)
-        except ValueError:
-            continue
-        if len(rel) < 4 or rel[1] != "logs":
-            continue
-        zone, block = rel[0], rel[3].removesuffix(".log")
-        reason = f"{rule} failed"
-        if p.exists():
-            lines = [ln.strip() for ln in p.read_text(errors="replace").splitlines() if ln.strip()]
-            err = [ln for ln in lines if re.search(r"\b\w*Error: ", ln)]
-            if err or lines:
-                reason = f"{rule}: " + re.sub(r"^.*? ERROR towerpipe: ", "", (err or lines)[-1])[:300]
-        failures.setdefault(zone, {}).setdefault(block, reason)
-    return failures
-
-
 def current_blocks(files: Mapping[str, str], caches: Mapping[str, str], fingerprints: Mapping[str, str],
                    neighbours: Mapping[str, Sequence[str]] | None = None) -> tuple[set[str], dict[str, str]]:
     """Blocks whose products are those of their current input, and why the others are not.
@@ -401,10 +345,10 @@ def current_blocks(files: Mapping[str, str], caches: Mapping[str, str], fingerpr
     by_block: dict[str, list[Path]] = {}
     for rel, src in files.items():
         by_block.setdefault(Path(rel).stem, []).append(Path(src))
-    cache_meta = {b: Path(d) / "meta.json" for b, d in caches.items()}
+    cache = {b: BlockCache(d) for b, d in caches.items()}
 
     def split_time(b: str) -> float | None:
-        return cache_meta[b].stat().st_mtime if b in cache_meta and cache_meta[b].exists() else None
+        return cache[b].meta_path.stat().st_mtime if b in cache and cache[b].exists() else None
 
     ok: set[str] = set()
     why: dict[str, str] = {}
@@ -413,7 +357,7 @@ def current_blocks(files: Mapping[str, str], caches: Mapping[str, str], fingerpr
             why[b] = "not processed by this run (no products)"
             continue
         try:
-            meta = json.loads(cache_meta[b].read_text())
+            meta = cache[b].read_meta()
         except (KeyError, OSError, ValueError):
             why[b] = "not split by this run; its previous products are withheld"
             continue

@@ -12,7 +12,7 @@
 a feature set (``full``, ``rgb``, ``geometry``, ``shape``)
     That shipped model.
 a path
-    A model directory (:func:`towerpipe.model.pointnet.load_bundle`).
+    A model directory (:func:`towerpipe.model.bundle.load_bundle`).
 
 :func:`choose_model` returns the choice as a JSON-able record (``work/<zone>/model.json``);
 every prediction file carries it, and the QA page and the GeoPackage name the model and
@@ -149,7 +149,7 @@ def write_choice(spec: str, cache_dirs: Mapping[str, str | os.PathLike[str]], ou
                  zone: str, key: str) -> dict[str, Any]:
     """:func:`choose_model` from the zone's block caches, written to ``out_json`` (atomically)."""
     from towerpipe.io.atomic import write_text_atomic
-    from towerpipe.preprocess.tile import BlockCache
+    from towerpipe.io.blockcache import BlockCache
 
     attrs: dict[str, Mapping[str, Any] | None] = {}
     for block, d in cache_dirs.items():

@@ -5,7 +5,7 @@ derivatives often have intensity, return numbers, scan angle and GPS time all 0,
 colourised file can hold a NIR channel of zeros, and a re-export can leave colour
 constant. A model fed such a column sees a constant where it learned a signal, so what
 matters is not whether a dimension exists but whether it varies. While a block is split
-(:func:`towerpipe.preprocess.tile.split_block`) an :class:`AttributeStats` sees every chunk
+(:func:`towerpipe.preprocess.split.split_block`) an :class:`AttributeStats` sees every chunk
 and decides, per attribute of :data:`ATTRIBUTES`:
 
 ``intensity``

@@ -186,11 +186,11 @@ def plan_zone(blocks: Mapping[str, Mapping], tile_size: float, buffer: float) ->
 def plan_zone_step(cache_dirs: Mapping[str, str], out_json: str, *, tile_size: float, buffer: float) -> dict:
     """:func:`plan_zone` from the split caches' ``meta.json`` → ``out_json`` (written atomically)."""
     import json
-    from pathlib import Path
 
     from towerpipe.io.atomic import write_text_atomic
+    from towerpipe.io.blockcache import BlockCache
 
-    metas = {b: json.loads((Path(d) / "meta.json").read_text()) for b, d in cache_dirs.items()}
+    metas = {b: BlockCache(d).read_meta() for b, d in cache_dirs.items()}
     plan = plan_zone(metas, tile_size, buffer)
     write_text_atomic(out_json, json.dumps(plan, indent=0, sort_keys=True))
     return {"blocks": len(metas), "tiles": sum(len(v["tiles"]) for v in plan["blocks"].values())}

@@ -12,7 +12,7 @@ A tower GeoPackage holds
 * in a block's file, layer ``conductor_points`` (Point: the conductor points found in the
   block, :data:`towerpipe.towers.wires.CONDUCTOR_FIELDS`), from which the zone's lines are built;
 * table ``layer_styles``: the default QGIS style of each layer (as QGIS itself stores
-  styles in a GeoPackage), built from ``towerpipe/data/towers.qml``;
+  styles in a GeoPackage; :mod:`towerpipe.products.styles`), built from ``towerpipe/data/towers.qml``;
 * ``gpkg_data_columns``: title and description (with units) of every field, and an
   enum constraint for ``review_status`` (GDAL reads it as a field domain);
 * run metadata (``towerpipe_version``, ``model_name``, ``model_version``, ``model_choice``,
@@ -23,7 +23,7 @@ A tower GeoPackage holds
 Files are GeoPackage 1.2 (``PRAGMA user_version`` 10200, GDAL's layer creation option
 ``VERSION``), which GDAL 3.6 (QGIS LTR of Debian 12) opens without a warning and whose
 R-tree triggers its validator accepts; GDAL >= 3.7 writes 1.4 by default. Values are
-rounded as their :class:`towerpipe.products.fields.Field` says, geometries snapped to 1 cm.
+rounded as their :class:`towerpipe.io.fields.Field` says, geometries snapped to 1 cm.
 Files are written to a temporary file in the destination folder and renamed into
 place, so a reader never sees a half-written GeoPackage. A block without towers gets
 valid empty layers with the full schema.
@@ -35,12 +35,10 @@ import json
 import logging
 import os
 import sqlite3
-import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import datetime, timezone
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -51,7 +49,8 @@ import pyogrio
 import shapely
 
 from towerpipe.errors import InputError
-from towerpipe.products.fields import Field, conform
+from towerpipe.products import styles
+from towerpipe.io.fields import Field, conform
 from towerpipe.model.cards import config_hash
 
 log = logging.getLogger(__name__)
@@ -68,58 +67,15 @@ GPKG_VERSION = "1.2"
 
 __all__ = ["LAYER_TOWERS", "LAYER_POINTS", "LAYER_LINES", "LAYER_SPANS", "LAYER_VANISHED", "LAYER_CONDUCTORS",
            "GPKG_VERSION", "Layer", "write_gpkg", "write_towers_gpkg", "read_towers", "read_metadata",
-           "list_layers", "merge_gpkgs", "concat_towers", "run_metadata", "default_style", "config_hash"]
+           "list_layers", "merge_gpkgs", "concat_towers", "run_metadata", "default_style", "gpkg_version"]
 
 
 # --------------------------------------------------------------------------- styles
-#: Per layer: symbol (kind, fill/line colour, outline colour, width), label expression,
-#: map tip. The QML template is ``towerpipe/data/towers.qml``.
-_TOWER_TIP = ('<b>[% "tower_id" %]</b><br>height [% format_number("height_m", 1) %] m, base '
-              '[% format_number("base_z", 1) %] m<br>[% "n_points" %] points, mean probability '
-              '[% format_number("prob_mean", 2) %], conductor support [% format_number("wire_support", 2) %]'
-              '<br>line [% "line_id" %] #[% "line_seq" %], review: [% "review_status" %]'
-              '<br>block [% "block" %] ([% "blocks" %])')
-_STYLES: dict[str, dict[str, Any]] = {
-    LAYER_TOWERS: {"symbol": ("fill", "227,26,28,80", "165,15,21,255", "0.6"), "placement": "1",
-                   "label": "concat(\"tower_id\", '\\n', format_number(\"height_m\", 1), ' m')", "tip": _TOWER_TIP},
-    LAYER_POINTS: {"symbol": ("marker", "227,26,28,255", "103,0,13,255", "0.3"), "placement": "0",
-                   "label": "concat(\"tower_id\", '\\n', format_number(\"height_m\", 1), ' m')", "tip": _TOWER_TIP},
-    LAYER_LINES: {"symbol": ("line", "31,120,180,255", None, "0.8"), "placement": "2",
-                  "label": "concat('line ', \"line_id\", ' (', \"tower_count\", ' towers)')",
-                  "tip": '<b>line [% "line_id" %]</b><br>[% "tower_count" %] towers, '
-                         '[% format_number("length_m", 0) %] m'},
-    LAYER_SPANS: {"symbol": ("line", "166,206,227,255", None, "0.4"), "placement": "2",
-                  "label": "concat(format_number(\"length_m\", 0), ' m')",
-                  "tip": '<b>span [% "from_tower" %] → [% "to_tower" %]</b><br>[% format_number("length_m", 1) %] m, '
-                         'bearing [% format_number("bearing_deg", 1) %]°, [% "conductor_points" %] conductor '
-                         'points<br>lowest conductor [% format_number("lowest_conductor_m", 1) %] m above ground, '
-                         'clearance to vegetation [% format_number("clearance_m", 1) %] m'},
-    LAYER_VANISHED: {"symbol": ("fill", "150,150,150,60", "90,90,90,255", "0.5"), "placement": "1",
-                     "label": "concat(\"tower_id\", ' (vanished)')",
-                     "tip": '<b>[% "tower_id" %]</b> not found since [% "vanished_since" %]<br>last seen '
-                            '[% "last_seen" %] in block [% "block" %], review: [% "review_status" %]'},
-    LAYER_CONDUCTORS: {"symbol": ("marker", "31,120,180,255", "31,120,180,255", "0.0"), "placement": "0",
-                       "label": None, "tip": 'conductor point, [% format_number("hag", 1) %] m above ground'},
+#: The default QGIS style of each styled layer (:mod:`towerpipe.products.styles`).
+_STYLES: dict[str, styles.LayerStyle] = {
+    LAYER_TOWERS: styles.TOWERS, LAYER_POINTS: styles.TOWER_POINTS, LAYER_LINES: styles.LINES,
+    LAYER_SPANS: styles.SPANS, LAYER_VANISHED: styles.VANISHED, LAYER_CONDUCTORS: styles.CONDUCTORS,
 }
-_GEOMETRY_CODE = {"marker": "0", "line": "1", "fill": "2"}
-
-
-def _symbol_xml(kind: str, color: str, outline: str | None, width: str) -> ET.Element:
-    opts = {"fill": [("color", color), ("outline_color", outline), ("outline_style", "solid"),
-                     ("outline_width", width), ("outline_width_unit", "MM"), ("style", "solid"),
-                     ("joinstyle", "miter")],
-            "marker": [("name", "triangle" if outline != color else "circle"), ("color", color),
-                       ("outline_color", outline), ("outline_width", width), ("outline_width_unit", "MM"),
-                       ("size", "3.2" if outline != color else "1.0"), ("size_unit", "MM")],
-            "line": [("line_color", color), ("line_width", width), ("line_width_unit", "MM"),
-                     ("line_style", "solid"), ("capstyle", "round"), ("joinstyle", "round")]}[kind]
-    cls = {"fill": "SimpleFill", "marker": "SimpleMarker", "line": "SimpleLine"}[kind]
-    sym = ET.Element("symbol", {"type": kind, "name": "0", "alpha": "1", "clip_to_extent": "1", "force_rhr": "0"})
-    layer = ET.SubElement(sym, "layer", {"class": cls, "enabled": "1", "locked": "0", "pass": "0"})
-    opt = ET.SubElement(layer, "Option", {"type": "Map"})
-    for name, value in opts:
-        ET.SubElement(opt, "Option", {"name": name, "type": "QString", "value": value})
-    return sym
 
 
 def default_style(layer: str = LAYER_TOWERS, fields: Mapping[str, Field] | None = None) -> str:
@@ -139,33 +95,7 @@ def default_style(layer: str = LAYER_TOWERS, fields: Mapping[str, Field] | None 
         raise ValueError(f"no style for layer {layer!r} (known: {', '.join(_STYLES)})")
     if fields is None:
         from towerpipe.towers.extract import TOWER_FIELDS as fields
-    spec = _STYLES[layer]
-    text = resources.files("towerpipe").joinpath("data/towers.qml").read_text(encoding="utf-8")
-    head, body = text.split("<qgis ", 1)
-    root = ET.fromstring("<qgis " + body)
-    symbols = root.find("renderer-v2/symbols")
-    for old in list(symbols):
-        symbols.remove(old)
-    symbols.append(_symbol_xml(*spec["symbol"]))
-    labeling = root.find("labeling")
-    if spec["label"] is None:
-        root.remove(labeling)
-        root.set("labelsEnabled", "0")
-    else:
-        labeling.find("settings/text-style").set("fieldName", spec["label"])
-        labeling.find("settings/placement").set("placement", spec["placement"])
-    aliases = root.find("aliases")
-    for old in list(aliases):
-        aliases.remove(old)
-    for i, (name, f) in enumerate([("fid", None), *fields.items()]):
-        ET.SubElement(aliases, "alias", {"field": name, "index": str(i), "name": f.title if f else ""})
-    root.find("mapTip").text = spec["tip"]
-    root.find("previewExpression").text = '"tower_id"' if "tower_id" in fields else (
-        '"line_id"' if "line_id" in fields else '"fid"')
-    root.find("layerGeometryType").text = _GEOMETRY_CODE[spec["symbol"][0]]
-    ET.indent(root)
-    doctype = head.split("\n", 1)[0]
-    return f"{doctype}\n{ET.tostring(root, encoding='unicode')}\n"
+    return styles.qml(_STYLES[layer], fields)
 
 
 def _styles_frame(layers: Sequence[Layer]) -> pd.DataFrame:
@@ -328,7 +258,7 @@ def write_gpkg(path: str | os.PathLike[str], layers: Sequence[Layer], *, crs_wkt
 
 
 def _tower_layers(towers: gpd.GeoDataFrame | None, crs: Any) -> list[Layer]:
-    from towerpipe.products.fields import empty_frame
+    from towerpipe.io.fields import empty_frame
     from towerpipe.towers.extract import TOWER_FIELDS
 
     gdf = towers if towers is not None and len(towers) else empty_frame(TOWER_FIELDS, crs)
@@ -354,7 +284,7 @@ def write_towers_gpkg(path: str | os.PathLike[str], towers: gpd.GeoDataFrame | N
     path
         Destination ``.gpkg`` (replaced if it exists).
     towers
-        Tower records as returned by :func:`towerpipe.towers.extract.extract_towers`
+        Tower records (``towers`` of :func:`towerpipe.towers.extract.extract_towers`)
         (None or empty: empty layers with the full schema).
     crs_wkt
         CRS of the input point clouds (WKT or any pyproj-readable string);
@@ -373,7 +303,7 @@ def write_towers_gpkg(path: str | os.PathLike[str], towers: gpd.GeoDataFrame | N
     pathlib.Path
         The written file.
     """
-    from towerpipe.products.fields import empty_frame
+    from towerpipe.io.fields import empty_frame
     from towerpipe.towers.lines import LINE_FIELDS, SPAN_FIELDS
     from towerpipe.towers.registry import REGISTRY_FIELDS
     from towerpipe.towers.wires import CONDUCTOR_FIELDS

@@ -5,7 +5,7 @@ version, COPC read as LAZ 1.4) chunk by chunk and writes a LAZ holding **every i
 with every input byte preserved, except:
 
 * ``Classification``: 15 (transmission tower) on the points of the reported towers
-  (the tower-points files of :mod:`towerpipe.towers.extract`; without them, where the tower
+  (the tower-points files of :mod:`towerpipe.io.members`; without them, where the tower
   probability is ``>= threshold``); an input class 15 that is not predicted becomes
   1 (unclassified); every other class is kept. In formats 0–5 the class is the low
   5 bits of the classification byte (the synthetic / key-point / withheld flags in
@@ -13,7 +13,7 @@ with every input byte preserved, except:
 * an appended extra-bytes dimension ``TowerProbability`` (float32; 0 where no
   segmented window saw the point);
 * an appended extra-bytes dimension ``TowerpipeTowerId`` (uint64,
-  :data:`TOWER_ID_DIMENSION`): the ``tower_id`` of the GeoPackage tower the point belongs
+  :data:`towerpipe.io.lasformat.TOWER_ID_DIMENSION`): the ``tower_id`` of the GeoPackage tower the point belongs
   to (the points classified 15), 0 elsewhere. Join the points to the ``towers`` layer on it.
 
 Point records are copied as raw bytes (the new record is the old one plus twelve
@@ -27,13 +27,15 @@ temporary file in the destination folder and renamed into place.
 
 **towerpipe's own output as input.** A block that already carries ``TowerProbability``
 (float32) or ``TowerpipeTowerId`` (uint64) is a classified block of an earlier run
-(:data:`OWN_DIMENSIONS`): it is processed like any block, and those dimensions keep their
+(:data:`towerpipe.io.lasformat.OWN_DIMENSIONS`): it is processed like any block, and those dimensions keep their
 place in the record and their descriptors, with their values replaced (merging the
 output again gives the same file). The same name with another type is somebody else's
-dimension: the split refuses the block (:func:`own_dimensions`, an ``InputError`` naming
+dimension: the split refuses the block (:func:`towerpipe.io.lasformat.own_dimensions`, an ``InputError`` naming
 the file and the fix) before any compute.
 
 Input labels are never used for prediction: they only decide the 15 → 1 rule.
+:func:`block_labels` says what each point of a block gets (probability, tower id, class);
+the QA step classifies the block's cached points with it instead of decoding the written LAZ.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ import copy
 import logging
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
@@ -53,47 +56,18 @@ from laspy.vlrs.vlrlist import VLRList
 
 from towerpipe import classes
 from towerpipe.errors import InputError, TowerpipeError
+from towerpipe.io.lasformat import (OWN_DIMENSIONS, PROB_DIMENSION, TOWER_ID_DIMENSION, VerbatimExtraBytesVlr,
+                                    check_format, own_dimensions)
 from towerpipe.io.predictions import load_pred
 from towerpipe.progress import Progress
 from towerpipe.progress import peak_rss_mb
 
 log = logging.getLogger(__name__)
 
-__all__ = ["classes.TOWER", "classes.OTHER", "PROB_DIMENSION", "TOWER_ID_DIMENSION", "OWN_DIMENSIONS",
-           "SUPPORTED_FORMATS", "check_format", "merge_block", "block_probabilities", "relabel", "own_dimensions"]
-
-#: Name of the extra dimension holding the tower probability.
-PROB_DIMENSION = "TowerProbability"
-#: Name of the extra dimension holding the tower id of each point (``tower_id`` of the
-#: GeoPackage; 0: not a point of a reported tower). Namespaced so that no input dimension
-#: (e.g. the synthetic zones' ``TowerId`` labels) is taken for it.
-TOWER_ID_DIMENSION = "TowerpipeTowerId"
-#: The dimensions towerpipe adds, in record order, with their types and descriptions.
-OWN_DIMENSIONS: dict[str, tuple[np.dtype, str]] = {
-    PROB_DIMENSION: (np.dtype("float32"), "tower probability (towerpipe)"),
-    TOWER_ID_DIMENSION: (np.dtype("uint64"), "tower_id in towers.gpkg"),
-}
+__all__ = ["merge_block", "BlockLabels", "block_labels", "block_probabilities", "relabel"]
 
 _CHUNK = 1_000_000  # points per streamed chunk (a multiple of the usual LAZ chunk, 50 000)
-#: LAS versions and the point formats each defines: all are read and written (COPC files
-#: are LAS 1.4 LAZ and read as such; their COPC records are not copied to the output).
-SUPPORTED_FORMATS = {(1, 1): frozenset(range(2)), (1, 2): frozenset(range(4)), (1, 3): frozenset(range(6)),
-                     (1, 4): frozenset(range(11))}
 _COPC_USER_ID = "copc"
-
-
-def check_format(version: Any, point_format: int, path: str | os.PathLike[str]) -> None:
-    """Refuse a LAS version / point format the merge cannot write (checked at split time).
-
-    Parameters
-    ----------
-    version
-        ``"1.4"``, ``(1, 4)`` or a :class:`laspy.header.Version`.
-    """
-    major, minor = (int(v) for v in (str(version).split(".") if not isinstance(version, tuple) else version))
-    if int(point_format) not in SUPPORTED_FORMATS.get((major, minor), ()):
-        raise InputError(path, f"LAS {major}.{minor} point format {point_format} is not a valid LAS point format "
-                               "(LAS 1.1: 0-1, 1.2: 0-3, 1.3: 0-5, 1.4: 0-10); convert it with pdal translate")
 
 
 def _laz_backends() -> tuple[LazBackend, ...]:
@@ -179,55 +153,74 @@ def relabel(classification: np.ndarray, prob: np.ndarray, threshold: float, *,
     return out
 
 
-class _VerbatimExtraBytesVlr(ExtraBytesVlr):
-    """An Extra Bytes VLR that laspy's writer leaves byte for byte as given.
+@dataclass(frozen=True)
+class BlockLabels:
+    """What the merge writes into each point of a block (:func:`block_labels`).
 
-    laspy resets and recomputes the min/max statistics of extra-bytes descriptors when
-    writing; the input descriptors must come out unchanged, so this VLR ignores that.
+    Attributes
+    ----------
+    prob
+        ``(n_points,)`` float32 tower probability (``TowerProbability``), 0 where no prediction.
+    tower_ids
+        ``(n_points,)`` uint64 ``tower_id`` of the reported tower a point belongs to
+        (``TowerpipeTowerId``), 0 elsewhere.
+    tower
+        ``(n_points,)`` bool, the points of reported towers; ``None`` without tower-points
+        files (the threshold decides).
+    info
+        ``block``, ``pred_files``, ``pred_points`` (:func:`block_probabilities`).
     """
 
-    def partial_reset(self) -> None:  # noqa: D102 - deliberately a no-op
-        pass
+    prob: np.ndarray
+    tower_ids: np.ndarray
+    tower: np.ndarray | None
+    info: dict[str, Any]
 
-    def grow(self, points: PackedPointRecord) -> None:  # noqa: D102 - deliberately a no-op
-        pass
+    def classes(self, classification: np.ndarray, threshold: float, start: int = 0) -> np.ndarray:
+        """The output classes of the points ``start, start + 1, ...`` of the block (:func:`relabel`).
+
+        Parameters
+        ----------
+        classification
+            Their input classes (plain class values, not the packed 1.2 byte).
+        threshold
+            Tower probability threshold (used when there are no tower-points files).
+        start
+            Index of the first of them in the block (the merge relabels chunk by chunk).
+        """
+        stop = start + len(classification)
+        tower = None if self.tower is None else self.tower[start:stop]
+        return relabel(classification, self.prob[start:stop], threshold, tower=tower)
 
 
-def own_dimensions(header: laspy.LasHeader | str | os.PathLike[str], path: str | os.PathLike[str] | None = None
-                   ) -> list[str]:
-    """The dimensions of :data:`OWN_DIMENSIONS` a block already has (it is towerpipe output).
+def block_labels(
+    pred_paths: Iterable[str | os.PathLike[str]],
+    n_points: int,
+    *,
+    block: str | None = None,
+    block_path: str | os.PathLike[str] = "<block>",
+    tower_points: Sequence[str | os.PathLike[str]] | None = None,
+) -> BlockLabels:
+    """Which probability, tower id and class each point of a block gets in the merge.
 
     Parameters
     ----------
-    header
-        The block's laspy header, or its path (the header is read).
-    path
-        The file, for messages (default: ``header`` when it is a path).
-
-    Raises
-    ------
-    InputError
-        A dimension has one of towerpipe's names but another type or a scale/offset:
-        somebody else's dimension, which the output would overwrite.
+    pred_paths, n_points, block, block_path
+        As for :func:`block_probabilities`.
+    tower_points
+        Tower-points files (:func:`towerpipe.io.members.save_members`): Classification 15
+        goes to exactly the points of those towers, and the tower ids are theirs. ``None``:
+        every point at or above the threshold is 15, and the tower id is 0 everywhere.
     """
-    if not isinstance(header, laspy.LasHeader):
-        path = header if path is None else path
-        with laspy.open(header) as reader:
-            header = reader.header
-    names = set(header.point_format.dimension_names)
-    found = []
-    for name, (dtype, _) in OWN_DIMENSIONS.items():
-        if name not in names:
-            continue
-        dim = header.point_format.dimension_by_name(name)
-        scaled = getattr(dim, "scales", None) is not None or getattr(dim, "offsets", None) is not None
-        if dim.is_standard or dim.dtype != dtype or scaled:
-            raise InputError(path or "<block>", f"has a dimension {name!r} of type {dim.dtype}"
-                                                f"{' (scaled)' if scaled else ''}, but towerpipe writes {name!r} "
-                                                f"as unscaled {dtype}; rename or remove that dimension (e.g. with "
-                                                "PDAL filters.ferry / writers.las extra_dims) and rerun")
-        found.append(name)
-    return found
+    prob, info = block_probabilities(pred_paths, n_points, block=block, block_path=block_path)
+    if tower_points is not None:
+        from towerpipe.io.members import member_ids
+
+        tower_ids = member_ids(tower_points, str(block if block is not None else info["block"]), n_points)
+        tower = tower_ids > 0
+    else:
+        tower_ids, tower = np.zeros(n_points, dtype=np.uint64), None
+    return BlockLabels(prob, tower_ids, tower, info)
 
 
 def _output_header(header: laspy.LasHeader, crs: Any, path: Path) -> tuple[laspy.LasHeader, list[str]]:
@@ -245,7 +238,7 @@ def _output_header(header: laspy.LasHeader, crs: Any, path: Path) -> tuple[laspy
     if not missing:  # towerpipe's own output: the record layout and descriptors are the input's
         for i, v in enumerate(out.vlrs):
             if isinstance(v, ExtraBytesVlr):
-                same = _VerbatimExtraBytesVlr()
+                same = VerbatimExtraBytesVlr()
                 same._description = v.description
                 same.extra_bytes_structs = [type(st).from_buffer_copy(bytes(st)) for st in v.extra_bytes_structs]
                 out.vlrs[i] = same
@@ -261,7 +254,7 @@ def _output_header(header: laspy.LasHeader, crs: Any, path: Path) -> tuple[laspy
     described.extra_bytes_structs = list(old_structs)
     described_size = sum(np.dtype(p.type).itemsize for p in described.type_of_extra_dims())
     extra_size = header.point_format.size - laspy.PointFormat(header.point_format.id).size
-    merged = _VerbatimExtraBytesVlr()
+    merged = VerbatimExtraBytesVlr()
     if old_eb:
         merged._description = old_eb[0].description
     if described_size == extra_size:
@@ -345,7 +338,7 @@ def merge_block(
     Parameters
     ----------
     block_path
-        The input block (:data:`SUPPORTED_FORMATS`).
+        The input block (:data:`towerpipe.io.lasformat.SUPPORTED_FORMATS`).
     pred_paths
         The prediction files of the block's tiles.
     out_path
@@ -361,12 +354,12 @@ def merge_block(
         Points per streamed chunk (memory is O(chunk) plus 12 bytes per point).
     records
         Optional ``.npy`` of the block's raw point records as decoded by the split
-        (:data:`towerpipe.io.las.RECORDS_FILE`, memory-mapped): the records are
+        (:data:`towerpipe.io.blockcache.RECORDS_FILE`, memory-mapped): the records are
         copied from it instead of decoding the LAZ a second time. It must hold exactly
         the header's point count and record size. A path that does not exist (a cache
         split by an older version) means decoding the LAZ, as without it.
     tower_points
-        Tower-points files (:func:`towerpipe.towers.extract.save_members`; the pipeline passes
+        Tower-points files (:func:`towerpipe.io.members.save_members`; the pipeline passes
         the block's own, which holds every accepted tower with points in the block,
         whichever block reports it): when given, Classification 15 goes to exactly the
         points of those towers (a cluster the tower rules dropped is not classified),
@@ -401,14 +394,8 @@ def merge_block(
             pf_id = header.point_format.id
             check_format(ver, pf_id, block_path)
             n = int(header.point_count)
-            prob, info = block_probabilities(pred_paths, n, block=block, block_path=block_path)
-            if tower_points is not None:
-                from towerpipe.towers.extract import member_ids
-
-                tower_ids = member_ids(tower_points, str(block if block is not None else info["block"]), n)
-                tower_mask = tower_ids > 0
-            else:
-                tower_ids, tower_mask = np.zeros(n, dtype=np.uint64), None
+            labels = block_labels(pred_paths, n, block=block, block_path=block_path, tower_points=tower_points)
+            prob, tower_ids, info = labels.prob, labels.tower_ids, labels.info
             timings["load_predictions"] = time.perf_counter() - t0
 
             out_header, appended = _output_header(header, crs, block_path)
@@ -442,17 +429,16 @@ def merge_block(
                     ob = out.view(np.uint8).reshape(m, out_dtype.itemsize)
                     ob[:, :in_size] = raw_in[:, :in_size]
                     p = prob[start:start + m]
-                    tm = None if tower_mask is None else tower_mask[start:start + m]
                     ob[:, prob_off:prob_off + 4] = p.view(np.uint8).reshape(m, 4)
                     ob[:, id_off:id_off + 8] = tower_ids[start:start + m].view(np.uint8).reshape(m, 8)
                     raw_cls = out[cls_field].copy()
                     if pf_id >= 6:
                         cls = raw_cls
-                        new = relabel(cls, p, threshold, tower=tm)
+                        new = labels.classes(cls, threshold, start)
                         out[cls_field] = new
                     else:
                         cls = raw_cls & 0x1F
-                        new = relabel(cls, p, threshold, tower=tm)
+                        new = labels.classes(cls, threshold, start)
                         out[cls_field] = (raw_cls & 0xE0) | new
                     n_in15 += int((cls == classes.TOWER).sum())
                     n_tower += int((new == classes.TOWER).sum())

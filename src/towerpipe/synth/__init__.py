@@ -12,6 +12,7 @@ Terrain.load(path)
 
 from towerpipe.synth.params import SceneParams, preset, preset_names
 from towerpipe.synth.terrain import Terrain
-from towerpipe.synth.zone import ZoneTruth, generate_zone
+from towerpipe.synth.truth import ZoneTruth
+from towerpipe.synth.zone import generate_zone
 
 __all__ = ["SceneParams", "Terrain", "ZoneTruth", "generate_zone", "preset", "preset_names"]

@@ -60,7 +60,7 @@ GROUND_GAP = 2.0
 _GROUND_BASE = 0.35   # reflectance of ground in towerpipe.synth.color (intensity reference)
 
 
-def _ground_fn(xyz: np.ndarray, cls: np.ndarray):
+def ground_fn(xyz: np.ndarray, cls: np.ndarray):
     """Ground elevation function from the real ground points (mean of 6 nearest)."""
     g = xyz[cls == 2]
     if len(g) < 10:
@@ -235,7 +235,7 @@ def _insert(las: laspy.LasData, rng: np.random.Generator, dx: float, first_id: i
     xmin, ymin = xyz[:, :2].min(axis=0)
     xmax, ymax = xyz[:, :2].max(axis=0)
     tile_density = n0 / max((xmax - xmin) * (ymax - ymin), 1.0)
-    gz = _ground_fn(xyz, cls)
+    gz = ground_fn(xyz, cls)
     bld = xyz[cls == 6, :2]
     btree = cKDTree(bld) if len(bld) else None
     gtree = cKDTree(xyz[cls == 2, :2]) if (cls == 2).any() else cKDTree(xyz[:, :2])

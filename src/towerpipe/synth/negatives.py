@@ -15,7 +15,7 @@ import numpy as np
 from towerpipe.synth.params import SceneParams
 from towerpipe.synth.primitives import Primitives, patch, segment, segments
 from towerpipe.synth.rng import derive
-from towerpipe.synth.towers import _body, _levels
+from towerpipe.synth.towers import lattice_body, panel_levels
 from towerpipe.synth.wires import catenary
 
 
@@ -32,8 +32,8 @@ class Negative:
 
 def _crane(h: float, rng) -> Primitives:
     hw = rng.uniform(0.7, 1.0)
-    z, w = _levels(0, h, hw, hw)
-    mast = np.concatenate(_body(z, w, rng, 0.1))
+    z, w = panel_levels(0, h, hw, hw)
+    mast = np.concatenate(lattice_body(z, w, rng, 0.1))
     jib = rng.uniform(30, 60)
     cj = rng.uniform(10, 15)
     xs = np.linspace(-cj, jib, 24)
@@ -50,8 +50,8 @@ def _crane(h: float, rng) -> Primitives:
 
 
 def _mast(h: float, rng) -> Primitives:
-    z, w = _levels(0, h, rng.uniform(0.8, 1.4), 0.5)
-    body = np.concatenate(_body(z, w, rng, 0.08))
+    z, w = panel_levels(0, h, rng.uniform(0.8, 1.4), 0.5)
+    body = np.concatenate(lattice_body(z, w, rng, 0.08))
     parts = [segments(body, 0.08)]
     for k in range(int(rng.integers(2, 6))):          # antennas and dishes near the top
         za = h - rng.uniform(0.5, 6)

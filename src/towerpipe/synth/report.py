@@ -46,8 +46,8 @@ def zone_stats(zone: str | Path) -> dict:
         if terrain is not None:
             g = terrain.z(x, y)
         else:       # real backgrounds: interpolate from ground points
-            from towerpipe.synth.real import _ground_fn
-            g = _ground_fn(np.c_[x, y, z], cls)(x, y)
+            from towerpipe.synth.background import ground_fn
+            g = ground_fn(np.c_[x, y, z], cls)(x, y)
         hag = z - g
         ok = ~np.isin(cls, classes.NOISE)
         hag_all.append(hag[ok])

@@ -87,7 +87,7 @@ class Tower:
         return shapely.convex_hull(shapely.MultiPoint(xy)).buffer(0.25, quad_segs=2)
 
 
-def _body(levels: np.ndarray, half: np.ndarray, rng: np.random.Generator, member: float) -> list[np.ndarray]:
+def lattice_body(levels: np.ndarray, half: np.ndarray, rng: np.random.Generator, member: float) -> list[np.ndarray]:
     """Square lattice body: legs, horizontals and X-bracing between ``levels``."""
     c = _CORNERS[None, :, :] * half[:, None, None]                          # (L, 4, 2)
     p = np.concatenate([c, np.broadcast_to(levels[:, None, None], (len(levels), 4, 1))], axis=2)
@@ -100,7 +100,7 @@ def _body(levels: np.ndarray, half: np.ndarray, rng: np.random.Generator, member
     return segs
 
 
-def _levels(z0: float, z1: float, hw0: float, hw1: float) -> tuple[np.ndarray, np.ndarray]:
+def panel_levels(z0: float, z1: float, hw0: float, hw1: float) -> tuple[np.ndarray, np.ndarray]:
     """Panel levels whose height is about the local width."""
     z = [z0]
     while z[-1] < z1 - 0.5:
@@ -140,8 +140,8 @@ def build_design(design: str, height: float, rng: np.random.Generator
         zw, zb = 0.62 * h, 0.8 * h
         hww = rng.uniform(0.6, 0.9)
         arm = rng.uniform(6.5, 10.0) * h / 32
-        z, hw = _levels(0.0, zw, base / 2, hww)
-        segs = _body(z, hw, rng, member)
+        z, hw = panel_levels(0.0, zw, base / 2, hww)
+        segs = lattice_body(z, hw, rng, member)
         # the waist opens into two inclined legs up to the beam
         legs = []
         for s in (-1, 1):
@@ -171,8 +171,8 @@ def build_design(design: str, height: float, rng: np.random.Generator
     if design == "double_circuit":
         base = rng.uniform(0.17, 0.3) * h
         top_hw = rng.uniform(0.7, 1.1)
-        z, hw = _levels(0.0, h - 3.0, base / 2, top_hw)
-        segs = _body(z, hw, rng, member)
+        z, hw = panel_levels(0.0, h - 3.0, base / 2, top_hw)
+        segs = lattice_body(z, hw, rng, member)
         segs.append(np.array([[[cx * top_hw, cy * top_hw, h - 3.0], [0, 0, h]] for cx, cy in _CORNERS]))
         gap = rng.uniform(0.11, 0.15) * h
         arm_len = rng.uniform(4.0, 7.0) * np.array([1.0, 1.25, 1.0])
@@ -192,8 +192,8 @@ def build_design(design: str, height: float, rng: np.random.Generator
     if design == "small_lattice":
         base = rng.uniform(1.4, 3.4) * h / 15
         top_hw = rng.uniform(0.25, 0.4)
-        z, hw = _levels(0.0, h - 1.0, base / 2, top_hw)
-        segs = _body(z, hw, rng, 0.08)
+        z, hw = panel_levels(0.0, h - 1.0, base / 2, top_hw)
+        segs = lattice_body(z, hw, rng, 0.08)
         segs.append(np.array([[[cx * top_hw, cy * top_hw, h - 1.0], [0, 0, h]] for cx, cy in _CORNERS]))
         arm = rng.uniform(2.2, 4.0)
         za = h - 1.8
@@ -237,8 +237,8 @@ def _lattice_with_arms(h: float, rng: np.random.Generator, arms: list[tuple[floa
     """
     base = rng.uniform(*base_ratio) * h
     top_hw = rng.uniform(0.6, 1.0)
-    z, hw = _levels(0.0, h - 2.0, base / 2, top_hw)
-    segs = _body(z, hw, rng, 0.12)
+    z, hw = panel_levels(0.0, h - 2.0, base / 2, top_hw)
+    segs = lattice_body(z, hw, rng, 0.12)
     segs.append(np.array([[[cx * top_hw, cy * top_hw, h - 2.0], [0, 0, h]] for cx, cy in _CORNERS]))
     ins, attach = [], []
     for frac, length, per_side in arms:
@@ -271,8 +271,8 @@ def _european(design: str, h: float, rng: np.random.Generator) -> tuple[Primitiv
         base = rng.uniform(0.18, 0.26) * h
         zb = rng.uniform(0.62, 0.7) * h
         half = rng.uniform(0.17, 0.24) * h
-        z, hw = _levels(0.0, zb, base / 2, rng.uniform(0.6, 0.9))
-        segs = _body(z, hw, rng, 0.12)
+        z, hw = panel_levels(0.0, zb, base / 2, rng.uniform(0.6, 0.9))
+        segs = lattice_body(z, hw, rng, 0.12)
         top = hw[-1]
         beam = []
         xs = np.linspace(-half, half, 9)
@@ -298,8 +298,8 @@ def _european(design: str, h: float, rng: np.random.Generator) -> tuple[Primitiv
         zb = h - 1.6
         segs = []
         for cx in (-gap / 2, gap / 2):
-            z, hw = _levels(0.0, zb, col * 1.3, col)
-            for part in _body(z, hw, rng, 0.1):
+            z, hw = panel_levels(0.0, zb, col * 1.3, col)
+            for part in lattice_body(z, hw, rng, 0.1):
                 part = part.copy()
                 part[..., 0] += cx
                 segs.append(part)

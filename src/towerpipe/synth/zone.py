@@ -15,7 +15,7 @@ from towerpipe.errors import ConfigError
 from towerpipe.synth.lasout import write_block
 from towerpipe.synth.params import SceneParams, preset as get_preset, with_overrides
 from towerpipe.synth.scene import Zone, block_name, block_points, build_zone
-from towerpipe.synth.truth import META_JSON, TRUTH_COLUMNS, TRUTH_GEOJSON, TRUTH_GPKG, ZoneTruth, write_truth  # noqa: F401
+from towerpipe.synth.truth import META_JSON, TRUTH_COLUMNS, ZoneTruth, write_truth
 
 log = logging.getLogger(__name__)
 

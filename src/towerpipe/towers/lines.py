@@ -23,8 +23,9 @@ block (wire-like points with air above and below, locally straight and level).
    smaller id to the other; its id is the smallest ``tower_id`` of the towers it holds,
    so it stays as long as that tower does.
 
-:func:`lines_across_zones` (``towerpipe lines results/z1 results/z2 -o lines.gpkg``) does the
-same for several published zones at once, so a line crossing a zone border is one line.
+:func:`towerpipe.jobs.lines.lines_across_zones` (``towerpipe lines results/z1 results/z2 -o
+lines.gpkg``) does the same for several published zones at once, so a line crossing a zone
+border is one line.
 
 Each tower gets ``line_id``, ``line_seq`` (1, 2, … along the line), ``line_chainage_m``,
 ``bearing_deg`` (the line at the tower, toward increasing ``line_seq``; a bisector at an
@@ -35,10 +36,8 @@ ground and the clearance down to the vegetation below the conductors.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import geopandas as gpd
@@ -47,10 +46,9 @@ import pandas as pd
 import shapely
 from scipy.spatial import cKDTree
 
-from towerpipe.products.fields import Field, conform, empty_frame
+from towerpipe.io.fields import Field, conform, empty_frame
 
-__all__ = ["LINE_FIELDS", "SPAN_FIELDS", "LINE_TOWER_COLUMNS", "LineParams", "build_lines", "conductor_rays",
-           "lines_across_zones"]
+__all__ = ["LINE_FIELDS", "SPAN_FIELDS", "LINE_TOWER_COLUMNS", "LineParams", "build_lines", "conductor_rays"]
 
 #: Fields of the ``lines`` layer (LineString through the towers, in line order).
 LINE_FIELDS: dict[str, Field] = {
@@ -423,61 +421,3 @@ def build_lines(towers: gpd.GeoDataFrame, conductors: Mapping[str, np.ndarray], 
     lines = conform(lines.sort_values("line_id", kind="stable"), LINE_FIELDS, crs)
     span_df = conform(span_df.sort_values(["line_id", "span_seq"], kind="stable"), SPAN_FIELDS, crs)
     return out, lines, span_df
-
-
-# --------------------------------------------------------------------------- across zones
-def lines_across_zones(zone_dirs: list[str | Path], out_path: str | Path) -> dict[str, int]:
-    """Lines through several zones: a line leaving one zone goes on in the next.
-
-    Reads each published zone directory's per-block GeoPackages (``towers/<block>.gpkg``:
-    towers and conductor points) and builds the lines of all of them at once. Tower ids
-    are the zones' own (they are made from positions, the same in every zone of one CRS);
-    a tower reported by two zones (overlapping footprints) is kept once, from the first
-    zone given.
-
-    Parameters
-    ----------
-    zone_dirs
-        ``results/<zone>`` directories, all in one CRS.
-    out_path
-        GeoPackage to write: layers ``towers``, ``tower_points``, ``lines``, ``spans``.
-
-    Returns
-    -------
-    dict
-        ``towers``, ``lines``, ``spans`` counts.
-    """
-    from datetime import datetime, timezone
-
-    from towerpipe.errors import InputError
-    from towerpipe.products.gpkg import write_towers_gpkg
-    from towerpipe.towers.registry import empty_registry
-    from towerpipe.jobs.steps import zone_towers
-
-    gpkgs = []
-    for d in zone_dirs:
-        found = sorted(Path(d, "towers").glob("*.gpkg"))
-        if not found:
-            raise InputError(d, "holds no towers/<block>.gpkg: give published zone directories (results/<zone>)")
-        gpkgs += found
-    content = zone_towers(gpkgs, registry=empty_registry(), run_time=datetime.now(timezone.utc))
-    crs = content["crs"]
-    write_towers_gpkg(out_path, content["towers"] if len(content["towers"]) else None,
-                      crs_wkt=crs.to_wkt() if hasattr(crs, "to_wkt") else crs, lines=content["lines"],
-                      spans=content["spans"], metadata={"zones": json.dumps([str(d) for d in zone_dirs]),
-                                                         **content["metadata"]})
-    return {k: 0 if content[k] is None else len(content[k]) for k in ("towers", "lines", "spans")}
-
-
-def register(sub: Any) -> None:
-    """``towerpipe lines``: the lines through several zones."""
-    p = sub.add_parser("lines", help="link the towers of several zones into lines (a line across zone borders)")
-    p.add_argument("zones", nargs="+", help="published zone directories (results/<zone>), one CRS")
-    p.add_argument("-o", "--out", required=True, help="GeoPackage to write (towers, tower_points, lines, spans)")
-    p.set_defaults(func=_cli)
-
-
-def _cli(args: Any) -> int:
-    counts = lines_across_zones(args.zones, args.out)
-    print(f"{args.out}: {counts['towers']} towers, {counts['lines']} lines, {counts['spans']} spans")
-    return 0

@@ -8,10 +8,10 @@ id of each classified block) are written by parallel per-block jobs, before the 
 is assembled, so an id cannot come from a zone-wide counter. It is assigned in the
 towers job of a block, from two things that job can read:
 
-1. the zone's **registry** (:func:`read_registry`), as the last assembly left it: a tower
-   whose footprint intersects a registered footprint, or whose centroid is within
+1. the zone's **registry** (:func:`towerpipe.products.registry_file.read_registry`), as the last
+   assembly left it: a tower whose footprint intersects a registered footprint, or whose centroid is within
    :data:`MATCH_DISTANCE` (5 m) of a registered one, takes that tower's id (one to one,
-   nearest first, as :func:`towerpipe.towers.extract.match_towers` pairs towers);
+   nearest first, as :func:`towerpipe.towers.matching.match_towers` pairs towers);
 2. otherwise a **new id derived from where the tower is first seen**
    (:func:`location_id`): its footprint centroid on a 1 m grid. Every job that sees the
    tower (the block that owns it and the neighbour it reaches into) derives the same id
@@ -25,7 +25,7 @@ was. The registry is read by the towers jobs but is not a Snakemake input of the
 is written after them: an input would be a cycle), so updating it reruns nothing.
 
 **Id format.** ``tower_id`` is an integer (int64 in the GeoPackage, uint64 in the
-classified blocks' :data:`towerpipe.products.merge.TOWER_ID_DIMENSION`), the first-seen centroid
+classified blocks' :data:`towerpipe.io.lasformat.TOWER_ID_DIMENSION`), the first-seen centroid
 ``(x, y)`` rounded to the metre: ``(x mod 9e7) * 1e8 + (y mod 1e8)``, e.g. ``40011304600326``
 for (400 113, 4 600 326). It holds no zone name, reads as easting and northing, is unique
 within any 90 000 km of a projected CRS, and stays below 2**53 (exact in a float64 too). 0
@@ -36,16 +36,14 @@ has drifted away from its first position) takes the next free northing metre.
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Iterable, Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
 import geopandas as gpd
 import numpy as np
 import pandas as pd
 
-from towerpipe.products.fields import DATETIME, Field, conform, empty_frame
+from towerpipe.io.fields import DATETIME, Field, conform, empty_frame
 
 log = logging.getLogger(__name__)
 
@@ -80,8 +78,6 @@ REGISTRY_FIELDS: dict[str, Field] = {
                                                    "(kept from run to run)", enum=REVIEW_STATUSES),
 }
 
-REGISTRY_LAYER = "towers"
-
 
 # --------------------------------------------------------------------------- ids
 def location_id(x: float, y: float) -> int:
@@ -108,7 +104,8 @@ def assign_ids(footprints: Sequence[Any], registry: gpd.GeoDataFrame | None,
         Footprint polygons of the towers (one job's towers: those it reports and those
         of its neighbours it reaches into).
     registry
-        :func:`read_registry`'s table (``None`` or empty: every tower is new).
+        :func:`towerpipe.products.registry_file.read_registry`'s table (``None`` or empty: every
+        tower is new).
     max_dist
         Centroid distance (m) of a match when the footprints do not intersect.
 
@@ -121,7 +118,7 @@ def assign_ids(footprints: Sequence[Any], registry: gpd.GeoDataFrame | None,
     review_status
         Registered review status per tower (:data:`REVIEW_DEFAULT` for a new one).
     """
-    from towerpipe.towers.extract import match_towers
+    from towerpipe.towers.matching import match_towers
 
     n = len(footprints)
     ids = np.zeros(n, dtype=np.int64)
@@ -177,51 +174,9 @@ def unique_ids(towers: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
     return out.sort_values("tower_id", kind="stable").reset_index(drop=True)
 
 
-# --------------------------------------------------------------------------- the registry file
+# --------------------------------------------------------------------------- the registry
 def empty_registry(crs: Any = None) -> gpd.GeoDataFrame:
     return empty_frame(REGISTRY_FIELDS, crs)
-
-
-def read_registry(*paths: str | os.PathLike[str] | None) -> gpd.GeoDataFrame:
-    """The registry: the first of ``paths`` that exists.
-
-    A path is either a registry (``registry.gpkg``, layer ``towers`` with
-    :data:`REGISTRY_FIELDS`) or a published zone ``towers.gpkg`` (its ``towers`` and
-    ``vanished_towers`` layers, used when the registry itself was deleted with the work
-    directory). A file with towers of an older format (text ids) gives an empty registry.
-    """
-    from towerpipe.errors import InputError
-    from towerpipe.products.gpkg import LAYER_TOWERS, LAYER_VANISHED, list_layers, read_towers
-
-    for p in paths:
-        if p is None or not Path(p).is_file():
-            continue
-        layers = list_layers(p)
-        frames = []
-        for layer in (REGISTRY_LAYER, LAYER_TOWERS, LAYER_VANISHED):
-            if layer in layers and layer not in [f[0] for f in frames]:
-                frames.append((layer, read_towers(p, layer)))
-        if not frames:
-            raise InputError(p, "holds no tower layer; delete it to start a new tower registry")
-        parts = []
-        for layer, gdf in frames:
-            if not len(gdf) or not pd.api.types.is_integer_dtype(gdf["tower_id"]):
-                continue
-            gdf = gdf.copy()
-            if "status" not in gdf.columns:
-                gdf["status"] = VANISHED if layer == LAYER_VANISHED else ACTIVE
-            for c in ("first_seen", "last_seen", "vanished_since"):
-                if c not in gdf.columns:
-                    gdf[c] = gdf.get("processed_at") if c != "vanished_since" else pd.NaT
-            if "review_status" not in gdf.columns:
-                gdf["review_status"] = REVIEW_DEFAULT
-            parts.append(conform(gdf, REGISTRY_FIELDS))
-        if not parts:
-            log.info("%s: no towers with integer ids; starting a new registry", p)
-            return empty_registry(frames[0][1].crs)
-        reg = gpd.GeoDataFrame(pd.concat(parts, ignore_index=True), crs=parts[0].crs)
-        return reg.drop_duplicates("tower_id", keep="first").reset_index(drop=True)
-    return empty_registry()
 
 
 def update_registry(registry: gpd.GeoDataFrame, towers: gpd.GeoDataFrame, *, run_time: Any,
@@ -231,7 +186,7 @@ def update_registry(registry: gpd.GeoDataFrame, towers: gpd.GeoDataFrame, *, run
     Parameters
     ----------
     registry
-        The registry before (:func:`read_registry`).
+        The registry before (:func:`towerpipe.products.registry_file.read_registry`).
     towers
         Every tower of the zone now (``tower_id``, ``block``, ``centroid_x``,
         ``centroid_y``, ``height_m``, ``first_seen``, footprint).
@@ -243,7 +198,8 @@ def update_registry(registry: gpd.GeoDataFrame, towers: gpd.GeoDataFrame, *, run
         towers are left as they were, not marked vanished.
     reviews
         ``tower_id`` → review status edited by analysts in the published products since
-        the last run (:func:`published_reviews`); applied to registered towers.
+        the last run (:func:`towerpipe.products.registry_file.published_reviews`); applied to
+        registered towers.
 
     Returns
     -------
@@ -286,38 +242,8 @@ def update_registry(registry: gpd.GeoDataFrame, towers: gpd.GeoDataFrame, *, run
     return conform(out.sort_values("tower_id", kind="stable"), REGISTRY_FIELDS, crs)
 
 
-def published_reviews(path: str | os.PathLike[str] | None, registry: gpd.GeoDataFrame) -> dict[int, str]:
-    """Review statuses analysts changed in a published ``towers.gpkg`` (vs the registry)."""
-    from towerpipe.products.gpkg import LAYER_TOWERS, LAYER_VANISHED, list_layers, read_towers
-
-    if path is None or not Path(path).is_file() or not len(registry):
-        return {}
-    known = dict(zip(registry["tower_id"].astype("int64"), registry["review_status"]))
-    out: dict[int, str] = {}
-    layers = list_layers(path)
-    for layer in (LAYER_TOWERS, LAYER_VANISHED):
-        if layer not in layers:
-            continue
-        gdf = read_towers(path, layer)
-        if not len(gdf) or "review_status" not in gdf.columns or not pd.api.types.is_integer_dtype(gdf["tower_id"]):
-            continue
-        for tid, status in zip(gdf["tower_id"].astype("int64"), gdf["review_status"]):
-            if status in REVIEW_STATUSES and tid in known and known[tid] != status:
-                out[int(tid)] = str(status)
-    return out
-
-
 def vanished(registry: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
     """The registered towers not found by the last assembly."""
     if not len(registry):
         return registry
     return registry[registry["status"] == VANISHED].reset_index(drop=True)
-
-
-def write_registry(path: str | os.PathLike[str], registry: gpd.GeoDataFrame, crs_wkt: str | None = None) -> Path:
-    """Write the registry atomically (GeoPackage, layer ``towers``)."""
-    from towerpipe.products.gpkg import Layer, write_gpkg
-
-    return write_gpkg(path, [Layer(REGISTRY_LAYER, registry, REGISTRY_FIELDS, "Polygon", "Tower registry",
-                                   "Every tower the zone has found, with its stable id")],
-                      crs_wkt=crs_wkt, metadata={"content": "towerpipe tower registry"})

@@ -46,11 +46,9 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 
 from towerpipe import classes
-from towerpipe.products.fields import Field
+from towerpipe.io.fields import Field
 
-__all__ = ["Coverage", "TileContext", "wire_points", "wire_support", "conductor_points", "CONDUCTOR_FIELDS",
-           "classes.VEGETATION", "classes.WIRE"]
-
+__all__ = ["Coverage", "TileContext", "wire_points", "wire_support", "conductor_points", "CONDUCTOR_FIELDS"]
 
 
 #: Fields of a conductor point (layer ``conductor_points`` of a block's GeoPackage; Point geometry).

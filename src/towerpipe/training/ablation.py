@@ -36,7 +36,7 @@ REFERENCE: dict[str, Any] = {"feature_set": "full", "sampling": "constrained", "
 
 def _run_row(windows_path: str, config: dict[str, Any]) -> dict[str, Any]:
     """Train both networks for one row (runs in a worker process)."""
-    from towerpipe.training.dataset import load_windows
+    from towerpipe.training.windowset import load_windows
     from towerpipe.progress import peak_rss_mb
     from towerpipe.training.train import train_classifier, train_segmenter
 

@@ -17,7 +17,8 @@ attribute group) so that no model collapses when a column carries nothing.
 ``exclude_families`` leaves the windows of some real tower families out of every split
 (the leave-one-source-out benchmark).
 
-Entry points take plain paths and dicts::
+Window and point scores are in :mod:`towerpipe.training.metrics`, the ``towerpipe train``
+command in :mod:`towerpipe.training.cli`. Entry points take plain paths and dicts::
 
     from towerpipe.training.train import train_bundle
     train_bundle(["work/train/tiles/b1/t1.npz", ...], "results/models/towerpipe-full-v2", "full",
@@ -26,9 +27,7 @@ Entry points take plain paths and dicts::
 
 from __future__ import annotations
 
-import argparse
 import copy
-import glob
 import json
 import logging
 import math
@@ -44,12 +43,15 @@ import numpy as np
 import torch
 
 from towerpipe.training.augment import augment_geometry, corrupt_attributes
-from towerpipe.training.dataset import DEFAULT_DATASET_CONFIG, FAMILY_BITS, KINDS, WindowSet, load_or_build
+from towerpipe.training.dataset import DEFAULT_DATASET_CONFIG, load_or_build
+from towerpipe.training.metrics import classification_metrics, predict_windows, segment_windows_metrics
+from towerpipe.training.windowset import FAMILY_BITS, KINDS, WindowSet
 from towerpipe.errors import ConfigError
 from towerpipe.model.features import FEATURE_SETS, normalisation_spec, required_attributes
 from towerpipe.training.losses import class_balanced_weights, feature_transform_regulariser, weighted_nll
-from towerpipe.model.pointnet import (BUNDLE_VERSION, DEFAULT_CHUNK, MODEL_RELEASES, NetRunner, PointNetClassifier,
-                             PointNetSegmenter, build_model, count_parameters, load_bundle, save_bundle)
+from towerpipe.model.bundle import load_bundle, save_bundle
+from towerpipe.model.cards import BUNDLE_VERSION, MODEL_RELEASES
+from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter, build_model, count_parameters
 from towerpipe.progress import peak_rss_mb
 
 log = logging.getLogger(__name__)
@@ -125,34 +127,6 @@ def _progress(total: int, desc: str, cfg: Mapping[str, Any]):
 
     disable = not sys.stderr.isatty() if cfg["progress"] is None else not cfg["progress"]
     return tqdm(total=total, desc=desc, disable=disable, leave=False)
-
-
-def _f1(tp: int, fp: int, fn: int) -> dict[str, float]:
-    p = tp / (tp + fp) if tp + fp else 0.0
-    r = tp / (tp + fn) if tp + fn else 0.0
-    return {"precision": p, "recall": r, "f1": 2 * p * r / (p + r) if p + r else 0.0}
-
-
-def classification_metrics(prob: np.ndarray, label: np.ndarray, threshold: float = 0.5) -> dict[str, float]:
-    """F1, precision, recall and accuracy of window probabilities against labels."""
-    pred = np.asarray(prob) >= threshold
-    lab = np.asarray(label).astype(bool)
-    tp, fp, fn = int((pred & lab).sum()), int((pred & ~lab).sum()), int((~pred & lab).sum())
-    out = _f1(tp, fp, fn)
-    out.update(accuracy=float((pred == lab).mean()) if lab.size else 0.0, n=int(lab.size), positives=int(lab.sum()))
-    return out
-
-
-def segmentation_metrics(pred: np.ndarray, label: np.ndarray) -> dict[str, float]:
-    """IoU of the tower class, of the background and their mean (points pooled over windows)."""
-    p = np.asarray(pred).astype(bool)
-    t = np.asarray(label).astype(bool)
-    inter_t, union_t = int((p & t).sum()), int((p | t).sum())
-    inter_b, union_b = int((~p & ~t).sum()), int((~p | ~t).sum())
-    iou_t = inter_t / union_t if union_t else 1.0
-    iou_b = inter_b / union_b if union_b else 1.0
-    return {"iou_tower": iou_t, "iou_background": iou_b, "miou": (iou_t + iou_b) / 2, "points": int(t.size),
-            "tower_points": int(t.sum())}
 
 
 def _fit(model: torch.nn.Module, ws: WindowSet, train_idx: np.ndarray, val_idx: np.ndarray,
@@ -249,34 +223,6 @@ def _eval_loss(model: torch.nn.Module, ws: WindowSet, idx: np.ndarray, w: torch.
     return tot / cnt
 
 
-@torch.inference_mode()
-def predict_windows(model: PointNetClassifier, ws: WindowSet, idx: np.ndarray, feature_set: str,
-                    sampling: str = "constrained") -> np.ndarray:
-    """Tower probability of the sampled windows ``idx`` (eval-mode statistics, as at inference)."""
-    runner = NetRunner(model, ws.n_points)
-    out = [runner.classify(ws.sampled(idx[s:s + 64], feature_set, sampling)[0]) for s in range(0, len(idx), 64)]
-    return np.concatenate(out) if out else np.zeros(0, np.float32)
-
-
-def segment_windows_metrics(model: PointNetSegmenter, ws: WindowSet, idx: np.ndarray, feature_set: str,
-                            threshold: float = 0.5, chunk: int = DEFAULT_CHUNK) -> dict[str, float]:
-    """IoU tower / background / mIoU on *all* points of the positive windows among ``idx``.
-
-    Each window goes through :func:`towerpipe.model.pointnet.segment_points`, as at inference.
-    """
-    runner = NetRunner(model, ws.n_points, chunk)
-    pos = idx[ws.label[idx] == 1]
-    preds, labs = [], []
-    for i in pos:
-        f, lab = ws.window_points(int(i), feature_set)
-        preds.append(runner.segment(f) >= threshold)
-        labs.append(lab)
-    out = segmentation_metrics(np.concatenate(preds) if preds else np.zeros(0, bool),
-                               np.concatenate(labs) if labs else np.zeros(0, bool))
-    out["windows"] = int(len(pos))
-    return out
-
-
 def _subset(idx: np.ndarray, n: int | None, rng: np.random.Generator) -> np.ndarray:
     return idx if not n or len(idx) <= n else np.sort(rng.choice(idx, int(n), replace=False))
 
@@ -348,7 +294,7 @@ def train_segmenter(windows: WindowSet, config: Mapping[str, Any] | None = None
     """Train the per-point segmenter on positive windows (+ a fraction of negatives).
 
     Test metrics (IoU tower, IoU background, mIoU) are computed on *all* points of the
-    test positive windows, as at inference (:func:`towerpipe.model.pointnet.segment_points`).
+    test positive windows, as at inference (:func:`towerpipe.model.folded.segment_points`).
     """
     cfg = train_config(config)
     rng = np.random.default_rng(int(cfg["seed"]) + 1)
@@ -411,7 +357,7 @@ def make_card(feature_set: str, windows: WindowSet, config: Mapping[str, Any], c
     """The model card of a trained bundle (see :mod:`towerpipe.model.cards`).
 
     ``version`` defaults to the shipped release of ``feature_set``
-    (:data:`towerpipe.model.pointnet.MODEL_RELEASES`).
+    (:data:`towerpipe.model.cards.MODEL_RELEASES`).
     """
     from towerpipe.model import cards as modelcard
 
@@ -499,41 +445,6 @@ def _bundle_name(dirname: str) -> str | None:
     """``towerpipe-shape-v3-without-uav`` -> ``towerpipe-shape-without-uav``; ``None`` for the default name."""
     m = re.match(r"^(.*)-v\d+(-without-[a-z0-9]+)?$", dirname)
     return f"{m.group(1)}{m.group(2) or ''}" if m else None
-
-
-def _cli(args: argparse.Namespace) -> int:
-    paths: list[str] = []
-    for pattern in args.tiles:
-        hits = sorted(glob.glob(pattern, recursive=True))
-        paths += hits if hits else ([pattern] if Path(pattern).exists() else [])
-    if not paths:
-        raise ConfigError(f"--tiles {args.tiles}: no files match")
-    config: dict[str, Any] = json.loads(Path(args.config).read_text()) if args.config else {}
-    if args.config and args.config.endswith((".yaml", ".yml")):
-        import yaml
-
-        config = yaml.safe_load(Path(args.config).read_text()) or {}
-    for key in ("epochs", "seed", "time_budget_s", "max_train_windows"):
-        if getattr(args, key) is not None:
-            config[key] = getattr(args, key)
-    out = train_bundle(paths, args.out, args.feature_set, config)
-    print(out)
-    return 0
-
-
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``towerpipe train`` to the command line."""
-    p = subparsers.add_parser("train", help="train a classifier + segmenter bundle from labelled tile files")
-    p.add_argument("--tiles", nargs="+", required=True, metavar="GLOB",
-                   help="labelled tile .npz files (globs allowed) or one windows .npz")
-    p.add_argument("--out", required=True, help="checkpoint directory to write")
-    p.add_argument("--feature-set", default="full", choices=sorted(FEATURE_SETS))
-    p.add_argument("--config", help="JSON/YAML file of training overrides (key `dataset` for the dataset)")
-    p.add_argument("--epochs", type=int)
-    p.add_argument("--seed", type=int)
-    p.add_argument("--time-budget-s", dest="time_budget_s", type=float, help="per-network wall-clock budget")
-    p.add_argument("--max-train-windows", dest="max_train_windows", type=int)
-    p.set_defaults(func=_cli)
 
 
 def time_batch(kind: str = "classifier", arch: str = "light", feature_set: str = "full", n_points: int = 2048,

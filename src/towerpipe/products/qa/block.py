@@ -3,7 +3,7 @@
 :func:`block_report` gathers the numbers of one block (points per stage, ground,
 density, HAG, windows, towers, timings and memory, sensor attributes, accuracy against
 input labels when there are any), decides whether the block needs a human look (see
-:data:`towerpipe.products.qa.metrics.DEFAULT_LIMITS`), and writes
+:class:`towerpipe.products.qa.metrics.Limits`), and writes
 
 * ``out_html``: the page (template ``block.html``), inline CSS and embedded PNG
   figures (no external assets: it can be mailed or opened from a network share), with
@@ -13,11 +13,13 @@ input labels when there are any), decides whether the block needs a human look (
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
 import os
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -28,8 +30,9 @@ from towerpipe import classes
 from towerpipe.products import layout
 from towerpipe.io.atomic import write_text_atomic
 from towerpipe.progress import Progress
-from towerpipe.products.qa import plots
-from towerpipe.products.qa.metrics import DEFAULT_LIMITS, data_extent, density_grid, distance_to_data_edge, jsonable, label_accuracy, load_classified, read_benchmark, read_towers, sum_dicts
+from towerpipe.products.qa.plots import (block_map, density_map, hag_histogram, max_z_grid, raster_grid,
+                                         tower_elevations)
+from towerpipe.products.qa.metrics import Limits, data_extent, density_grid, distance_to_data_edge, jsonable, label_accuracy, load_classified, read_benchmark, read_towers, sum_dicts
 from towerpipe.products.qa.pages import render
 
 log = logging.getLogger(__name__)
@@ -48,7 +51,7 @@ def tower_neighbourhoods(tile_files: Sequence[str | os.PathLike[str]], member_fi
         The block's tile files: core and buffer, so a tower across a block edge is seen
         whole (its neighbour's points are in the buffer).
     member_files
-        Tower-points files (:func:`towerpipe.towers.extract.save_members`): which points are the
+        Tower-points files (:func:`towerpipe.io.members.save_members`): which points are the
         towers' own (the points the merge classifies 15).
     towers
         The block's towers (GeoDataFrame with ``tower_id``, ``centroid_x``, ``centroid_y``).
@@ -63,7 +66,7 @@ def tower_neighbourhoods(tile_files: Sequence[str | os.PathLike[str]], member_fi
     """
     from towerpipe.io.columns import load_columns
     from towerpipe.io.tiles import load_tile
-    from towerpipe.towers.extract import MEMBER_ARRAYS
+    from towerpipe.io.members import MEMBER_ARRAYS
 
     if not len(towers):
         return {}
@@ -126,33 +129,12 @@ def _summary(n_towers: int, n_look_towers: int, flags: list[dict[str, str]]) -> 
     return s + "."
 
 
-def block_report(
-    out_html: str | os.PathLike[str],
-    out_json: str | os.PathLike[str],
-    *,
-    block_name: str,
-    zone: str = "",
-    block_bounds: Sequence[float] | None = None,
-    stats: Mapping[str, Any] | None = None,
-    tile_metas: Sequence[Mapping[str, Any]] = (),
-    pred_metas: Sequence[Mapping[str, Any]] = (),
-    towers: Any = None,
-    classified: str | os.PathLike[str] | Mapping[str, np.ndarray] | None = None,
-    raster: str | os.PathLike[str] | None = None,
-    truth: np.ndarray | None = None,
-    timings: Mapping[str, float | str | os.PathLike[str] | Mapping[str, Any]] | None = None,
-    warnings: Sequence[str] = (),
-    limits: Mapping[str, float] | None = None,
-    neighbour_towers: Sequence[Mapping[str, Any]] | None = None,
-    data_bounds: Sequence[Sequence[float]] | None = None,
-    neighbourhoods: Mapping[str, Mapping[str, np.ndarray]] | None = None,
-) -> dict[str, Any]:
-    """Write the QA page and its JSON for one block.
+@dataclass(frozen=True)
+class BlockInputs:
+    """What the QA page of one block is made from (:func:`block_report`).
 
-    Parameters
+    Attributes
     ----------
-    out_html, out_json
-        Destinations (written atomically).
     block_name, zone
         Names shown on the page.
     block_bounds
@@ -180,8 +162,6 @@ def block_report(
         Stage name → seconds, or → path of a Snakemake benchmark TSV (``s``, ``max_rss``).
     warnings
         Messages to show (e.g. logged warnings of the block's jobs).
-    limits
-        Overrides of :data:`~towerpipe.products.qa.metrics.DEFAULT_LIMITS`.
     neighbour_towers
         Towers with points in this block that a neighbouring block owns (``tower_id``,
         ``footprint_wkt``): a labelled tower they match counts as found (recall), not as
@@ -194,6 +174,37 @@ def block_report(
     neighbourhoods
         ``tower_id`` → the points around the tower (:func:`tower_neighbourhoods`): two
         side views per tower.
+    """
+
+    block_name: str
+    zone: str = ""
+    block_bounds: Sequence[float] | None = None
+    stats: Mapping[str, Any] | None = None
+    tile_metas: Sequence[Mapping[str, Any]] = ()
+    pred_metas: Sequence[Mapping[str, Any]] = ()
+    towers: Any = None
+    classified: str | os.PathLike[str] | Mapping[str, np.ndarray] | None = None
+    raster: str | os.PathLike[str] | None = None
+    truth: np.ndarray | None = None
+    timings: Mapping[str, float | str | os.PathLike[str] | Mapping[str, Any]] | None = None
+    warnings: Sequence[str] = ()
+    neighbour_towers: Sequence[Mapping[str, Any]] | None = None
+    data_bounds: Sequence[Sequence[float]] | None = None
+    neighbourhoods: Mapping[str, Mapping[str, np.ndarray]] | None = None
+
+
+def block_report(out_html: str | os.PathLike[str], out_json: str | os.PathLike[str], inputs: BlockInputs,
+                 limits: Limits = Limits()) -> dict[str, Any]:
+    """Write the QA page and its JSON for one block.
+
+    Parameters
+    ----------
+    out_html, out_json
+        Destinations (written atomically).
+    inputs
+        The block's numbers, towers and points.
+    limits
+        What flags the block or a tower for a look.
 
     Returns
     -------
@@ -201,11 +212,12 @@ def block_report(
         The numbers written to ``out_json`` (``status`` is ``"ok"`` or ``"look"``,
         ``flags`` lists the reasons).
     """
-    lim = dict(DEFAULT_LIMITS, **(limits or {}))
+    block_name, tile_metas, pred_metas, raster = inputs.block_name, inputs.tile_metas, inputs.pred_metas, inputs.raster
+    block_bounds, warnings = inputs.block_bounds, inputs.warnings
     out_html, out_json = Path(out_html), Path(out_json)
-    gdf = read_towers(towers)
-    pts = load_classified(classified) if classified is not None else None
-    stats = dict(stats or {})
+    gdf = read_towers(inputs.towers)
+    pts = load_classified(inputs.classified) if inputs.classified is not None else None
+    stats = dict(inputs.stats or {})
     flags: list[dict[str, str]] = []
 
     def flag(code: str, reason: str) -> None:
@@ -236,7 +248,7 @@ def block_report(
     if ground_classified:
         flag("ground_classified", f"input had no usable ground class; ground classified by towerpipe "
                                   f"({', '.join(s for s in ground_sources if s != 'class2')})")
-    if ground_ratio is not None and ground_ratio < lim["min_ground_ratio"]:
+    if ground_ratio is not None and ground_ratio < limits.min_ground_ratio:
         flag("low_ground", f"only {100 * ground_ratio:.1f} % of points are ground")
 
     # ---- sensor attributes (recorded by the split when it checks them)
@@ -250,9 +262,9 @@ def block_report(
     win = {k: int(sum(int(m.get(k) or 0) for m in pred_metas))
            for k in ("windows_total", "windows_passed_gate", "windows_segmented")}
     gate_ratio = win["windows_passed_gate"] / win["windows_total"] if win["windows_total"] else None
-    if gate_ratio is not None and gate_ratio > lim["max_gate_ratio"]:
+    if gate_ratio is not None and gate_ratio > limits.max_gate_ratio:
         flag("many_windows_gated", f"{100 * gate_ratio:.0f} % of windows passed the classifier gate "
-                                   f"(> {100 * lim['max_gate_ratio']:.0f} %)")
+                                   f"(> {100 * limits.max_gate_ratio:.0f} %)")
     model = next((m.get("model") for m in pred_metas if m.get("model")), None) or {}
     points_model_input = int(sum(int(m.get("points_model_input_core") or 0) for m in pred_metas))
 
@@ -271,11 +283,11 @@ def block_report(
     if pts is not None and n_points and bounds:
         grid, density = density_grid(pts["x"], pts["y"], bounds)
         density["mean"] = n_points / area_m2 if area_m2 else None
-        figures.append({"src": plots.density_map(grid, bounds, density["density_cell_m"]),
+        figures.append({"src": density_map(grid, bounds, density["density_cell_m"]),
                         "caption": "Point density: look for stripes, holes and low-density corners"})
-        if density["density_median"] < lim["min_density"]:
+        if density["density_median"] < limits.min_density:
             flag("low_density", f"median density {density['density_median']:.1f} pts/m² "
-                                f"(< {lim['min_density']:.1f})")
+                                f"(< {limits.min_density:.1f})")
     hag = None
     hag_source = None
     if pts is not None and "hag" in pts:
@@ -290,35 +302,35 @@ def block_report(
             dtm = ds.read(1, masked=True).astype(np.float64).filled(np.nan)
             hag, hag_source = pts["z"] - dtm[rows, cols], f"z − {Path(raster).name}"
     if hag is not None:
-        figures.append({"src": plots.hag_histogram(hag, cls == classes.TOWER if cls is not None else None),
+        figures.append({"src": hag_histogram(hag, cls == classes.TOWER if cls is not None else None),
                         "caption": f"Height above ground ({hag_source})"})
     if raster is not None:
-        grid, gb, cell = plots.raster_grid(raster)
+        grid, gb, cell = raster_grid(raster)
         map_src = Path(raster).name
     elif pts is not None and n_points and bounds:
-        grid, cell = plots.max_z_grid(pts["x"], pts["y"], pts["z"], bounds)
+        grid, cell = max_z_grid(pts["x"], pts["y"], pts["z"], bounds)
         gb, map_src = bounds, "max point z per cell"
     else:
         grid, gb, cell, map_src = None, None, 1.0, "nothing (no points given)"
-    map_png = plots.block_map(gdf, bounds, grid, gb, cell, map_src) if (bounds or len(gdf)) else None
+    map_png = block_map(gdf, bounds, grid, gb, cell, map_src) if (bounds or len(gdf)) else None
 
     # ---- towers
-    extent = data_extent(data_bounds if data_bounds is not None else ([bounds] if bounds else []))
+    extent = data_extent(inputs.data_bounds if inputs.data_bounds is not None else ([bounds] if bounds else []))
     tower_rows = []
     views: dict[int, str] = {}
     progress = Progress(f"qa {block_name}: side views", len(gdf), "towers", logger=log)
     for i, r in enumerate(gdf.itertuples(index=False), 1):
         tflags = []
         to_edge = distance_to_data_edge(r.geometry, extent)
-        if math.isfinite(to_edge) and to_edge < lim["edge_margin_m"]:
+        if math.isfinite(to_edge) and to_edge < limits.edge_margin_m:
             tflags.append(f"footprint {to_edge:.1f} m from the edge of the data (zone edge, or a neighbour "
                           f"without points): the tower may be cut")
-        if r.prob_mean < lim["min_tower_prob"]:
+        if r.prob_mean < limits.min_tower_prob:
             tflags.append(f"low mean probability {r.prob_mean:.2f}")
         support = float(getattr(r, "wire_support", float("nan")))
-        if math.isfinite(support) and support < lim["min_wire_support"]:
+        if math.isfinite(support) and support < limits.min_wire_support:
             tflags.append(f"no conductors found (support {support:.2f}): a pole, or not a tower?")
-        elif not math.isfinite(support) and "wire_support" in gdf.columns and r.height_m >= lim["wire_min_height"]:
+        elif not math.isfinite(support) and "wire_support" in gdf.columns and r.height_m >= limits.wire_min_height:
             tflags.append("conductor ring (80-160 m) outside the data: support not measured, kept")
         for t in tflags:
             flag("tower", f"tower {i} ({r.tower_id}): {t}")
@@ -328,23 +340,23 @@ def block_report(
                            "wire_support": support, "blocks": r.blocks,
                            "edge_distance_m": r.edge_distance_m,
                            "data_edge_m": round(to_edge, 2) if math.isfinite(to_edge) else None, "flags": tflags})
-        hood = (neighbourhoods or {}).get(r.tower_id)
+        hood = (inputs.neighbourhoods or {}).get(r.tower_id)
         if hood is not None and len(hood["x"]):
-            views[i] = plots.tower_elevations(hood, (r.centroid_x, r.centroid_y),
+            views[i] = tower_elevations(hood, (r.centroid_x, r.centroid_y),
                                               f"Tower {i} ({r.tower_id}), {r.height_m:.1f} m")
         progress.update()
     progress.close()
 
     # ---- accuracy against input labels
     accuracy = None
-    if truth is not None and pts is not None:
-        accuracy = label_accuracy(pts, truth, gdf, bounds, min_truth_points=int(lim["min_truth_points"]),
-                                  neighbour_towers=neighbour_towers)
+    if inputs.truth is not None and pts is not None:
+        accuracy = label_accuracy(pts, inputs.truth, gdf, bounds, min_truth_points=int(limits.min_truth_points),
+                                  neighbour_towers=inputs.neighbour_towers)
         if accuracy is not None:
-            if accuracy["recall"] is not None and accuracy["recall"] < lim["min_recall"]:
+            if accuracy["recall"] is not None and accuracy["recall"] < limits.min_recall:
                 flag("missed_towers", f"{accuracy['fn']} of {accuracy['towers_true']} labelled towers not found "
                                       f"(recall {accuracy['recall']:.2f})")
-            if accuracy["precision"] is not None and accuracy["precision"] < lim["min_precision"]:
+            if accuracy["precision"] is not None and accuracy["precision"] < limits.min_precision:
                 flag("false_towers", f"{accuracy['fp']} of {len(gdf)} towers found match no labelled tower "
                                      f"(precision {accuracy['precision']:.2f})")
 
@@ -356,7 +368,7 @@ def block_report(
     rss = [float(m["peak_rss_mb"]) for m in pred_metas if m.get("peak_rss_mb") is not None]
     if rss:
         stage_time.append({"stage": "inference: peak of tile jobs", "seconds": None, "max_rss_mb": max(rss)})
-    for name, v in (timings or {}).items():
+    for name, v in (inputs.timings or {}).items():
         if isinstance(v, (str, os.PathLike)):
             try:
                 b = read_benchmark(v)
@@ -376,7 +388,7 @@ def block_report(
     status = "look" if flags else "ok"
     n_look_towers = sum(1 for t in tower_rows if t["flags"])
     doc = {
-        "block": block_name, "zone": zone, "status": status, "summary": _summary(len(gdf), n_look_towers, flags),
+        "block": block_name, "zone": inputs.zone, "status": status, "summary": _summary(len(gdf), n_look_towers, flags),
         "flags": flags, "html": out_html.name,
         "generated_at": datetime.now(timezone.utc).replace(microsecond=0).isoformat(),
         "bounds": bounds, "area_m2": area_m2,
@@ -391,7 +403,7 @@ def block_report(
         "tower_prob_mean": float(gdf["prob_mean"].mean()) if len(gdf) else None,
         "accuracy": accuracy, "timings": stage_time,
         "timings_total": sum(t["seconds"] or 0 for t in stage_time if ":" not in t["stage"]),
-        "warnings": warnings, "stats": stats, "limits": lim,
+        "warnings": warnings, "stats": stats, "limits": dataclasses.asdict(limits),
     }
     doc = jsonable(doc)
     write_text_atomic(out_json, json.dumps(doc, indent=1))

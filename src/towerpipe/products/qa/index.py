@@ -15,7 +15,7 @@ from markupsafe import Markup
 
 from towerpipe.products import layout
 from towerpipe.io.atomic import write_text_atomic
-from towerpipe.products.qa import plots
+from towerpipe.products.qa.plots import zone_map
 from towerpipe.products.qa.metrics import jsonable
 from towerpipe.products.qa.pages import render
 
@@ -150,7 +150,7 @@ def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.
                     "generated_at": datetime.now(timezone.utc).replace(microsecond=0).isoformat()})
     if out_json is not None:
         write_text_atomic(out_json, json.dumps(doc, indent=1))
-    zone_svg = (Markup(plots.zone_map(doc["blocks"], tower_xy, lines))
+    zone_svg = (Markup(zone_map(doc["blocks"], tower_xy, lines))
                 if any(b.get("bounds") for b in doc["blocks"]) else None)
     links = [{"label": f"zone towers ({layout.ZONE_GPKG})", "href": layout.link(layout.QA_INDEX, layout.ZONE_GPKG)}]
     render("index.html", out_html, d=doc, zone_svg=zone_svg, links=links)

@@ -9,27 +9,29 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from towerpipe import classes
-from towerpipe.towers.extract import f1_score, match_towers
+from towerpipe.towers.matching import f1_score, match_towers
 
-#: Limits that flag a block or a tower for a human look; override via ``limits=``.
-DEFAULT_LIMITS: dict[str, float] = {
-    "min_density": 2.0,            # median points / m² over non-empty cells
-    "min_ground_ratio": 0.05,      # share of points classified ground
-    "edge_margin_m": 2.0,          # tower footprint closer than this to the edge of the data: cut
-    "min_tower_prob": 0.6,         # mean probability of a tower's points
-    "min_wire_support": 0.5,       # conductor support of a tower (a low tower is kept without it)
-    "wire_min_height": 20.0,       # the conductor rule applies from this height (towers.wire_min_height)
-    "max_gate_ratio": 0.25,        # share of windows that passed the classifier gate
-    "min_recall": 1.0,             # tower recall against input labels (when present)
-    "min_precision": 1.0,          # tower precision against input labels (when present)
-    "min_truth_points": 20,        # labelled clusters with fewer points are not towers (paper: < 20 dropped)
-}
+@dataclass(frozen=True)
+class Limits:
+    """Limits that flag a block or a tower for a human look (the defaults are the pipeline's)."""
+
+    min_density: float = 2.0            # median points / m² over non-empty cells
+    min_ground_ratio: float = 0.05      # share of points classified ground
+    edge_margin_m: float = 2.0          # tower footprint closer than this to the edge of the data: cut
+    min_tower_prob: float = 0.6         # mean probability of a tower's points
+    min_wire_support: float = 0.5       # conductor support of a tower (a low tower is kept without it)
+    wire_min_height: float = 20.0       # the conductor rule applies from this height (towers.wire_min_height)
+    max_gate_ratio: float = 0.25        # share of windows that passed the classifier gate
+    min_recall: float = 1.0             # tower recall against input labels (when present)
+    min_precision: float = 1.0          # tower precision against input labels (when present)
+    min_truth_points: int = 20          # labelled clusters with fewer points are not towers (paper: < 20 dropped)
 
 
 #: Header bounds of adjoining blocks meet up to rounding (a block's max is its last point,
@@ -81,7 +83,7 @@ def load_classified(src: str | os.PathLike[str] | Mapping[str, np.ndarray]) -> d
     else:
         import laspy
 
-        from towerpipe.products.merge import PROB_DIMENSION
+        from towerpipe.io.lasformat import PROB_DIMENSION
 
         las = laspy.read(src)
         out = {"x": np.asarray(las.x), "y": np.asarray(las.y), "z": np.asarray(las.z),
@@ -219,7 +221,7 @@ def label_accuracy(pts: Mapping[str, np.ndarray], truth: np.ndarray, towers: Any
                    *, min_truth_points: int, neighbour_towers: Sequence[Mapping[str, Any]] | None = None
                    ) -> dict[str, Any] | None:
     """Tower precision/recall and point IoU against the input's class 15 labels (None without any)."""
-    from towerpipe.towers.extract import towers_from_labels
+    from towerpipe.towers.matching import towers_from_labels
 
     truth = np.asarray(truth)
     t_mask = truth.astype(bool) if truth.dtype == bool else truth == classes.TOWER

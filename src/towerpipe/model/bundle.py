@@ -1,0 +1,158 @@
+"""Model bundles: the classifier + segmenter pair the pipeline ships, saved and loaded.
+
+A :class:`ModelBundle` is the pair the pipeline ships: a directory with
+``classifier.pt``, ``segmenter.pt`` (state dict + hyper-parameters, loaded with
+``weights_only=True``), ``model_card.json`` and ``MODEL_CARD.md``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from towerpipe.errors import ModelError
+from towerpipe.model.cards import BUNDLE_VERSION, MODELS_ENV
+from towerpipe.model.folded import DEFAULT_CHUNK, NetRunner
+from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter, build_model
+
+
+@dataclass
+class ModelBundle:
+    """A classifier + segmenter pair with its model card.
+
+    Attributes
+    ----------
+    name
+        Bundle name, e.g. ``"towerpipe-full"``.
+    version
+        Bundle version string.
+    feature_set
+        The feature set the models were trained on (``towerpipe.model.features.FEATURE_SETS``).
+    card
+        The model card (dict, see :mod:`towerpipe.model.cards`).
+    n_points
+        Points per window the classifier expects (2048).
+    classifier, segmenter
+        The networks (eval mode). :meth:`classify` and :meth:`segment` run their
+        batch-norm-folded copies (:class:`~towerpipe.model.folded.FoldedPointNet`), made when the bundle is built.
+    path
+        The checkpoint directory it was loaded from (if any).
+    """
+
+    name: str
+    version: str
+    feature_set: str
+    card: dict[str, Any]
+    n_points: int
+    classifier: PointNetClassifier
+    segmenter: PointNetSegmenter
+    path: Path | None = None
+    chunk: int = DEFAULT_CHUNK
+
+    def __post_init__(self) -> None:
+        self._runners = (NetRunner(self.classifier, self.n_points, self.chunk),
+                         NetRunner(self.segmenter, self.n_points, self.chunk))
+
+    def classify(self, feats: np.ndarray) -> np.ndarray:
+        """Tower probability of windows ``feats`` ``(B, n, C)`` float32 -> ``(B,)`` float32."""
+        feats = np.asarray(feats, dtype=np.float32)
+        if feats.ndim != 3:
+            raise ModelError(f"classify expects (B, n, C) features, got shape {feats.shape}")
+        if feats.shape[0] == 0:
+            return np.zeros(0, dtype=np.float32)
+        return self._runners[0].classify(feats)
+
+    def segment(self, feats: np.ndarray) -> np.ndarray:
+        """Tower probability of every point of one window ``(N, C)`` -> ``(N,)``."""
+        feats = np.asarray(feats, dtype=np.float32)
+        if feats.ndim != 2:
+            raise ModelError(f"segment expects (N, C) features of one window, got shape {feats.shape}")
+        return self._runners[1].segment(feats)
+
+
+def _state(model: nn.Module) -> dict[str, Any]:
+    return {"hparams": dict(model.hparams), "state_dict": model.state_dict(), "bundle_version": BUNDLE_VERSION}
+
+
+def save_bundle(out_dir: str | os.PathLike[str], classifier: PointNetClassifier, segmenter: PointNetSegmenter,
+                card: Mapping[str, Any]) -> Path:
+    """Write a checkpoint directory (``classifier.pt``, ``segmenter.pt``, model card json + md).
+
+    Parameters
+    ----------
+    out_dir
+        Target directory (created; files are written to temporary names then renamed).
+    classifier, segmenter
+        Trained networks.
+    card
+        Model card (validated with :func:`towerpipe.model.cards.validate_card`).
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_dir``.
+    """
+    from towerpipe.model import cards as modelcard
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    card = dict(card)
+    modelcard.validate_card(card, out / "model_card.json")
+    for name, model in (("classifier.pt", classifier), ("segmenter.pt", segmenter)):
+        tmp = out / (name + ".part")
+        torch.save(_state(model), tmp)
+        os.replace(tmp, out / name)
+    card["files"] = {n: modelcard.sha256(out / n) for n in ("classifier.pt", "segmenter.pt")}
+    modelcard.write_card(out, card)
+    return out
+
+
+def _load_net(path: Path, feature_channels: int, kind: str) -> nn.Module:
+    if not path.is_file():
+        raise ModelError(f"{path}: missing; the checkpoint directory is incomplete, retrain with `towerpipe train`")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+        hp = ckpt["hparams"]
+        if hp.get("kind") != kind:
+            raise ModelError(f"{path}: holds a {hp.get('kind')!r}, expected a {kind}")
+        if int(hp["in_channels"]) != feature_channels:
+            raise ModelError(f"{path}: expects {hp['in_channels']} input columns but the model card lists "
+                             f"{feature_channels} features; the card and weights do not match, retrain")
+        model = build_model(hp)
+        model.load_state_dict(ckpt["state_dict"])
+    except ModelError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - any unpickling/shape error is a corrupt checkpoint
+        raise ModelError(f"{path}: not a readable towerpipe checkpoint ({exc}); retrain with `towerpipe train`") from exc
+    model.eval()
+    return model
+
+
+def load_bundle(path: str | os.PathLike[str]) -> ModelBundle:
+    """Load and validate a checkpoint directory written by :func:`save_bundle`.
+
+    Raises
+    ------
+    ModelError
+        Naming the file and the fix when the directory, card or weights are missing,
+        corrupt or inconsistent.
+    """
+    from towerpipe.model import cards as modelcard
+
+    p = Path(path)
+    if not p.is_dir():
+        raise ModelError(f"{p}: model directory not found; train one with `towerpipe train` or set "
+                         f"${MODELS_ENV} to the directory holding towerpipe-<feature_set>-v<release>/")
+    card = modelcard.read_card(p)
+    n_feat = len(card["features"])
+    clf = _load_net(p / "classifier.pt", n_feat, "classifier")
+    seg = _load_net(p / "segmenter.pt", n_feat, "segmenter")
+    return ModelBundle(name=card["name"], version=str(card["version"]), feature_set=card["feature_set"],
+                       card=card, n_points=int(card["sampling"]["n_points"]), classifier=clf, segmenter=seg, path=p)

@@ -1,0 +1,189 @@
+"""Ground and heights (paper section 3.1): PDAL's ground filters, the DTM and heights above ground.
+
+Each function hands its points to PDAL as an uncompressed LAS file in a work directory:
+:func:`classify_ground` (``filters.elm`` then SMRF or CSF), :func:`build_dtm`
+(``writers.gdal``, holes filled with :func:`rasterio.fill.fillnodata`),
+:func:`height_above_ground` (``filters.hag_dem``, linear in the point count, unlike
+``filters.hag_nn`` in PDAL 2.2) and :func:`statistical_outliers`. This module also owns
+the DTM GeoTIFFs (:func:`write_raster`, :data:`NODATA`) and their per-block mosaic
+(:func:`mosaic_dtm`).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import laspy
+import numpy as np
+import rasterio
+from rasterio.fill import fillnodata
+
+from towerpipe import classes
+from towerpipe.errors import InputError
+from towerpipe.preprocess import tiling
+from towerpipe.preprocess.pdal import run_pipeline
+
+#: The DTM's nodata value.
+NODATA = -9999.0
+
+
+def _write_xyz_las(path: Path, x: np.ndarray, y: np.ndarray, z: np.ndarray, origin: tuple[float, float, float],
+                   classification: np.ndarray | None = None) -> None:
+    """Uncompressed LAS 1.2 point format 0 (xyz at mm precision) for PDAL to read fast."""
+    header = laspy.LasHeader(point_format=0, version="1.2")
+    header.scales = np.array([0.001, 0.001, 0.001])
+    header.offsets = np.array(origin, dtype=np.float64)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x, y, z
+    if classification is not None:
+        las.classification = classification
+    las.write(path)
+
+
+def classify_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, workdir: Path, *,
+                    method: str = "smrf", what: str = "tile") -> np.ndarray:
+    """Ground mask computed by PDAL (``filters.elm`` for low noise, then SMRF or CSF)."""
+    src, dst = workdir / "ground_in.las", workdir / "ground_out.las"
+    origin = (float(np.floor(x.min())), float(np.floor(y.min())), float(np.floor(z.min())))
+    _write_xyz_las(src, x, y, z, origin)
+    ground_stage: dict[str, Any] = {"type": f"filters.{method}", "ignore": "Classification[7:7]"}
+    run_pipeline([
+        {"type": "readers.las", "filename": str(src)},
+        {"type": "filters.assign", "assignment": "Classification[:]=0"},
+        {"type": "filters.elm"},
+        ground_stage,
+        {"type": "writers.las", "filename": str(dst), "minor_version": 2, "dataformat_id": 0},
+    ], what=f"{what}: ground classification ({method})")
+    return np.asarray(laspy.read(dst).classification) == classes.GROUND
+
+
+def build_dtm(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray, box: tiling.Bounds, out_tif: Path,
+              workdir: Path, *, resolution: float, crs_wkt: str | None, what: str = "tile") -> dict[str, Any]:
+    """DTM over ``box`` from ground points (PDAL ``writers.gdal``), holes filled with rasterio.
+
+    Returns
+    -------
+    dict
+        ``cells``, ``empty_cells`` (before filling), ``filled`` (bool), ``fallback`` (str or None).
+    """
+    xmin, ymin, xmax, ymax = box
+    width = max(1, int(np.ceil((xmax - xmin) / resolution)))
+    height = max(1, int(np.ceil((ymax - ymin) / resolution)))
+    raw = workdir / "dtm_raw.tif"
+    nodata = NODATA
+    info: dict[str, Any] = {"cells": width * height, "fallback": None}
+    if len(gx) >= 3:
+        src = workdir / "ground.las"
+        _write_xyz_las(src, gx, gy, gz, (float(np.floor(xmin)), float(np.floor(ymin)), float(np.floor(gz.min()))))
+        run_pipeline([
+            {"type": "readers.las", "filename": str(src)},
+            {"type": "writers.gdal", "filename": str(raw), "resolution": resolution,
+             "output_type": "mean", "window_size": 2, "data_type": "float32", "nodata": nodata,
+             "bounds": f"([{xmin},{xmin + width * resolution}],[{ymin},{ymin + height * resolution}])"},
+        ], what=f"{what}: DTM (writers.gdal)")
+        with rasterio.open(raw) as ds:
+            dtm = ds.read(1).astype(np.float32)
+            transform = ds.transform
+    else:
+        dtm = np.full((height, width), nodata, np.float32)
+        transform = rasterio.transform.from_origin(xmin, ymin + height * resolution, resolution, resolution)
+    valid = dtm != nodata
+    info["empty_cells"] = int((~valid).sum())
+    if not valid.any():
+        # No ground at all (e.g. a tile over water or a failed classification): a flat
+        # surface at the lowest ground-ish height keeps HAG defined; flagged for QA.
+        level = float(np.min(gz)) if len(gz) else 0.0
+        dtm[:] = level
+        info["fallback"] = "no ground: flat DTM at the lowest height"
+    elif not valid.all():
+        dtm = fillnodata(dtm, mask=valid.astype(np.uint8), max_search_distance=max(width, height), smoothing_iterations=0)
+        still = dtm == nodata
+        if still.any():  # isolated pockets fillnodata could not reach
+            dtm[still] = float(np.median(dtm[~still]))
+    info["filled"] = bool(info["empty_cells"])
+    write_raster(out_tif, dtm, transform, crs_wkt)
+    return info
+
+
+def write_raster(path: Path, band: np.ndarray, transform: Any, crs_wkt: str | None) -> None:
+    """Write a one-band float32 GeoTIFF atomically."""
+    height, width = band.shape
+    profile = {"driver": "GTiff", "width": width, "height": height, "count": 1, "dtype": "float32",
+               "transform": transform, "nodata": NODATA, "compress": "deflate",
+               "tiled": width >= 256 and height >= 256}
+    if crs_wkt:
+        profile["crs"] = rasterio.crs.CRS.from_wkt(crs_wkt)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".part.tif")
+    try:
+        with rasterio.open(tmp, "w", **profile) as dst:
+            dst.write(band, 1)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def height_above_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, dtm_tif: Path, workdir: Path, *,
+                        what: str = "tile") -> np.ndarray:
+    """HAG of every point from the DTM with PDAL ``filters.hag_dem`` (point order kept)."""
+    src, dst = workdir / "points.las", workdir / "hag.las"
+    origin = (float(np.floor(x.min())), float(np.floor(y.min())), float(np.floor(z.min())))
+    _write_xyz_las(src, x, y, z, origin)
+    run_pipeline([
+        {"type": "readers.las", "filename": str(src)},
+        {"type": "filters.hag_dem", "raster": str(dtm_tif), "zero_ground": False},
+        {"type": "writers.las", "filename": str(dst), "minor_version": 2, "dataformat_id": 0,
+         "extra_dims": "HeightAboveGround=float32"},
+    ], what=f"{what}: height above ground (filters.hag_dem)")
+    out = laspy.read(dst)
+    if len(out.points) != len(x):
+        raise InputError(dst, f"PDAL returned {len(out.points)} points for {len(x)}")
+    return np.asarray(out["HeightAboveGround"], dtype=np.float32)
+
+
+def statistical_outliers(x: np.ndarray, y: np.ndarray, z: np.ndarray, workdir: Path, *, mean_k: int,
+                         multiplier: float, what: str = "tile") -> np.ndarray:
+    """Mask of statistical outliers (PDAL ``filters.outlier``; slow, off by default)."""
+    src, dst = workdir / "outlier_in.las", workdir / "outlier_out.las"
+    origin = (float(np.floor(x.min())), float(np.floor(y.min())), float(np.floor(z.min())))
+    _write_xyz_las(src, x, y, z, origin)
+    run_pipeline([
+        {"type": "readers.las", "filename": str(src)},
+        {"type": "filters.assign", "assignment": "Classification[:]=0"},
+        {"type": "filters.outlier", "method": "statistical", "mean_k": mean_k, "multiplier": multiplier},
+        {"type": "writers.las", "filename": str(dst), "minor_version": 2, "dataformat_id": 0},
+    ], what=f"{what}: outlier filter")
+    return np.asarray(laspy.read(dst).classification) == 7
+
+
+def mosaic_dtm(dtm_paths: Sequence[str | os.PathLike[str]], out: Path) -> Path | None:
+    """Mosaic of a block's tile DTMs (for the QA hillshade) written to ``out``.
+
+    Tiles without points (a 1x1 all-nodata DTM) are left out; ``None`` when no tile has one.
+    """
+    from rasterio.merge import merge
+
+    srcs = []
+    try:
+        for p in dtm_paths:
+            ds = rasterio.open(p)
+            if ds.width > 1 or ds.height > 1:
+                srcs.append(ds)
+            else:
+                ds.close()
+        if not srcs:
+            return None
+        mosaic, transform = merge(srcs)
+        profile = srcs[0].profile | {"width": mosaic.shape[2], "height": mosaic.shape[1], "transform": transform,
+                                     "tiled": False}
+        profile.pop("blockxsize", None)
+        profile.pop("blockysize", None)
+        with rasterio.open(out, "w", **profile) as dst:
+            dst.write(mosaic)
+        return out
+    finally:
+        for ds in srcs:
+            ds.close()

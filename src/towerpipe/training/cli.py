@@ -1,0 +1,48 @@
+"""``towerpipe train``: the command line of :func:`towerpipe.training.train.train_bundle`."""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+from pathlib import Path
+from typing import Any
+
+from towerpipe.errors import ConfigError
+from towerpipe.model.features import FEATURE_SETS
+from towerpipe.training.train import train_bundle
+
+
+def _cli(args: argparse.Namespace) -> int:
+    paths: list[str] = []
+    for pattern in args.tiles:
+        hits = sorted(glob.glob(pattern, recursive=True))
+        paths += hits if hits else ([pattern] if Path(pattern).exists() else [])
+    if not paths:
+        raise ConfigError(f"--tiles {args.tiles}: no files match")
+    config: dict[str, Any] = json.loads(Path(args.config).read_text()) if args.config else {}
+    if args.config and args.config.endswith((".yaml", ".yml")):
+        import yaml
+
+        config = yaml.safe_load(Path(args.config).read_text()) or {}
+    for key in ("epochs", "seed", "time_budget_s", "max_train_windows"):
+        if getattr(args, key) is not None:
+            config[key] = getattr(args, key)
+    out = train_bundle(paths, args.out, args.feature_set, config)
+    print(out)
+    return 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``towerpipe train`` to the command line."""
+    p = subparsers.add_parser("train", help="train a classifier + segmenter bundle from labelled tile files")
+    p.add_argument("--tiles", nargs="+", required=True, metavar="GLOB",
+                   help="labelled tile .npz files (globs allowed) or one windows .npz")
+    p.add_argument("--out", required=True, help="checkpoint directory to write")
+    p.add_argument("--feature-set", default="full", choices=sorted(FEATURE_SETS))
+    p.add_argument("--config", help="JSON/YAML file of training overrides (key `dataset` for the dataset)")
+    p.add_argument("--epochs", type=int)
+    p.add_argument("--seed", type=int)
+    p.add_argument("--time-budget-s", dest="time_budget_s", type=float, help="per-network wall-clock budget")
+    p.add_argument("--max-train-windows", dest="max_train_windows", type=int)
+    p.set_defaults(func=_cli)

@@ -1,0 +1,46 @@
+# Towers per block (paper 3.4 and the tower rules): from the block's and its neighbours'
+# predictions to the block's towers (GeoPackage), the points of each tower, and the towers
+# with points in the block that a neighbour owns.
+
+
+rule towers_block:
+    input:
+        preds=lambda wc: block_preds(wc.zone, wc.block),
+        neighbour_preds=lambda wc: [p for n in block_neighbours(wc.zone, wc.block) for p in block_preds(wc.zone, n)],
+        summary=PREP_SUMMARY,
+        # the points around each tower (this block's and its neighbours' tiles, for the
+        # towers across an edge): its conductor support (towers.min_wire_support)
+        tiles=lambda wc: [
+            tile_file(wc.zone, b, t)
+            for b in [wc.block, *block_neighbours(wc.zone, wc.block)]
+            for t in tiles(wc.zone, b)
+        ],
+    output:
+        gpkg=TOWERS_GPKG,
+        neighbours=TOWERS_NEIGHBOURS,
+        members=TOWER_MEMBERS,
+    log:
+        log_of("towers_block", "block"),
+    benchmark:
+        benchmark_of("towers_block", "block")
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 1
+    resources:
+        # one tile at a time, with the wire search over its high points (the block's conductor
+        # points): 290 MB peak for the demo zone's 0.88 M-point tiles
+        mem_mb=tile_mem_mb(120, base_mb=600),
+        runtime=10,
+    params:
+        bounds=lambda wc: planned(wc.zone, wc.block)["bounds"],
+        # where data exists around the block (a tower's ring outside it: support unknown)
+        survey=lambda wc: [planned(wc.zone, b)["bounds"] for b in [wc.block, *block_neighbours(wc.zone, wc.block)]],
+        source_files=lambda wc: blocks(wc.zone),
+        towers=TOWERS,
+        threshold=INFER["threshold"],
+        run=run_params(),
+        # read, not an input: the assembly writes it after every towers job (no cycle), and
+        # a new registry reruns nothing; matched towers keep their ids (towerpipe.towers.registry)
+        registry=lambda wc: registry_sources(wc.zone),
+    script:
+        "../scripts/towers_block.py"
