@@ -30,11 +30,10 @@ GDAL36_PYTHON = GDAL36 / "usr" / "lib" / "python3" / "dist-packages"
 GDAL36_VALIDATOR = GDAL36_PYTHON / "osgeo_utils" / "samples" / "validate_gpkg.py"
 
 
-def need(path: Path) -> Path:
-    """Skip the test when a file of ../shared/data/real is absent."""
-    if not path.exists():
-        pytest.skip(f"{path} is absent (the real data lives in ../shared/data/real beside the repo)")
-    return path
+def pytest_runtest_setup(item):
+    """The one way a test skips without the real data: it is marked ``shared`` and ../shared is absent."""
+    if item.get_closest_marker("shared") and not SHARED.is_dir():
+        pytest.skip(f"{SHARED} is absent (the real data lives in ../shared/data/real beside the repo)")
 
 
 @pytest.fixture

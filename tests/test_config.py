@@ -97,12 +97,13 @@ def test_run_config_errors_are_one_line(tmp_path, capsys):
 
 
 @pytest.mark.usefixtures("pdal_cli")
+@pytest.mark.shared
 def test_run_plans_a_zone_with_the_config_after_the_zone(tmp_path, random_model_factory):
-    from conftest import RGBNIR_SMALL, need
+    from conftest import RGBNIR_SMALL
 
     indir = tmp_path / "in"
     indir.mkdir()
-    (indir / "b0.laz").symlink_to(need(RGBNIR_SMALL))
+    (indir / "b0.laz").symlink_to(RGBNIR_SMALL)
     cfg = tmp_path / "c.yaml"
     cfg.write_text(yaml.safe_dump({"zones": {"runz": {"input": str(indir)}}, "workdir": str(tmp_path / "work"),
                                    "inference": {"model": str(random_model_factory("full"))}}))

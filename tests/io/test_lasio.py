@@ -6,7 +6,7 @@ import laspy
 import numpy as np
 import pytest
 
-from conftest import RGBNIR_SMALL, need
+from conftest import RGBNIR_SMALL
 from towerpipe.errors import InputError
 from towerpipe.io.inputs import find_blocks
 from towerpipe.io.las import las_header_for, read_block, read_header
@@ -35,8 +35,9 @@ def write_points(path, n=100, *, crs="EPSG:25831", point_format=8, version="1.4"
     return path
 
 
+@pytest.mark.shared
 def test_reads_real_block():
-    blk = read_block(need(RGBNIR_SMALL))
+    blk = read_block(RGBNIR_SMALL)
     assert len(blk) == 37805
     assert blk.has_rgb and blk.has_nir and blk.color_bits == 16
     assert "Lambert" in blk.crs_wkt or "RGF93" in blk.crs_wkt

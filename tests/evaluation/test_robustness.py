@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import BACKGROUNDS, REPO, TOWERS, need
+from conftest import BACKGROUNDS, REPO, TOWERS
 from towerpipe.config import effective_config
 from towerpipe.evaluation.robustness import SWAPPED, swap_scores, tower_windows
 
@@ -67,7 +67,7 @@ def calibration_towers():
     from towerpipe.synth import generate_zone
 
     spec = yaml.safe_load((REPO / "config" / "models.yaml").read_text())["zones"]["calib_real"]["synth"]
-    spec = dict(spec, real_backgrounds=need(BACKGROUNDS), real_towers=need(TOWERS))
+    spec = dict(spec, real_backgrounds=BACKGROUNDS, real_towers=TOWERS)
     import tempfile
     from pathlib import Path
 

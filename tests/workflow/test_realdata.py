@@ -16,7 +16,7 @@ import pyogrio
 import pytest
 import yaml
 
-from conftest import BACKGROUNDS, REPO, TOWERS, need
+from conftest import BACKGROUNDS, REPO, TOWERS
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow, pytest.mark.shared]
 
@@ -28,9 +28,9 @@ def corridor(tmp_path_factory):
     from towerpipe.synth import generate_zone
 
     tmp = tmp_path_factory.mktemp("corridor")
-    truth = generate_zone(tmp / "in", seed=77, real_backgrounds=need(BACKGROUNDS),
+    truth = generate_zone(tmp / "in", seed=77, real_backgrounds=BACKGROUNDS,
                           background_files=["ign_rgb_subset.laz"], copies=3, lines=True, tower_source="real",
-                          real_towers=need(TOWERS), tower_families=["uav", "ts40k"], tower_density=(10, 20),
+                          real_towers=TOWERS, tower_families=["uav", "ts40k"], tower_density=(10, 20),
                           tower_variety=True, variant=["no_intensity", "no_nir"])
     cfg = tmp / "zones.yaml"
     cfg.write_text(yaml.safe_dump({"zones": {ZONE: {"input": str(tmp / "in")}}, "workdir": str(tmp / "work")}))

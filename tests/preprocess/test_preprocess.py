@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import rasterio
 
-from conftest import HIGH_NOISE, RGB_SUBSET, RGBNIR_BLOCK, RGBNIR_SMALL, need
+from conftest import HIGH_NOISE, RGB_SUBSET, RGBNIR_BLOCK, RGBNIR_SMALL
 from towerpipe.preprocess import tiling
 from towerpipe.preprocess.settings import PreprocessConfig
 from towerpipe.preprocess.split import split_block
@@ -35,7 +35,7 @@ def run_block(tmp_path, path, *, block="b", tile_size=500.0, extra=None):
 @pytest.fixture(scope="module")
 def rgbnir(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("rgbnir")
-    return tmp, *run_block(tmp, need(RGBNIR_BLOCK), tile_size=150.0)
+    return tmp, *run_block(tmp, RGBNIR_BLOCK, tile_size=150.0)
 
 
 def core_points(tiles):
@@ -44,6 +44,7 @@ def core_points(tiles):
                                                                                    "model_input", "z")}
 
 
+@pytest.mark.shared
 def test_every_point_in_exactly_one_tile_core(rgbnir):
     _, meta, tiles = rgbnir
     assert len(tiles) > 1, "the test needs several tiles"
@@ -51,6 +52,7 @@ def test_every_point_in_exactly_one_tile_core(rgbnir):
     np.testing.assert_array_equal(idx, np.arange(meta["points"]))
 
 
+@pytest.mark.shared
 def test_ground_hag_near_zero_and_roofs_plausible(rgbnir):
     _, _, tiles = rgbnir
     c = core_points(tiles)
@@ -61,8 +63,9 @@ def test_ground_hag_near_zero_and_roofs_plausible(rgbnir):
     assert med[0] < med[1] < med[2]
 
 
+@pytest.mark.shared
 def test_building_roofs_get_plausible_hag(tmp_path):
-    _, tiles = run_block(tmp_path, need(RGB_SUBSET), tile_size=50.0)
+    _, tiles = run_block(tmp_path, RGB_SUBSET, tile_size=50.0)
     c = core_points(tiles)
     roofs = c["hag"][c["classification"] == 6]
     assert roofs.size > 5000
@@ -73,6 +76,7 @@ def test_building_roofs_get_plausible_hag(tmp_path):
     assert np.median(np.abs(ground)) < 0.05
 
 
+@pytest.mark.shared
 def test_model_input_excludes_ground_and_keeps_vegetation(rgbnir):
     _, _, tiles = rgbnir
     c = core_points(tiles)
@@ -80,6 +84,7 @@ def test_model_input_excludes_ground_and_keeps_vegetation(rgbnir):
     assert c["model_input"][c["classification"] == 5].mean() > 0.99
 
 
+@pytest.mark.shared
 def test_dtm_holes_filled(rgbnir):
     tmp, _, tiles = rgbnir
     had_holes = False
@@ -95,8 +100,9 @@ def test_dtm_holes_filled(rgbnir):
     assert had_holes, "the IGN tile has buildings, so its raw DTM must have had holes to fill"
 
 
+@pytest.mark.shared
 def test_high_noise_points_out_of_model_input(tmp_path):
-    meta, tiles = run_block(tmp_path, need(HIGH_NOISE))
+    meta, tiles = run_block(tmp_path, HIGH_NOISE)
     c = core_points(tiles)
     high = c["hag"] > 100.0
     # the file holds ~27 noise points up to ~1,360 m above the terrain
@@ -123,8 +129,9 @@ def split_file(src, out_dir, x_cut):
     return paths
 
 
+@pytest.mark.shared
 def test_neighbour_block_buffer(tmp_path):
-    src = need(RGBNIR_BLOCK)
+    src = RGBNIR_BLOCK
     hdr = laspy.open(src).header
     x_cut = float(np.floor((hdr.mins[0] + hdr.maxs[0]) / 2))
     west, east = split_file(src, tmp_path / "in", x_cut)
@@ -152,8 +159,9 @@ def test_neighbour_block_buffer(tmp_path):
     assert t["core"].sum() == expected > 0
 
 
+@pytest.mark.shared
 def test_block_without_ground_is_classified_by_pdal(tmp_path):
-    src = laspy.read(need(RGBNIR_BLOCK))
+    src = laspy.read(RGBNIR_BLOCK)
     truth_ground = np.asarray(src.classification) == 2
     src.classification = np.where(truth_ground, 1, src.classification)  # no class 2 at all
     noground = tmp_path / "noground.laz"
@@ -168,6 +176,7 @@ def test_block_without_ground_is_classified_by_pdal(tmp_path):
     assert c["model_input"][~truth].mean() > 0.5
 
 
+@pytest.mark.shared
 def test_block_in_another_crs_than_its_zone(tmp_path):
     from pyproj import CRS
 
@@ -175,5 +184,5 @@ def test_block_in_another_crs_than_its_zone(tmp_path):
 
     with pytest.raises(InputError, match=r"small\.laz: its CRS \(EPSG:2154\) differs from the rest of zone 'z' "
                                          r"\(EPSG:25831\); reproject it"):
-        split_block(need(RGBNIR_SMALL), tmp_path / "c", block="small", zone="z",
+        split_block(RGBNIR_SMALL, tmp_path / "c", block="small", zone="z",
                     zone_crs=CRS.from_epsg(25831).to_wkt())

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import REPO, RGBNIR_BLOCK, need
+from conftest import REPO, RGBNIR_BLOCK
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow]
 
@@ -89,9 +89,10 @@ def job_count(proc, rule):
     return int(m.group(1)) if m else 0
 
 
+@pytest.mark.shared
 def test_zone_runs_and_adding_a_block_reruns_only_it(zone, random_model):
     name, tmp = zone
-    blocks = split_in_blocks(need(RGBNIR_BLOCK), tmp / "all")
+    blocks = split_in_blocks(RGBNIR_BLOCK, tmp / "all")
     indir = tmp / "in"
     indir.mkdir()
     for b in blocks[:2]:
@@ -135,10 +136,11 @@ def test_zone_runs_and_adding_a_block_reruns_only_it(zone, random_model):
     assert job_count(proc, "merge_block") == 3
 
 
+@pytest.mark.shared
 def test_bad_block_costs_only_itself(zone, random_model):
     name, tmp = zone
     indir = tmp / "in"
-    blocks = split_in_blocks(need(RGBNIR_BLOCK), indir, n=2)
+    blocks = split_in_blocks(RGBNIR_BLOCK, indir, n=2)
     (indir / "broken.laz").write_bytes(b"not a point cloud" * 100)
     cfg = write_config(tmp, name, indir, random_model)
     proc = snakemake("--cores", "2", "--keep-going", f"results/{name}/", f"--configfile={cfg}", check=False)

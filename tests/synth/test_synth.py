@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 import shapely
 
+from conftest import BACKGROUNDS, TOWERS
+
 from towerpipe.synth import Terrain, generate_zone, preset
 from towerpipe.synth.scene import block_grid, block_points, build_zone
 
 ALLOWED = {1, 2, 3, 4, 5, 6, 7, 11, 14, 15, 18}
-SHARED_TOWERS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "towers"
 
 
 @pytest.fixture(scope="module")
@@ -237,10 +238,9 @@ def test_realism_report(zone, tmp_path):
 
 
 @pytest.mark.shared
-@pytest.mark.skipif(not SHARED_TOWERS.is_dir(), reason="../shared/data/real/towers not present")
 def test_real_towers_inserted(tmp_path):
     t = generate_zone(tmp_path, seed=1, blocks=2, size=150.0, density=10.0, preset="test",
-                      tower_source="real", real_towers=SHARED_TOWERS)
+                      tower_source="real", real_towers=TOWERS)
     assert len(t.towers) >= 1 and t.towers["design"].str.startswith("real:").all()
     p = _all_points(t)
     assert (p["classification"] == 15).sum() == t.towers["n_points"].sum()
@@ -248,9 +248,8 @@ def test_real_towers_inserted(tmp_path):
 
 
 @pytest.mark.shared
-@pytest.mark.skipif(not (SHARED_TOWERS.parent / "backgrounds").is_dir(), reason="../shared/data/real/backgrounds not present")
 def test_real_backgrounds_keep_crs_and_get_towers(tmp_path):
-    bg = SHARED_TOWERS.parent / "backgrounds"
+    bg = BACKGROUNDS
     t = generate_zone(tmp_path, seed=2, real_backgrounds=bg)
     assert len(t.blocks) == len(list(bg.glob("*.laz")))
     las = laspy.read(t.blocks[0]["path"])
@@ -261,15 +260,14 @@ def test_real_backgrounds_keep_crs_and_get_towers(tmp_path):
 
 
 @pytest.mark.shared
-@pytest.mark.skipif(not (SHARED_TOWERS.parent / "backgrounds").is_dir(), reason="../shared/data/real/backgrounds not present")
 def test_realshape_zone_families_lines_and_variants(tmp_path):
     """A benchmark zone: one real family on a real tile, towers on lines carrying conductors, on data;
     the degraded variants share the geometry and lose only their attributes."""
     from towerpipe.synth.real import tower_family
 
-    bg = SHARED_TOWERS.parent / "backgrounds"
+    bg = BACKGROUNDS
     kw = dict(seed=5, real_backgrounds=bg, background_files=["ign_rgbnir_block.laz"], copies=1, lines=True,
-              tower_source="real", real_towers=SHARED_TOWERS, tower_families=["ts40k"], tower_density=(4, 15),
+              tower_source="real", real_towers=TOWERS, tower_families=["ts40k"], tower_density=(4, 15),
               tower_variety=True)
     t = generate_zone(tmp_path / "intact", **kw)
     assert len(t.blocks) == 1 and len(t.towers) >= 3

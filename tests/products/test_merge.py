@@ -10,6 +10,8 @@ import pytest
 from laspy.vlrs.known import ExtraBytesVlr, LasZipVlr
 from laspy.vlrs.vlrlist import VLRList
 
+from conftest import BACKGROUNDS
+
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.io.lasformat import OWN_DIMENSIONS, PROB_DIMENSION, TOWER_ID_DIMENSION, own_dimensions
 from towerpipe.products.merge import (
@@ -19,8 +21,6 @@ from towerpipe.products.merge import (
 )
 from towerpipe.io.predictions import PRED_META_KEYS, save_pred
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "backgrounds"
-real = pytest.mark.skipif(not REAL.is_dir(), reason=f"real LiDAR data not found at {REAL}")
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -292,12 +292,11 @@ def test_a_foreign_dimension_with_towerpipes_name_is_refused(tmp_path, name, dty
         merge_block(tmp_path / "f.laz", [], tmp_path / "o.laz")
 
 
-@real
 @pytest.mark.shared
 @pytest.mark.parametrize("name", ["ign_rgbnir_block.laz", "ign_high_noise.laz", "ign_rgb_subset.laz",
                                   "ign_bridge.laz"])
 def test_merge_real_blocks_invariant(tmp_path, name):
-    src = REAL / name
+    src = BACKGROUNDS / name
     n = laspy.open(src).header.point_count
     rng = np.random.default_rng(7)
     idx = rng.choice(n, min(n, 20_000), replace=False)
@@ -310,11 +309,10 @@ def test_merge_real_blocks_invariant(tmp_path, name):
     assert_invariant(src, out, expected)
 
 
-@real
 @pytest.mark.shared
 def test_merge_several_extra_byte_blocks_described_in_output(tmp_path):
     """The input has two Extra Bytes VLRs; both descriptors survive in the output."""
-    src = REAL / "ign_rgbnir_block.laz"
+    src = BACKGROUNDS / "ign_rgbnir_block.laz"
     out = tmp_path / "out.laz"
     merge_block(src, [], out)
     names = list(laspy.open(out).header.point_format.extra_dimension_names)

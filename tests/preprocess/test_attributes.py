@@ -6,7 +6,7 @@ import laspy
 import numpy as np
 import pytest
 
-from conftest import RGB_SUBSET, RGBNIR_SMALL, need
+from conftest import RGB_SUBSET, RGBNIR_SMALL
 from towerpipe.preprocess.attributes import ATTRIBUTES, MIN_DISTINCT, AttributeStats, degenerate, describe, valid_set
 
 DIMS = ["x", "y", "z", "intensity", "return_number", "number_of_returns", "red", "green", "blue", "nir"]
@@ -79,12 +79,13 @@ def test_missing_dimensions_are_absent_not_degenerate():
 
 
 @pytest.mark.usefixtures("pdal_cli")
+@pytest.mark.shared
 def test_split_records_validity_of_a_real_tile(tmp_path):
     """ign_rgb_subset.laz has a NIR channel of zeros: recorded, flagged, the block keeps its RGB."""
     from towerpipe.preprocess.split import split_block
     from towerpipe.preprocess.tile import summarize_block
 
-    meta = split_block(need(RGB_SUBSET), tmp_path / "cache", block="b", zone="z")
+    meta = split_block(RGB_SUBSET, tmp_path / "cache", block="b", zone="z")
     assert meta["attributes"]["nir"] == {"present": True, "valid": False, "reason": "all 0"}
     assert meta["attributes"]["rgb"]["valid"] and meta["attributes"]["intensity"]["valid"]
     assert meta["degenerate_attributes"] == ["nir"]
@@ -95,11 +96,12 @@ def test_split_records_validity_of_a_real_tile(tmp_path):
 
 
 @pytest.mark.usefixtures("pdal_cli")
+@pytest.mark.shared
 def test_split_of_a_zeroed_reexport(tmp_path):
     """A real tile re-exported with intensity and returns zeroed (as public derivatives are)."""
     from towerpipe.preprocess.split import split_block
 
-    las = laspy.read(need(RGBNIR_SMALL))
+    las = laspy.read(RGBNIR_SMALL)
     las.intensity[:] = 0
     las.return_number[:] = 0
     las.number_of_returns[:] = 0

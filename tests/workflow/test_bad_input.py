@@ -31,7 +31,7 @@ import pyogrio
 import pytest
 import yaml
 
-from conftest import REPO, RGBNIR_BLOCK, need
+from conftest import REPO, RGBNIR_BLOCK
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow]
 
@@ -156,7 +156,7 @@ def _write_zone_b(src: laspy.LasData, d):
 @pytest.fixture(scope="module")
 def matrix(tmp_path_factory, random_model_factory):
     tmp = tmp_path_factory.mktemp("badinput")
-    full = laspy.read(need(RGBNIR_BLOCK))
+    full = laspy.read(RGBNIR_BLOCK)
     x, y = np.asarray(full.x), np.asarray(full.y)
     x0, y0 = np.floor(x.max()) - 150, np.floor(y.max()) - 160  # a fully covered square
     src = _subset(full, np.flatnonzero((x >= x0) & (x < x0 + 100) & (y >= y0) & (y < y0 + 100)))
@@ -181,6 +181,7 @@ def test_matrix_has_at_least_14_cases():
 
 
 @pytest.mark.parametrize("block", sorted(FAILING))
+@pytest.mark.shared
 def test_broken_block_fails_alone_with_a_one_line_reason(matrix, block):
     zone, proc, _ = matrix["a"]
     assert proc.returncode != 0
@@ -196,6 +197,7 @@ def test_broken_block_fails_alone_with_a_one_line_reason(matrix, block):
     assert not (out / "blocks" / f"{block}.laz").exists()
 
 
+@pytest.mark.shared
 def test_unreadable_neighbour_costs_only_itself(matrix):
     # truncated.laz overlaps good.laz (same place, a third of its bytes): good completes,
     # without buffer points from it, and its QA says so
@@ -205,6 +207,7 @@ def test_unreadable_neighbour_costs_only_itself(matrix):
 
 
 @pytest.mark.parametrize("block", PASSING)
+@pytest.mark.shared
 def test_odd_block_completes_with_every_point(matrix, block):
     zone, _, indir = matrix["a"]
     out = REPO / "results" / zone
@@ -226,6 +229,7 @@ def test_odd_block_completes_with_every_point(matrix, block):
     assert qa["points"] == len(a.points)
 
 
+@pytest.mark.shared
 def test_specific_handling(matrix):
     zone, _, indir = matrix["a"]
     out = REPO / "results" / zone
@@ -247,6 +251,7 @@ def test_specific_handling(matrix):
 
 
 @pytest.mark.parametrize("block", LEGACY)
+@pytest.mark.shared
 def test_las12_formats_without_colour_or_crs(matrix, block):
     zone, proc, indir = matrix["b"]
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
