@@ -158,14 +158,45 @@ def same_points(a_path, b_path):
 LENIENT_TOWERS = {"threshold": 0.5, "min_core_prob": 0.0, "min_wire_support": 0.0}
 
 
+def schema_config(**sections):
+    """A validated config of one zone whose sections are ``sections`` (the schema fills in the rest)."""
+    from towerpipe.config import SCHEMA_FILE, load_yaml, validate_config
+
+    return validate_config({"zones": {"z": {"input": "in"}}, **sections}, load_yaml(REPO / SCHEMA_FILE, "schema"))
+
+
 def tower_rules(**towers):
     """:class:`towerpipe.config.TowersConfig` of a config whose ``towers`` section is ``towers``
     (the schema fills in the rest)."""
-    from towerpipe.config import SCHEMA_FILE, TowersConfig, load_yaml, validate_config
+    from towerpipe.config import TowersConfig
 
-    config = validate_config({"zones": {"z": {"input": "in"}}, "towers": towers},
-                             load_yaml(REPO / SCHEMA_FILE, "schema"))
-    return TowersConfig.from_config(config)
+    return TowersConfig.from_config(schema_config(towers=towers))
+
+
+#: The inference settings the inference tests start from (over the schema's defaults): the
+#: paper's sliding grid, gate 0.5, one view, every window classified.
+GRID_INFERENCE = {"windows": "grid", "gate": 0.5, "tta": 1, "min_height": None}
+
+
+def inference_settings(**inference):
+    """:class:`towerpipe.config.InferenceConfig` of a config whose ``inference`` section is
+    ``inference`` (the schema fills in the rest)."""
+    from towerpipe.config import InferenceConfig
+
+    return InferenceConfig.from_config(schema_config(inference=inference))
+
+
+def grid_inference(**inference):
+    """:func:`inference_settings` over :data:`GRID_INFERENCE`."""
+    return inference_settings(**{**GRID_INFERENCE, **inference})
+
+
+def preprocess_settings(**preprocess):
+    """:class:`towerpipe.config.PreprocessConfig` of a config whose ``preprocess`` section is
+    ``preprocess`` (the schema fills in the rest)."""
+    from towerpipe.config import PreprocessConfig
+
+    return PreprocessConfig.from_config(schema_config(preprocess=preprocess))
 
 
 def extract(preds, block_name, block_bounds, *, point_threshold=None, **kw):

@@ -235,3 +235,75 @@ class TowersConfig:
         """The rules of a validated config's ``towers`` section (:func:`validate_config`)."""
         section = config["towers"]
         return cls(**{f.name: section[f.name] for f in fields(cls)})
+
+
+@dataclass(frozen=True)
+class InferenceConfig:
+    """The settings of :func:`towerpipe.inference.infer.predict_tile`: the keys of the
+    ``inference`` section it uses (``model`` picks the bundle, ``threshold`` applies after
+    the windows: neither is here).
+
+    No defaults here: the schema holds them; :meth:`from_config` reads a validated config.
+    """
+
+    #: Window side (m).
+    window: float
+    #: Step of the sliding windows (m) with ``windows: grid``; ``window - stride`` is the overlap.
+    stride: float
+    #: ``"candidates"`` (one window centred on each height peak) or ``"grid"`` (sliding windows).
+    windows: str
+    #: Windows whose classifier probability is below this are background.
+    gate: float
+    #: ``"max"`` or ``"mean"`` over the segmented windows holding a point.
+    combine: str
+    #: Windows per classifier call.
+    batch_size: int
+    #: Windows with fewer model-input points are empty.
+    min_points: int
+    #: Windows whose highest point is lower (m HAG) are background without a classifier pass
+    #: (``None``: every window is classified); the floor of the candidate peaks.
+    min_height: float | None
+    #: Views of each segmented window averaged (1, 2, 4 or 8).
+    tta: int
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any]) -> InferenceConfig:
+        """The settings of a validated config's ``inference`` section (:func:`validate_config`)."""
+        section = config["inference"]
+        return cls(**{f.name: section[f.name] for f in fields(cls)})
+
+
+@dataclass(frozen=True)
+class PreprocessConfig:
+    """The parameters of the preprocessing (:mod:`towerpipe.preprocess.split`,
+    :mod:`towerpipe.preprocess.tile`): the ``preprocess`` section.
+
+    No defaults here: the schema holds them; :meth:`from_config` reads a validated config.
+    """
+
+    #: Side of a tile (m).
+    tile_size: float
+    #: Buffer around a tile core (m; at least one window).
+    buffer: float
+    #: DTM cell size (m).
+    dtm_resolution: float
+    #: Points higher above ground are noise (paper: 100 m).
+    hag_max: float
+    #: Points lower than this below the DTM are noise (low outliers).
+    hag_min: float
+    #: Below this share of class-2 points, ground is classified with PDAL.
+    min_ground_fraction: float
+    #: ``"smrf"`` or ``"csf"``.
+    ground_filter: str
+    #: Run PDAL's statistical outlier filter (slow: superlinear in PDAL 2.2).
+    outlier: bool
+    #: Neighbours of the outlier filter.
+    outlier_mean_k: int
+    #: Standard deviations beyond which the outlier filter drops a point.
+    outlier_multiplier: float
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any]) -> PreprocessConfig:
+        """The parameters of a validated config's ``preprocess`` section (:func:`validate_config`)."""
+        section = config["preprocess"]
+        return cls(**{f.name: section[f.name] for f in fields(cls)})

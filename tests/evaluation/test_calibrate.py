@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from conftest import inference_settings
 from towerpipe.evaluation.calibrate import sweep, zone_predictions
 from towerpipe.cli import main
 from towerpipe.errors import InputError
@@ -12,7 +13,7 @@ from towerpipe.errors import InputError
 
 def test_a_zone_without_tiles_names_the_command_to_run(tmp_path):
     with pytest.raises(InputError, match=r"snakemake --cores 2 results/calib9/"):
-        zone_predictions(tmp_path, "calib9", "models/x", 2, {})
+        zone_predictions(tmp_path, "calib9", "models/x", inference_settings(tta=2))
 
 
 def test_a_zone_without_truth_cannot_be_calibrated(tmp_path):

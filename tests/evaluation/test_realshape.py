@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from conftest import BACKGROUNDS, TOWERS
+from conftest import BACKGROUNDS, TOWERS, preprocess_settings
 from towerpipe.evaluation.realshape import run_benchmark, stamp_cards, zone_name
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.shared]
@@ -28,10 +28,10 @@ def bare_zone(tmp_path_factory):
                           variant="no_colour")
     block = truth.blocks[0]
     cache = tmp / "work" / zone / "cache" / block["name"]
-    meta = split_block(block["path"], cache, block=block["name"], zone=zone)
+    meta = split_block(block["path"], cache, block=block["name"], zone=zone, settings=preprocess_settings())
     for t in tiling.tile_ids(tuple(meta["header_bounds"]), 500.0):
         preprocess_tile(zone, block["name"], t, {block["name"]: cache},
-                        tmp / "work" / zone / "tiles" / block["name"] / f"{t}.npz")
+                        tmp / "work" / zone / "tiles" / block["name"] / f"{t}.npz", settings=preprocess_settings())
     return tmp, zone, truth
 
 
@@ -40,9 +40,9 @@ def test_benchmark_rows_auto_and_report(bare_zone, random_model_factory):
     assert len(truth.towers) >= 1
     loso = {"full": {"ts40k": random_model_factory("full")}, "shape": {"ts40k": random_model_factory("shape")}}
     inference = {"window": 40.0, "stride": 20.0, "gate": 0.5, "combine": "max", "batch_size": 8, "min_points": 10,
-                 "min_height": 10.0, "tta": 1, "threshold": 0.5}
+                 "min_height": 10.0, "tta": 1, "windows": "grid", "threshold": 0.5}
     towers = {"threshold": 0.5, "linkage": 2.5, "min_points": 20, "min_height": 10.0, "min_core_prob": 0.0,
-              "min_wire_support": 0.0, "wire_min_height": 20.0, "max_base_ratio": 1.0}
+              "min_wire_support": 0.0, "wire_min_height": 20.0, "wire_ring_coverage": 0.0, "max_base_ratio": 1.0}
     out = tmp / "out"
     result = run_benchmark(loso, {zone: tmp / "data" / zone}, work=tmp / "work", inference=inference,
                            towers=towers, out_dir=out)

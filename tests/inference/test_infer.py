@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conftest import grid_inference
 from towerpipe.model import features
 from towerpipe.errors import ConfigError, ModelError
 from towerpipe.inference.infer import TTA_CHOICES, check_model_compatibility, infer_tile, predict_tile, segment_views
@@ -123,7 +124,7 @@ def by_id(arrays):
 def test_gate_counts_and_tower_windows():
     tile = make_tile()
     bundle = FakeBundle()
-    out, st = predict_tile(tile, bundle, batch_size=8)
+    out, st = predict_tile(tile, bundle, grid_inference(batch_size=8))
     # 160 m core + windows reaching into the buffer: (160/20 + 1)^2 windows with core points
     assert st["windows_total"] + st["windows_empty"] == 81
     passed = sorted((k[0], k[1]) for k in st["window_probs"])
@@ -140,7 +141,7 @@ def test_no_tower_no_segmentation(tmp_path):
     tile = make_tile(tower=None)
     save_tile(tmp_path / "t.npz", tile)
     bundle = FakeBundle()
-    meta = infer_tile(tmp_path / "t.npz", bundle, tmp_path / "p.npz")
+    meta = infer_tile(tmp_path / "t.npz", bundle, tmp_path / "p.npz", grid_inference())
     pred = load_pred(tmp_path / "p.npz")
     assert len(pred) == 0 and meta["windows_passed_gate"] == 0 and bundle.segment_sizes == []
     assert meta["windows_total"] > 0
@@ -149,8 +150,8 @@ def test_no_tower_no_segmentation(tmp_path):
 def test_height_prefilter_skips_low_windows_without_changing_results():
     tile = make_tile(density=0.3)
     b_all, b_pre = FakeBundle(), FakeBundle()
-    ref, st_ref = predict_tile(tile, b_all)
-    out, st = predict_tile(tile, b_pre, min_height=10.0)
+    ref, st_ref = predict_tile(tile, b_all, grid_inference())
+    out, st = predict_tile(tile, b_pre, grid_inference(min_height=10.0))
     assert st["windows_classified"] == 4 and st["windows_prefiltered"] == st["windows_total"] - 4
     assert sum(b_pre.batch_sizes) == 4
     assert st["window_probs"] == st_ref["window_probs"]
@@ -160,7 +161,7 @@ def test_height_prefilter_skips_low_windows_without_changing_results():
 
 def test_gate_threshold_zero_segments_every_window():
     tile = make_tile(density=0.2)
-    _, st = predict_tile(tile, FakeBundle(), gate=0.0)
+    _, st = predict_tile(tile, FakeBundle(), grid_inference(gate=0.0))
     assert st["windows_segmented"] == st["windows_total"]
 
 
@@ -198,8 +199,8 @@ def test_segment_views_are_exact_turns_and_mirrors():
 
 def test_views_keep_the_single_view_and_average_the_others():
     tile = make_tile()
-    one, _ = predict_tile(tile, FakeBundle())
-    two, st = predict_tile(tile, FakeBundle(), tta=2)
+    one, _ = predict_tile(tile, FakeBundle(), grid_inference())
+    two, st = predict_tile(tile, FakeBundle(), grid_inference(tta=2))
     assert st["tta"] == 2
     np.testing.assert_array_equal(one["point_index"], two["point_index"])
     np.testing.assert_array_equal(one["prob_single"], two["prob_single"])
@@ -212,7 +213,7 @@ def test_views_keep_the_single_view_and_average_the_others():
 @pytest.mark.parametrize("combine", ["max", "mean"])
 def test_combine_rule_matches_reference(combine):
     tile = make_tile(density=0.3)
-    out, st = predict_tile(tile, FakeBundle(), combine=combine)
+    out, st = predict_tile(tile, FakeBundle(), grid_inference(combine=combine))
     keys = [(k[0], k[1]) for k in st["window_probs"]]
     sel, want = expected_probs(tile, keys, combine)
     a = tile.arrays
@@ -224,8 +225,8 @@ def test_combine_rule_matches_reference(combine):
 
 def test_max_and_mean_differ_only_on_overlaps():
     tile = make_tile(density=0.3)
-    o_max, _ = predict_tile(tile, FakeBundle(), combine="max")
-    o_mean, _ = predict_tile(tile, FakeBundle(), combine="mean")
+    o_max, _ = predict_tile(tile, FakeBundle(), grid_inference(combine="max"))
+    o_mean, _ = predict_tile(tile, FakeBundle(), grid_inference(combine="mean"))
     np.testing.assert_array_equal(o_max["point_index"], o_mean["point_index"])
     assert (o_max["prob"] >= o_mean["prob"] - 1e-6).all()
     assert (o_max["prob"] > o_mean["prob"] + 1e-3).any()
@@ -234,7 +235,7 @@ def test_max_and_mean_differ_only_on_overlaps():
 def test_only_core_model_input_points_are_written(tmp_path):
     tile = make_tile()
     save_tile(tmp_path / "t.npz", tile)
-    meta = infer_tile(tmp_path / "t.npz", FakeBundle(), tmp_path / "pred" / "p.npz")
+    meta = infer_tile(tmp_path / "t.npz", FakeBundle(), tmp_path / "pred" / "p.npz", grid_inference())
     pred = load_pred(tmp_path / "pred" / "p.npz")
     a = tile.arrays
     key = {(int(b), int(p)): i for i, (b, p) in enumerate(zip(a["block_id"], a["point_index"]))}
@@ -262,9 +263,9 @@ def test_adjacent_tiles_give_identical_probabilities_on_shared_windows():
     west = a["x"] < 400080.0
     t_w = Tile(dict(a, core=a["core"] & west), dict(tile.meta, tile="tw"))
     t_e = Tile(dict(a, core=a["core"] & ~west), dict(tile.meta, tile="te"))
-    o_all, _ = predict_tile(tile, FakeBundle())
-    o_w, _ = predict_tile(t_w, FakeBundle())
-    o_e, _ = predict_tile(t_e, FakeBundle())
+    o_all, _ = predict_tile(tile, FakeBundle(), grid_inference())
+    o_w, _ = predict_tile(t_w, FakeBundle(), grid_inference())
+    o_e, _ = predict_tile(t_e, FakeBundle(), grid_inference())
     merged = {k: np.concatenate([o_w[k], o_e[k]]) for k in o_all}
     for k in ("point_index", "prob"):
         np.testing.assert_array_equal(by_id(merged)[k], by_id(o_all)[k])
@@ -274,15 +275,15 @@ def test_adjacent_tiles_give_identical_probabilities_on_shared_windows():
 
 def test_deterministic_order_and_batch_independent():
     tile = make_tile(density=0.3)
-    ref, st_ref = predict_tile(tile, FakeBundle(), batch_size=32, seed=5)
-    again, _ = predict_tile(tile, FakeBundle(), batch_size=32, seed=5)
-    one, _ = predict_tile(tile, FakeBundle(), batch_size=1, seed=5)
+    ref, st_ref = predict_tile(tile, FakeBundle(), grid_inference(batch_size=32), seed=5)
+    again, _ = predict_tile(tile, FakeBundle(), grid_inference(batch_size=32), seed=5)
+    one, _ = predict_tile(tile, FakeBundle(), grid_inference(batch_size=1), seed=5)
     for k in ref:
         np.testing.assert_array_equal(ref[k], again[k])
         np.testing.assert_array_equal(ref[k], one[k])
     # same points stored in another order: same result per point
     perm = np.random.default_rng(2).permutation(len(tile))
-    shuffled, st_sh = predict_tile(tile.subset(perm), FakeBundle(), seed=5)
+    shuffled, st_sh = predict_tile(tile.subset(perm), FakeBundle(), grid_inference(), seed=5)
     assert st_sh["window_probs"] == st_ref["window_probs"]
     for k in ref:
         np.testing.assert_array_equal(by_id(ref)[k], by_id(shuffled)[k])
@@ -290,8 +291,8 @@ def test_deterministic_order_and_batch_independent():
 
 def test_seed_changes_sampling():
     tile = make_tile(density=0.6)
-    _, s0 = predict_tile(tile, FakeBundle(n_points=64), seed=0)
-    _, s1 = predict_tile(tile, FakeBundle(n_points=64), seed=1)
+    _, s0 = predict_tile(tile, FakeBundle(n_points=64), grid_inference(), seed=0)
+    _, s1 = predict_tile(tile, FakeBundle(n_points=64), grid_inference(), seed=1)
     assert [k[:2] for k in s0["window_probs"]] == [k[:2] for k in s1["window_probs"]]
     assert [k[2] for k in s0["window_probs"]] != [k[2] for k in s1["window_probs"]]
 
@@ -313,7 +314,7 @@ def test_check_model_compatibility_names_missing_attributes():
     with pytest.raises(ModelError, match="no valid intensity, returns"):
         check_model_compatibility(dict(meta, valid_attributes=["rgb"]), FakeBundle())
     with pytest.raises(ModelError):
-        predict_tile(make_tile(density=0.1), Full())
+        predict_tile(make_tile(density=0.1), Full(), grid_inference())
 
 
 # ----------------------------------------------------------------------------- candidate windows
@@ -326,10 +327,10 @@ def tower_points(tile: Tile) -> np.ndarray:
 
 def test_candidate_window_is_centred_on_the_tower():
     tile = make_tile()
-    out, st = predict_tile(tile, FakeBundle(), windows="candidates", min_height=10.0)
+    out, st = predict_tile(tile, FakeBundle(), grid_inference(windows="candidates", min_height=10.0))
     assert st["windows_mode"] == "candidates"
     assert st["windows_passed_gate"] == 1 and len(st["window_probs"]) == 1
-    _, grid = predict_tile(tile, FakeBundle(), windows="grid", min_height=10.0)
+    _, grid = predict_tile(tile, FakeBundle(), grid_inference(windows="grid", min_height=10.0))
     # the vegetation is low: the tower's top is the only candidate, where the grid classifies many windows
     assert st["windows_classified"] == 1 < grid["windows_classified"]
 
@@ -338,8 +339,8 @@ def test_candidate_windows_cover_every_tower_point_the_grid_segments():
     """When a tower is present, every one of its points that the grid mode segments is segmented."""
     for seed in range(3):
         tile = make_tile(seed=seed)
-        grid, _ = predict_tile(tile, FakeBundle(), windows="grid", min_height=10.0)
-        cand, _ = predict_tile(tile, FakeBundle(), windows="candidates", min_height=10.0)
+        grid, _ = predict_tile(tile, FakeBundle(), grid_inference(windows="grid", min_height=10.0))
+        cand, _ = predict_tile(tile, FakeBundle(), grid_inference(windows="candidates", min_height=10.0))
         a = tile.arrays
         tower = set(zip(a["block_id"][tower_points(tile)].tolist(), a["point_index"][tower_points(tile)].tolist()))
         seg_grid = set(zip(grid["block_id"].tolist(), grid["point_index"].tolist())) & tower
@@ -354,21 +355,24 @@ def test_candidate_windows_identical_from_adjacent_tiles():
     t_w = Tile(dict(a, core=a["core"] & west), dict(tile.meta, tile="tw"))
     t_e = Tile(dict(a, core=a["core"] & ~west), dict(tile.meta, tile="te"))
     kw = dict(windows="candidates", min_height=10.0)
-    o_all, _ = predict_tile(tile, FakeBundle(), **kw)
-    merged = [predict_tile(t, FakeBundle(), **kw)[0] for t in (t_w, t_e)]
+    o_all, _ = predict_tile(tile, FakeBundle(), grid_inference(**kw))
+    merged = [predict_tile(t, FakeBundle(), grid_inference(**kw))[0] for t in (t_w, t_e)]
     merged = {k: np.concatenate([m[k] for m in merged]) for k in o_all}
     for k in ("point_index", "prob"):
         np.testing.assert_array_equal(by_id(merged)[k], by_id(o_all)[k])
 
 
 def test_bad_config_rejected():
+    """Settings built by hand (not from a validated config) are checked too."""
+    from dataclasses import replace
+
     tile = make_tile(density=0.1)
     with pytest.raises(ConfigError):
-        predict_tile(tile, FakeBundle(), combine="median")
+        predict_tile(tile, FakeBundle(), replace(grid_inference(), combine="median"))
     with pytest.raises(ConfigError):
-        predict_tile(tile, FakeBundle(), gate=1.5)
+        predict_tile(tile, FakeBundle(), replace(grid_inference(), gate=1.5))
     with pytest.raises(ConfigError, match="inference.windows"):
-        predict_tile(tile, FakeBundle(), windows="hexagons")
+        predict_tile(tile, FakeBundle(), replace(grid_inference(), windows="hexagons"))
 
 
 # ----------------------------------------------------------------------------- the real model
@@ -384,8 +388,8 @@ def test_random_initialised_real_bundle_runs(tmp_path):
     tile = make_tile(density=0.1)
     save_tile(tmp_path / "t.npz", tile)
     kw = dict(gate=0.0, stride=40.0)  # 25 windows, all segmented: keeps the CPU test short
-    m1 = infer_tile(tmp_path / "t.npz", bundle, tmp_path / "p1.npz", **kw)
-    m2 = infer_tile(tmp_path / "t.npz", bundle, tmp_path / "p2.npz", batch_size=7, **kw)
+    m1 = infer_tile(tmp_path / "t.npz", bundle, tmp_path / "p1.npz", grid_inference(**kw))
+    m2 = infer_tile(tmp_path / "t.npz", bundle, tmp_path / "p2.npz", grid_inference(batch_size=7, **kw))
     p1, p2 = load_pred(tmp_path / "p1.npz"), load_pred(tmp_path / "p2.npz")
     assert m1["windows_segmented"] == m1["windows_total"] > 0
     assert len(p1) == m1["points_model_input_core"]  # gate 0: every core model-input point is written

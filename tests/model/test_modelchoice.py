@@ -6,6 +6,7 @@ import json
 
 import pytest
 
+from conftest import grid_inference
 from towerpipe.model import cards as modelcard
 from towerpipe.errors import ConfigError, ModelError
 from towerpipe.model.features import FEATURE_SETS
@@ -111,4 +112,4 @@ def test_an_explicit_incompatible_model_fails_its_block_only(random_model_factor
               "feature_set": "full", "reason": "set by `inference.model: full`",
               "incompatible_blocks": {"b": ["intensity", "nir"]}}
     with pytest.raises(ModelError, match="set `inference.model: auto`"):
-        infer_tile(tile, random_model_factory("full"), tmp_path / "p.npz", choice=choice)
+        infer_tile(tile, random_model_factory("full"), tmp_path / "p.npz", grid_inference(), choice=choice)

@@ -6,7 +6,7 @@ import laspy
 import numpy as np
 import pytest
 
-from conftest import RGB_SUBSET, RGBNIR_SMALL
+from conftest import RGB_SUBSET, RGBNIR_SMALL, preprocess_settings
 from towerpipe.preprocess.attributes import ATTRIBUTES, MIN_DISTINCT, AttributeStats, degenerate, describe, valid_set
 
 DIMS = ["x", "y", "z", "intensity", "return_number", "number_of_returns", "red", "green", "blue", "nir"]
@@ -85,7 +85,7 @@ def test_split_records_validity_of_a_real_tile(tmp_path):
     from towerpipe.preprocess.split import split_block
     from towerpipe.preprocess.tile import summarize_block
 
-    meta = split_block(RGB_SUBSET, tmp_path / "cache", block="b", zone="z")
+    meta = split_block(RGB_SUBSET, tmp_path / "cache", block="b", zone="z", settings=preprocess_settings())
     assert meta["attributes"]["nir"] == {"present": True, "valid": False, "reason": "all 0"}
     assert meta["attributes"]["rgb"]["valid"] and meta["attributes"]["intensity"]["valid"]
     assert meta["degenerate_attributes"] == ["nir"]
@@ -107,6 +107,6 @@ def test_split_of_a_zeroed_reexport(tmp_path):
     las.number_of_returns[:] = 0
     path = tmp_path / "zeroed.laz"
     las.write(path)
-    meta = split_block(path, tmp_path / "cache", block="b", zone="z")
+    meta = split_block(path, tmp_path / "cache", block="b", zone="z", settings=preprocess_settings())
     assert meta["degenerate_attributes"] == ["intensity", "returns"]
     assert valid_set(meta["attributes"]) == {"rgb", "nir"}

@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 import rasterio
 
-from conftest import HIGH_NOISE, RGB_SUBSET, RGBNIR_BLOCK, RGBNIR_SMALL
+from conftest import HIGH_NOISE, RGB_SUBSET, RGBNIR_BLOCK, RGBNIR_SMALL, preprocess_settings
 from towerpipe.preprocess import tiling
-from towerpipe.preprocess.settings import PreprocessConfig
 from towerpipe.preprocess.split import split_block
 from towerpipe.preprocess.tile import preprocess_tile, summarize_block
 from towerpipe.io.tiles import load_tile
@@ -21,13 +20,13 @@ pytestmark = pytest.mark.usefixtures("pdal_cli")
 
 def run_block(tmp_path, path, *, block="b", tile_size=500.0, extra=None):
     """split + every tile of one block; returns (split meta, {tile: Tile})."""
-    cfg = PreprocessConfig(tile_size=tile_size, **(extra or {}))
+    cfg = preprocess_settings(tile_size=tile_size, **(extra or {}))
     cache = tmp_path / "cache" / block
-    meta = split_block(path, cache, block=block, zone="z", config=cfg)
+    meta = split_block(path, cache, block=block, zone="z", settings=cfg)
     tiles = {}
     for t in tiling.tile_ids(tuple(meta["header_bounds"]), tile_size):
         out = tmp_path / "tiles" / f"{t}.npz"
-        preprocess_tile("z", block, t, {block: cache}, out, dtm_path=tmp_path / "dtm" / f"{t}.tif", config=cfg)
+        preprocess_tile("z", block, t, {block: cache}, out, dtm_path=tmp_path / "dtm" / f"{t}.tif", settings=cfg)
         tiles[t] = load_tile(out)
     return meta, tiles
 
@@ -138,14 +137,14 @@ def test_neighbour_block_buffer(tmp_path):
     w = laspy.read(west)
     wb = (float(w.header.mins[0]), float(w.header.mins[1]), float(w.header.maxs[0]), float(w.header.maxs[1]))
     size = (wb[2] - wb[0]) / 3 + 1e-6  # three tile columns; the third ends at the cut
-    cfg = PreprocessConfig(tile_size=size, buffer=40.0)
+    cfg = preprocess_settings(tile_size=size, buffer=40.0)
     caches = {}
     for p in (west, east):
         caches[p.stem] = tmp_path / "cache" / p.stem
-        split_block(p, caches[p.stem], block=p.stem, zone="z", config=cfg)
+        split_block(p, caches[p.stem], block=p.stem, zone="z", settings=cfg)
     grid = tiling.TileGrid(wb, size)
     tid = f"{grid.shape[0] - 1}_0"  # the west tile touching the cut
-    preprocess_tile("z", "west", tid, caches, tmp_path / "t.npz", config=cfg)
+    preprocess_tile("z", "west", tid, caches, tmp_path / "t.npz", settings=cfg)
     t = load_tile(tmp_path / "t.npz")
     from_east = t["block_id"] == t.meta["blocks"].index("east")
     assert from_east.any(), "buffer points must come from the neighbouring block"
@@ -185,4 +184,4 @@ def test_block_in_another_crs_than_its_zone(tmp_path):
     with pytest.raises(InputError, match=r"small\.laz: its CRS \(EPSG:2154\) differs from the rest of zone 'z' "
                                          r"\(EPSG:25831\); reproject it"):
         split_block(RGBNIR_SMALL, tmp_path / "c", block="small", zone="z",
-                    zone_crs=CRS.from_epsg(25831).to_wkt())
+                    zone_crs=CRS.from_epsg(25831).to_wkt(), settings=preprocess_settings())

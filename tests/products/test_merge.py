@@ -10,7 +10,7 @@ import pytest
 from laspy.vlrs.known import ExtraBytesVlr, LasZipVlr
 from laspy.vlrs.vlrlist import VLRList
 
-from conftest import BACKGROUNDS
+from conftest import BACKGROUNDS, preprocess_settings
 
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.io.lasformat import OWN_DIMENSIONS, PROB_DIMENSION, TOWER_ID_DIMENSION, own_dimensions
@@ -216,7 +216,7 @@ def test_merge_generated_formats(tmp_path, version, pf):
 def test_merge_without_predictions_only_demotes_input_towers(tmp_path):
     src = make_las(tmp_path / "b.las", version="1.2", point_format=1, n=5000)
     out = tmp_path / "b_out.laz"
-    stats = merge_block(src, [], out)
+    stats = merge_block(src, [], out, threshold=0.5)
     assert_invariant(src, out, np.zeros(5000, np.float32))
     cls_in = np.asarray(laspy.read(src).classification)
     assert stats["relabelled_15_to_1"] == int((cls_in == 15).sum()) > 0
@@ -226,7 +226,7 @@ def test_merge_without_predictions_only_demotes_input_towers(tmp_path):
 def test_merge_adds_crs_when_missing(tmp_path):
     src = make_las(tmp_path / "b.laz", version="1.4", point_format=6, n=1000, crs=None)
     out = tmp_path / "o.laz"
-    merge_block(src, [], out, crs="EPSG:25831")
+    merge_block(src, [], out, threshold=0.5, crs="EPSG:25831")
     h = laspy.open(out).header
     assert h.parse_crs().to_epsg() == 25831
     assert h.global_encoding.wkt
@@ -250,14 +250,15 @@ def test_own_output_is_reprocessed_values_replaced(tmp_path, version, pf):
     idx = rng.choice(n, 900, replace=False)
     pred = write_pred(tmp_path / "t.npz", "b", idx, np.full(900, 0.9, np.float32))
     save_members(tmp_path / "m.npz", {40000004600000: (np.array(["b"] * 400, dtype=object), idx[:400])})
-    first = merge_block(src, [pred], tmp_path / "o1.laz", tower_points=[tmp_path / "m.npz"])
+    first = merge_block(src, [pred], tmp_path / "o1.laz", threshold=0.5, tower_points=[tmp_path / "m.npz"])
     assert not first["reprocessed"] and own_dimensions(tmp_path / "o1.laz") == list(OWN_DIMENSIONS)
-    again = merge_block(tmp_path / "o1.laz", [pred], tmp_path / "o2.laz", tower_points=[tmp_path / "m.npz"])
+    again = merge_block(tmp_path / "o1.laz", [pred], tmp_path / "o2.laz", threshold=0.5,
+                        tower_points=[tmp_path / "m.npz"])
     assert again["reprocessed"] and again["towers"] == 1
     assert (tmp_path / "o2.laz").read_bytes() == (tmp_path / "o1.laz").read_bytes()
     # new predictions and no towers: the values are replaced in place, nothing else changes
     other = write_pred(tmp_path / "t2.npz", "b", idx[:10], np.full(10, 0.3, np.float32))
-    merge_block(tmp_path / "o1.laz", [other], tmp_path / "o3.laz")
+    merge_block(tmp_path / "o1.laz", [other], tmp_path / "o3.laz", threshold=0.5)
     expected = np.zeros(n, np.float32)
     expected[idx[:10]] = 0.3
     a, c = laspy.read(tmp_path / "o1.laz"), laspy.read(tmp_path / "o3.laz")
@@ -285,11 +286,13 @@ def test_a_foreign_dimension_with_towerpipes_name_is_refused(tmp_path, name, dty
     las.x, las.y, las.z = np.arange(10.0) + 4e5, np.arange(10.0) + 4.6e6, np.arange(10.0)
     las.write(tmp_path / "f.laz")
     with pytest.raises(InputError, match=rf"f\.laz.*{name}.*rename or remove"):
-        split_block(tmp_path / "f.laz", tmp_path / "cache", block="f", crs="EPSG:25831")
-    meta = split_block(tmp_path / "f.laz", tmp_path / "cache", block="f", crs="EPSG:25831", record_errors=True)
+        split_block(tmp_path / "f.laz", tmp_path / "cache", block="f", crs="EPSG:25831",
+                    settings=preprocess_settings())
+    meta = split_block(tmp_path / "f.laz", tmp_path / "cache", block="f", crs="EPSG:25831",
+                       settings=preprocess_settings(), record_errors=True)
     assert meta["error"]["type"] == "InputError" and name in meta["error"]["cause"]
     with pytest.raises(InputError, match=name):
-        merge_block(tmp_path / "f.laz", [], tmp_path / "o.laz")
+        merge_block(tmp_path / "f.laz", [], tmp_path / "o.laz", threshold=0.5)
 
 
 @pytest.mark.shared
@@ -314,7 +317,7 @@ def test_merge_several_extra_byte_blocks_described_in_output(tmp_path):
     """The input has two Extra Bytes VLRs; both descriptors survive in the output."""
     src = BACKGROUNDS / "ign_rgbnir_block.laz"
     out = tmp_path / "out.laz"
-    merge_block(src, [], out)
+    merge_block(src, [], out, threshold=0.5)
     names = list(laspy.open(out).header.point_format.extra_dimension_names)
     assert names == ["Deviation", "confidence", PROB_DIMENSION, TOWER_ID_DIMENSION]
 
@@ -327,13 +330,13 @@ def test_merge_from_split_records_equals_merge_from_laz(tmp_path, version, pf):
 
     n = 12_000
     src = make_las(tmp_path / "b.laz", version=version, point_format=pf, n=n, extra=True)
-    split_block(src, tmp_path / "cache", block="b", crs="EPSG:25831")
+    split_block(src, tmp_path / "cache", block="b", crs="EPSG:25831", settings=preprocess_settings())
     rng = np.random.default_rng(3)
     idx = rng.choice(n, 2000, replace=False)
     pred = write_pred(tmp_path / "t.npz", "b", idx, rng.random(2000).astype(np.float32))
     a, b = tmp_path / "a.laz", tmp_path / "b_out.laz"
-    merge_block(src, [pred], a, chunk_size=5_000)
-    merge_block(src, [pred], b, chunk_size=5_000, records=BlockCache(tmp_path / "cache").records_path)
+    merge_block(src, [pred], a, threshold=0.5, chunk_size=5_000)
+    merge_block(src, [pred], b, threshold=0.5, chunk_size=5_000, records=BlockCache(tmp_path / "cache").records_path)
     assert a.read_bytes() == b.read_bytes()
 
 
@@ -341,7 +344,7 @@ def test_merge_refuses_stale_records(tmp_path):
     src = make_las(tmp_path / "b.laz", version="1.4", point_format=6, n=1000)
     np.save(tmp_path / "records.npy", np.zeros((999, 30), np.uint8))
     with pytest.raises(InputError, match="split_block"):
-        merge_block(src, [], tmp_path / "o.laz", records=tmp_path / "records.npy")
+        merge_block(src, [], tmp_path / "o.laz", threshold=0.5, records=tmp_path / "records.npy")
     assert not (tmp_path / "o.laz").exists()
 
 
@@ -360,7 +363,8 @@ def test_merge_with_tower_points_classifies_only_reported_towers(tmp_path):
     # a neighbour's tower file naming other blocks only
     save_members(tmp_path / "nb.points.npz", {40000024600002: (np.array(["c"] * 5, dtype=object), np.arange(5))})
     out = tmp_path / "o.laz"
-    stats = merge_block(src, [pred], out, tower_points=[tmp_path / "own.points.npz", tmp_path / "nb.points.npz"])
+    stats = merge_block(src, [pred], out, threshold=0.5,
+                        tower_points=[tmp_path / "own.points.npz", tmp_path / "nb.points.npz"])
     las = laspy.read(out)
     cls_in = np.asarray(laspy.read(src).classification)
     expected = np.where(cls_in == 15, 1, cls_in)

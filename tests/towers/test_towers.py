@@ -203,7 +203,7 @@ def test_wire_chain_is_split_into_towers():
     wire = np.column_stack([X0 + 57 + s * 46, np.full_like(s, Y0 + 50), 124 - 6 * np.sin(np.pi * s)])
     xyz = np.concatenate([a, b, wire])
     hag = np.concatenate([ha, hb, (wire[:, 2] - 100).astype(np.float32)])
-    labels = cluster_towers(xyz, hag, linkage=2.5)
+    labels = cluster_towers(xyz, hag, linkage=2.5, min_points=20, min_height=10.0)
     assert labels.max() == 1
     assert len(np.unique(labels[: len(a)])) == 1 and len(np.unique(labels[len(a): len(a) + len(b)])) == 1
     assert labels[0] != labels[len(a)]

@@ -1,3 +1,4 @@
+from towerpipe.config import PreprocessConfig
 from towerpipe.jobs.smk import run_step
 from towerpipe.preprocess.tile import preprocess_tile
 
@@ -10,7 +11,7 @@ run_step(
         dict(zip(snakemake.params.blocks, snakemake.input.caches, strict=True)),
         snakemake.output.tile,
         dtm_path=snakemake.output.dtm,
-        config=snakemake.params.preprocess,
+        settings=PreprocessConfig.from_config({"preprocess": snakemake.params.preprocess}),
         missing=snakemake.params.missing,
     ),
 )

@@ -1,5 +1,5 @@
+from towerpipe.config import PreprocessConfig
 from towerpipe.jobs.smk import run_step
-from towerpipe.preprocess.settings import PreprocessConfig
 from towerpipe.preprocess.split import split_block
 
 run_step(
@@ -11,7 +11,7 @@ run_step(
         zone=snakemake.wildcards.zone,
         crs=snakemake.params.crs,
         zone_crs=snakemake.params.zone_crs,
-        config=PreprocessConfig.from_dict(snakemake.params.preprocess),
+        settings=PreprocessConfig.from_config({"preprocess": snakemake.params.preprocess}),
         record_errors=True,
         source=snakemake.params.source,
     ),

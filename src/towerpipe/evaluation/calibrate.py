@@ -20,6 +20,7 @@ figures of the configured candidate are the pipeline's (tested on the CI zone).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import json
 import os
@@ -29,6 +30,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from towerpipe import classes
+from towerpipe.config import InferenceConfig
 from towerpipe.errors import InputError
 
 __all__ = ["Candidate", "INFERENCE_PACKAGES", "score_zone", "sweep", "tower_labels", "zone_predictions",
@@ -62,9 +64,9 @@ def zone_tiles(work: str | os.PathLike[str], zone: str) -> list[Path]:
     return tiles
 
 
-def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.PathLike[str], tta: int,
-                     inference: Mapping[str, Any]) -> list[str]:
-    """Prediction files of every tile of a zone with ``tta`` views, computed once and cached.
+def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.PathLike[str],
+                     settings: InferenceConfig) -> list[str]:
+    """Prediction files of every tile of a zone with ``settings.tta`` views, computed once and cached.
 
     Parameters
     ----------
@@ -74,11 +76,9 @@ def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.Pa
         Zone name.
     model
         Model bundle directory.
-    tta
-        Views per segmented window.
-    inference
-        The config's ``inference`` section (window, stride, gate, combine, batch size,
-        min points, min height).
+    settings
+        The inference settings (the config's ``inference`` section, with the candidate's
+        views and gate).
 
     Returns
     -------
@@ -92,18 +92,18 @@ def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.Pa
 
     tiles = zone_tiles(work, zone)
     keys = ("window", "windows", "stride", "gate", "combine", "batch_size", "min_points", "min_height")
-    kw = {k: inference[k] for k in keys if k in inference}
+    kw = {k: getattr(settings, k) for k in keys}
     # the weights' hashes and the inference code are part of the key: a retrained model or
     # another way of placing windows never reuses old predictions
     key = config_hash({"inference": kw, "weights": read_card(model).get("files"), "code": _inference_code()})
-    out_dir = Path(work, zone, "calibrate", f"{Path(model).name}_tta{tta}_{key}")
+    out_dir = Path(work, zone, "calibrate", f"{Path(model).name}_tta{settings.tta}_{key}")
     bundle = None
     paths = []
     for t in tiles:
         out = out_dir / f"{t.parent.name}_{t.stem}.npz"
         if not out.exists() or out.stat().st_mtime < t.stat().st_mtime:
             bundle = bundle or load_bundle(model)
-            infer_tile(t, bundle, out, tta=tta, **kw)
+            infer_tile(t, bundle, out, settings)
         paths.append(str(out))
     return paths
 
@@ -186,7 +186,7 @@ def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: M
     rules = TowersConfig.from_config({"towers": {**towers, "threshold": threshold, "min_core_prob": min_core_prob}})
     found = extract_towers(preds, zone, _UNBOUNDED, rules, zone=zone, point_threshold=point_threshold,
                            context=TileContext(list(tile_paths), survey=survey,
-                                               min_ring_share=float(towers.get("wire_ring_coverage", 0.0))),
+                                               min_ring_share=float(towers["wire_ring_coverage"])),
                            model_meta={}, crs=truth.crs)
     gdf = found.towers
     chosen: dict[str, list[np.ndarray]] = {}
@@ -263,6 +263,7 @@ def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Cand
             raise InputError(truth_path, "calibration needs the zone's true towers (a synthetic zone has them)")
         data[zone] = (gpd.read_file(truth_path, layer="towers"), tower_labels(Path(input_dir)),
                       [str(p) for p in zone_tiles(work, zone)], _survey(work, zone))
+    settings = InferenceConfig.from_config({"inference": inference})
     preds: dict[tuple[str, int, float], list[Any]] = {}
     rows = []
     for cand in candidates:
@@ -275,8 +276,8 @@ def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Cand
         for zone, (truth, labels, tiles, survey) in data.items():
             if (zone, tta, gate) not in preds:
                 zm = model if isinstance(model, (str, os.PathLike)) else model[zone]
-                preds[(zone, tta, gate)] = [load_pred(p) for p in zone_predictions(work, zone, zm, tta,
-                                                                                  {**inference, "gate": gate})]
+                cand_settings = dataclasses.replace(settings, tta=tta, gate=gate)
+                preds[(zone, tta, gate)] = [load_pred(p) for p in zone_predictions(work, zone, zm, cand_settings)]
             row[zone] = score_zone(preds[(zone, tta, gate)], tiles, truth, labels, threshold=thr,
                                    point_threshold=pthr, min_core_prob=mcp,
                                    towers={**towers, "min_wire_support": wire}, zone=zone, survey=survey)

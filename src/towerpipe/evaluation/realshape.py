@@ -75,10 +75,12 @@ def evaluate_model(model: str | os.PathLike[str], zone: str, input_dir: str | os
     """
     import geopandas as gpd
 
+    from towerpipe.config import InferenceConfig
     from towerpipe.evaluation.calibrate import tower_labels, zone_tiles, score_zone, zone_predictions
     from towerpipe.io.predictions import load_pred
 
-    preds = [load_pred(p) for p in zone_predictions(work, zone, model, int(inference["tta"]), inference)]
+    settings = InferenceConfig.from_config({"inference": inference})
+    preds = [load_pred(p) for p in zone_predictions(work, zone, model, settings)]
     truth = gpd.read_file(Path(input_dir) / "towers_truth.gpkg", layer="towers")
     return score_zone(preds, [str(p) for p in zone_tiles(work, zone)], truth, tower_labels(Path(input_dir)),
                       threshold=float(towers["threshold"]), point_threshold=float(inference["threshold"]),

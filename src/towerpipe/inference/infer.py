@@ -43,6 +43,7 @@ from typing import Any, Mapping, Protocol
 import numpy as np
 
 from towerpipe import classes
+from towerpipe.config import InferenceConfig
 from towerpipe.errors import ConfigError, ModelError
 from towerpipe.io.predictions import save_pred
 from towerpipe.progress import Progress
@@ -83,7 +84,7 @@ class BundleLike(Protocol):
     def segment(self, feats: np.ndarray) -> np.ndarray: ...  # (N, C) -> (N,)
 
 
-def segment_views(bundle: BundleLike, feats: np.ndarray, views: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def segment_views(bundle: BundleLike, feats: np.ndarray, views: int) -> tuple[np.ndarray, np.ndarray]:
     """Segmenter probability of each point: the window as it is, and the mean over ``views`` views.
 
     2 and 4 views add the window turned by 180 and by 90 / 270 degrees about its centre,
@@ -196,21 +197,13 @@ def overhead_wires(arrays: Mapping[str, np.ndarray], idx: np.ndarray, min_height
 def predict_tile(
     tile: Tile,
     bundle: BundleLike,
+    settings: InferenceConfig,
     *,
-    window: float = 40.0,
-    stride: float = 20.0,
-    gate: float = 0.5,
-    combine: str = "max",
-    batch_size: int = 32,
     seed: int = 0,
-    min_points: int = 10,
-    min_height: float | None = None,
-    tta: int = 1,
-    windows: str = "grid",
 ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Tower probabilities of a tile's core points (in memory; see :func:`infer_tile`).
 
-    ``windows``: ``"grid"`` slides windows on a ``stride`` grid and skips those whose
+    ``settings.windows``: ``"grid"`` slides windows on a ``stride`` grid and skips those whose
     highest point is below ``min_height`` (the paper's); ``"candidates"`` centres one window
     on each height peak of at least ``min_height`` (:func:`towerpipe.inference.windows.candidate_windows`).
 
@@ -233,6 +226,10 @@ def predict_tile(
     from towerpipe.model import features
     from towerpipe.model import sampling
 
+    window, stride, windows, gate, combine = (settings.window, settings.stride, settings.windows, settings.gate,
+                                              settings.combine)
+    batch_size, min_points, min_height, tta = (settings.batch_size, settings.min_points, settings.min_height,
+                                               settings.tta)
     if combine not in _COMBINE:
         raise ConfigError(f"infer.combine must be one of {_COMBINE}, got {combine!r}")
     if windows not in WINDOW_MODES:
@@ -384,17 +381,9 @@ def infer_tile(
     tile_path: str | os.PathLike[str],
     model: str | os.PathLike[str] | BundleLike | None,
     out_path: str | os.PathLike[str],
+    settings: InferenceConfig,
     *,
-    window: float = 40.0,
-    stride: float = 20.0,
-    gate: float = 0.5,
-    combine: str = "max",
-    batch_size: int = 32,
     seed: int = 0,
-    min_points: int = 10,
-    min_height: float | None = None,
-    tta: int = 1,
-    windows: str = "grid",
     choice: Mapping[str, Any] | str | os.PathLike[str] | None = None,
 ) -> dict[str, Any]:
     """Run gated window inference on one tile file and write its prediction file.
@@ -408,27 +397,23 @@ def infer_tile(
         ``None``: the model of ``choice``.
     out_path
         Prediction file (:mod:`towerpipe.io.predictions`), written atomically.
-    window, stride
-        Window side and step (m); ``window - stride`` is the overlap.
-    gate
-        Windows whose classifier probability is below ``gate`` are background.
-    combine
-        ``"max"`` or ``"mean"`` over the segmented windows containing a point.
-    batch_size
-        Windows per classifier call.
+    settings
+        The ``inference`` section (:class:`towerpipe.config.InferenceConfig`):
+
+        - ``window``, ``stride``: window side and step (m); ``window - stride`` is the overlap;
+        - ``gate``: windows whose classifier probability is below it are background;
+        - ``combine``: ``"max"`` or ``"mean"`` over the segmented windows containing a point;
+        - ``batch_size``: windows per classifier call;
+        - ``min_points``: windows with fewer model-input points are skipped as empty;
+        - ``min_height``: pre-filter (not in the paper): windows whose highest model-input
+          point is below this HAG (m) are background without a classifier pass. Transmission
+          towers are 14-58 m tall, so 10 m loses no tower and skips open land and low
+          vegetation at no model cost. ``None``: every window is classified;
+        - ``tta``: views of each segmented window averaged (:func:`segment_views`): 1, 2, 4 or 8;
+        - ``windows``: ``"candidates"`` (windows centred on height peaks) or ``"grid"``
+          (:func:`predict_tile`).
     seed
         Base seed of the per-window samplers.
-    min_points
-        Windows with fewer model-input points are skipped as empty.
-    min_height
-        Optional pre-filter (not in the paper): windows whose highest model-input point
-        is below this HAG (m) are background without a classifier pass. Transmission
-        towers are 14-58 m tall, so e.g. 10 m loses no tower and skips open land and low
-        vegetation at no model cost. ``None`` (default): every window is classified.
-    tta
-        Views of each segmented window averaged (:func:`segment_views`): 1, 2, 4 or 8.
-    windows
-        ``"candidates"`` (windows centred on height peaks) or ``"grid"`` (:func:`predict_tile`).
     choice
         The zone's model choice (:func:`towerpipe.model.choice.choose_model`, or its JSON
         file): recorded as ``model.choice``; a block it lists as incompatible fails here
@@ -466,9 +451,7 @@ def infer_tile(
         msg = incompatibility_error(choice, str(tile.meta.get("block")))
         if msg:
             raise ModelError(msg)
-    arrays, stats = predict_tile(tile, bundle, window=window, stride=stride, gate=gate, combine=combine,
-                                 batch_size=batch_size, seed=seed, min_points=min_points,
-                                 min_height=min_height, tta=tta, windows=windows)
+    arrays, stats = predict_tile(tile, bundle, settings, seed=seed)
     timings = {"load_model": t_model, "load_tile": t_load, **stats.pop("timings")}
     meta = {k: tile.meta.get(k) for k in ("zone", "block", "tile", "blocks", "crs_wkt", "core_bounds")}
     meta["model"] = _model_info(bundle, model_path)

@@ -30,6 +30,8 @@ from towerpipe.model.cards import config_hash
 if TYPE_CHECKING:  # geopandas is imported by the steps that need it: the DAG does not
     import geopandas as gpd
 
+    from towerpipe.config import InferenceConfig
+
 log = logging.getLogger(__name__)
 
 
@@ -40,7 +42,7 @@ def _json(path: str | os.PathLike[str]) -> dict[str, Any]:
 def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Sequence[str],
                 out_gpkg: str | os.PathLike[str], *, towers_cfg: Mapping[str, Any],
                 source_files: Mapping[str, str], run_cfg: Mapping[str, Any],
-                out_neighbours: str | os.PathLike[str] | None = None, point_threshold: float | None = None,
+                point_threshold: float | None, out_neighbours: str | os.PathLike[str] | None = None,
                 tile_files: Sequence[str] = (), out_members: str | os.PathLike[str] | None = None,
                 survey: Sequence[Sequence[float]] = (), registry: Sequence[str] = ()) -> dict[str, Any]:
     """Towers owned by ``block`` (from its and its neighbours' predictions) → GeoPackage.
@@ -102,7 +104,7 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
 
 
 def infer_step(tile_path: str | os.PathLike[str], model: str | os.PathLike[str] | None, out_path: str | os.PathLike[str],
-               **kw: Any) -> dict[str, Any]:
+               settings: InferenceConfig, **kw: Any) -> dict[str, Any]:
     """:func:`towerpipe.inference.infer.infer_tile`, a model that cannot run on the tile recorded, not raised.
 
     A :class:`~towerpipe.errors.ModelError` (e.g. the model needs NIR and the block has
@@ -116,14 +118,14 @@ def infer_step(tile_path: str | os.PathLike[str], model: str | os.PathLike[str] 
     from towerpipe.io.predictions import PRED_ARRAYS, save_pred
 
     try:
-        return infer_tile(tile_path, model, out_path, **kw)
+        return infer_tile(tile_path, model, out_path, settings, **kw)
     except ModelError as exc:
         meta = read_meta(tile_path)
         log.error("ModelError: %s; recorded in %s: the block fails at its towers step, its neighbours go on",
                   exc, out_path)
         rec = {k: meta.get(k) for k in ("zone", "block", "tile", "blocks", "crs_wkt", "core_bounds")}
         rec.update(model={}, windows_total=0, windows_passed_gate=0, windows_segmented=0,
-                   gate_threshold=kw.get("gate"), combine=kw.get("combine"), points_core=0,
+                   gate_threshold=settings.gate, combine=settings.combine, points_core=0,
                    points_model_input_core=0, timings={}, peak_rss_mb=0.0, error=str(exc))
         save_pred(out_path, {k: np.zeros(0, d) for k, d in PRED_ARRAYS.items()}, rec)
         return rec

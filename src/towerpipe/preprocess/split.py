@@ -19,13 +19,13 @@ from typing import Any
 import numpy as np
 
 from towerpipe import classes
+from towerpipe.config import PreprocessConfig
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.io.blockcache import BlockCache, BlockCacheWriter
 from towerpipe.io.las import BLOCK_COLUMNS, BlockHeader, check_metric_crs, color_info, iter_block, read_header
 from towerpipe.io.lasformat import check_format, own_dimensions
 from towerpipe.preprocess import tiling
 from towerpipe.preprocess.attributes import AttributeStats, degenerate, describe
-from towerpipe.preprocess.settings import PreprocessConfig
 from towerpipe.progress import Progress, peak_rss_mb
 
 log = logging.getLogger(__name__)
@@ -33,7 +33,7 @@ log = logging.getLogger(__name__)
 
 def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, block: str,
                 zone: str | None = None, crs: str | None = None, zone_crs: str | None = None,
-                config: PreprocessConfig | None = None, record_errors: bool = False,
+                settings: PreprocessConfig, record_errors: bool = False,
                 source: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Decode a block once into an uncompressed column cache.
 
@@ -61,6 +61,8 @@ def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     zone_crs
         The CRS the zone's other blocks have (WKT); a block in another CRS is refused
         (a zone is one CRS: windows, neighbours and the GeoPackage mix blocks).
+    settings
+        The ``preprocess`` section (its tile size and ground rule).
     source
         The block's input record (:func:`towerpipe.io.inputs.describe`: original relative
         path, size, fingerprint, ``clash``), kept in ``meta.json`` as ``source``. A block
@@ -82,7 +84,7 @@ def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         if src.get("clash"):
             raise InputError(path, f"{src['clash']} is the same block in a second file; keep one of the two "
                                    "(both are left out until then)")
-        return _split_block(path, out_dir, block=block, zone=zone, crs=crs, zone_crs=zone_crs, config=config,
+        return _split_block(path, out_dir, block=block, zone=zone, crs=crs, zone_crs=zone_crs, settings=settings,
                             source=src)
     except InputError as exc:
         if not record_errors:
@@ -104,8 +106,8 @@ def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
 
 def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, block: str,
                  zone: str | None, crs: str | None, zone_crs: str | None,
-                 config: PreprocessConfig | None, source: Mapping[str, Any]) -> dict[str, Any]:
-    cfg = config or PreprocessConfig()
+                 settings: PreprocessConfig, source: Mapping[str, Any]) -> dict[str, Any]:
+    cfg = settings
     t0 = time.perf_counter()
     it = iter_block(path, crs=crs, zone=zone, records=True)
     header, crs_wkt = next(it)

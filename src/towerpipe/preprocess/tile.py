@@ -26,6 +26,7 @@ import numpy as np
 import rasterio
 
 from towerpipe import classes
+from towerpipe.config import PreprocessConfig
 from towerpipe.io.atomic import write_text_atomic
 from towerpipe.io.blockcache import BlockCache
 from towerpipe.io.columns import read_meta
@@ -35,7 +36,6 @@ from towerpipe.preprocess import tiling
 from towerpipe.preprocess.attributes import valid_set
 from towerpipe.preprocess.ground import (NODATA, build_dtm, classify_ground, height_above_ground,
                                          statistical_outliers, write_raster)
-from towerpipe.preprocess.settings import PreprocessConfig
 from towerpipe.progress import Progress, peak_rss_mb
 
 log = logging.getLogger(__name__)
@@ -138,7 +138,7 @@ def gather_tile(zone: str, block: str, tile: str, caches: Mapping[str, BlockCach
 
 def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, str | os.PathLike[str]],
                     out_path: str | os.PathLike[str], *, dtm_path: str | os.PathLike[str] | None = None,
-                    config: PreprocessConfig | Mapping[str, Any] | None = None,
+                    settings: PreprocessConfig,
                     missing: Mapping[str, str | os.PathLike[str]] | None = None) -> dict[str, Any]:
     """Ground, DTM, HAG and noise flags for one tile; writes the tile file.
 
@@ -153,6 +153,8 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
         The tile ``.npz`` (:mod:`towerpipe.io.tiles`).
     dtm_path
         Where to keep the filled DTM GeoTIFF (for QA maps); a temporary file if ``None``.
+    settings
+        The ``preprocess`` section.
     missing
         Blocks nearby that could not be split (id → cache directory holding the error):
         the tile goes on without their points and says so in its warnings.
@@ -162,7 +164,7 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
     dict
         The tile's metadata (counts, timings, DTM info), also stored in the file.
     """
-    cfg = config if isinstance(config, PreprocessConfig) else PreprocessConfig.from_dict(config)
+    cfg = settings
     what = f"{zone}/{block}/{tile}"
     timings: dict[str, float] = {}
     t0 = time.perf_counter()

@@ -326,7 +326,7 @@ def merge_block(
     pred_paths: Sequence[str | os.PathLike[str]],
     out_path: str | os.PathLike[str],
     *,
-    threshold: float = 0.5,
+    threshold: float,
     crs: Any = None,
     block: str | None = None,
     chunk_size: int = _CHUNK,

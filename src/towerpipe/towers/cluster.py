@@ -37,7 +37,7 @@ def _as_pred(item: Any) -> tuple[Mapping[str, np.ndarray], Mapping[str, Any]]:
     raise TypeError(f"expected a prediction file path, PredFile or (arrays, meta) pair, got {type(item).__name__}")
 
 
-def gather_points(preds: Sequence[Any], threshold: float = 0.5) -> dict[str, np.ndarray]:
+def gather_points(preds: Sequence[Any], threshold: float) -> dict[str, np.ndarray]:
     """Concatenate the points with ``prob_single >= threshold`` of several prediction files.
 
     Parameters
@@ -147,9 +147,9 @@ def _footprint(xy: np.ndarray, min_width: float) -> shapely.Polygon:
     return geom
 
 
-def cluster_towers(xyz: np.ndarray, hag: np.ndarray, *, linkage: float = 2.5, merge_gap: float = 1.0,
-                   max_extent: float = 25.0, reach: float = 10.0, min_points: int = 20,
-                   min_height: float = 10.0) -> np.ndarray:
+def cluster_towers(xyz: np.ndarray, hag: np.ndarray, *, linkage: float, merge_gap: float = 1.0,
+                   max_extent: float = 25.0, reach: float = 10.0, min_points: int,
+                   min_height: float) -> np.ndarray:
     """Label points by tower.
 
     Parameters
