@@ -26,8 +26,19 @@ DOC = ROOT / "docs" / "architecture.md"
 BEGIN, END = "<!-- modules:begin -->", "<!-- modules:end -->"
 #: Subpackages in stage order, lowest first (a lower stage never imports a higher one);
 #: ``synth`` is the data generator beside them. Others found in the tree follow, sorted.
-STAGES = ("io", "preprocess", "model", "training", "inference", "towers", "products", "products/qa",
-          "evaluation", "jobs", "synth")
+STAGES = (
+    "io",
+    "preprocess",
+    "model",
+    "training",
+    "inference",
+    "towers",
+    "products",
+    "products/qa",
+    "evaluation",
+    "jobs",
+    "synth",
+)
 
 
 def summary(path: Path) -> str:

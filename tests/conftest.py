@@ -44,8 +44,9 @@ def gdal36():
 
     if not (GDAL36_OGRINFO.exists() and GDAL36_VALIDATOR.exists()):
         pytest.skip(f"GDAL 3.6 is not unpacked in {GDAL36} (bash scripts/gdal36_tools.sh, Debian 12 only)")
-    env = dict(os.environ, LD_LIBRARY_PATH=f"{GDAL36}/usr/lib/x86_64-linux-gnu:{GDAL36}/usr/lib",
-               PYTHONPATH=str(GDAL36_PYTHON))
+    env = dict(
+        os.environ, LD_LIBRARY_PATH=f"{GDAL36}/usr/lib/x86_64-linux-gnu:{GDAL36}/usr/lib", PYTHONPATH=str(GDAL36_PYTHON)
+    )
 
     def run(tool: str, *args: str) -> subprocess.CompletedProcess:
         cmd = [str(GDAL36_OGRINFO)] if tool == "ogrinfo" else ["python3", str(GDAL36_VALIDATOR)]
@@ -64,20 +65,29 @@ def pdal_cli():
 @pytest.fixture(scope="package")  # tests/ is no package: one per test run
 def random_model_factory(tmp_path_factory):
     """``make(feature_set)`` -> a randomly initialised model bundle directory (plumbing tests)."""
-    from towerpipe.model.features import FEATURE_SETS
     from towerpipe.model.bundle import save_bundle
-    from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter
     from towerpipe.model.cards import code_version, config_hash
+    from towerpipe.model.features import FEATURE_SETS
+    from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter
 
     made = {}
 
     def make(feature_set: str = "full") -> Path:
         if feature_set not in made:
             c = len(FEATURE_SETS[feature_set])
-            card = {"name": f"towerpipe-random-{feature_set}", "version": "0", "bundle_version": 1,
-                    "feature_set": feature_set, "features": FEATURE_SETS[feature_set], "normalisation": {},
-                    "sampling": {"n_points": 2048}, "training_data": {"tiles": []},
-                    "metrics": {"classifier": {}}, "code": code_version(), "config_hash": config_hash({})}
+            card = {
+                "name": f"towerpipe-random-{feature_set}",
+                "version": "0",
+                "bundle_version": 1,
+                "feature_set": feature_set,
+                "features": FEATURE_SETS[feature_set],
+                "normalisation": {},
+                "sampling": {"n_points": 2048},
+                "training_data": {"tiles": []},
+                "metrics": {"classifier": {}},
+                "code": code_version(),
+                "config_hash": config_hash({}),
+            }
             out = tmp_path_factory.mktemp("model") / f"towerpipe-random-{feature_set}-v0"
             made[feature_set] = save_bundle(out, PointNetClassifier(c).eval(), PointNetSegmenter(c).eval(), card)
         return made[feature_set]
@@ -95,8 +105,7 @@ def snakemake_run(*args, env=None):
     import subprocess
     import sys
 
-    return subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=REPO, capture_output=True, text=True,
-                          env=env)
+    return subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=REPO, capture_output=True, text=True, env=env)
 
 
 def write_zone_config(path: Path, zones: dict, workdir: Path, **extra) -> Path:
@@ -124,8 +133,9 @@ def ci_reference(ci_scene, tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("ci_ref")
     zone = f"pytest_ref_{uuid.uuid4().hex[:6]}"
-    cfg = write_zone_config(tmp / "c.yaml", {zone: {"input": str(ci_scene)}}, tmp / "work",
-                            preprocess={"tile_size": 120})
+    cfg = write_zone_config(
+        tmp / "c.yaml", {zone: {"input": str(ci_scene)}}, tmp / "work", preprocess={"tile_size": 120}
+    )
     proc = snakemake_run("--cores", "2", f"results/{zone}/", f"--configfile={cfg}")
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     ref = tmp / "results"
@@ -209,5 +219,11 @@ def extract(preds, block_name, block_bounds, *, point_threshold=None, **kw):
 
     names = {f.name for f in fields(TowersConfig)}
     rules = tower_rules(**{**LENIENT_TOWERS, **{k: v for k, v in kw.items() if k in names}})
-    return extract_towers(preds, block_name, block_bounds, rules, point_threshold=point_threshold,
-                          **{k: v for k, v in kw.items() if k not in names})
+    return extract_towers(
+        preds,
+        block_name,
+        block_bounds,
+        rules,
+        point_threshold=point_threshold,
+        **{k: v for k, v in kw.items() if k not in names},
+    )

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from pathlib import Path
 
 from conftest import REPO
 
@@ -39,7 +38,8 @@ def test_stale_map_is_found_and_rewritten(tmp_path):
         "| `errors.py` | Exceptions. |\n\n"
         "### `towerpipe.io`\n\nFiles.\n\n| module | what it owns |\n|---|---|\n"
         "| `io/las.py` | Reading `Block` files, wrapped \\| piped. |\n\n"
-        "<!-- modules:end -->\n\nkept\n")
+        "<!-- modules:end -->\n\nkept\n"
+    )
     # a new module makes the map stale again
     (src / "io" / "tiles.py").write_text('"""Tiles."""\n')
     assert _run("--check", "--doc", str(doc), "--src", str(src)).returncode == 1

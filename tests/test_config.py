@@ -32,21 +32,27 @@ def test_shipped_config_is_valid_and_defaults_come_from_the_schema():
 
 def test_unknown_keys_name_the_closest_valid_one():
     assert problems({"zones": {"z": {"input": "in"}}, "infrence": {}}) == [
-        "config: infrence: unknown key; did you mean 'inference'?"]
+        "config: infrence: unknown key; did you mean 'inference'?"
+    ]
     assert problems({"zones": {"z": {"input": "in", "crs": None}}, "inference": {"treshold": 0.4}}) == [
-        "config: inference.treshold: unknown key; did you mean 'threshold'?"]
+        "config: inference.treshold: unknown key; did you mean 'threshold'?"
+    ]
     assert problems({"zones": {"z": {"input": "in"}}, "colour": 1}) == [
-        "config: colour: unknown key; valid keys: zones, workdir, preprocess, inference, towers, training"]
+        "config: colour: unknown key; valid keys: zones, workdir, preprocess, inference, towers, training"
+    ]
 
 
 def test_one_line_per_problem():
-    lines = problems({"zones": {"z": {"inptu": "in"}}, "inference": {"gate": 1.5, "tta": 3},
-                      "preprocess": {"buffer": "wide"}})
-    assert lines == ["config: inference.gate: 1.5 is greater than the maximum of 1",
-                     "config: inference.tta: 3 is not one of [1, 2, 4, 8]",
-                     "config: preprocess.buffer: 'wide' is not of type 'number'",
-                     "config: zones.z: 'input' is a required property",
-                     "config: zones.z.inptu: unknown key; did you mean 'input'?"]
+    lines = problems(
+        {"zones": {"z": {"inptu": "in"}}, "inference": {"gate": 1.5, "tta": 3}, "preprocess": {"buffer": "wide"}}
+    )
+    assert lines == [
+        "config: inference.gate: 1.5 is greater than the maximum of 1",
+        "config: inference.tta: 3 is not one of [1, 2, 4, 8]",
+        "config: preprocess.buffer: 'wide' is not of type 'number'",
+        "config: zones.z: 'input' is a required property",
+        "config: zones.z.inptu: unknown key; did you mean 'input'?",
+    ]
 
 
 def test_yaml_errors_are_one_line(tmp_path):
@@ -62,8 +68,11 @@ def test_yaml_errors_are_one_line(tmp_path):
 def snakemake_dry_run(*args):
     proc = subprocess.run([sys.executable, "-m", "snakemake", "-n", *args], cwd=REPO, capture_output=True, text=True)
     # Snakemake's own notes (the profile it uses, config files merged) are not the error
-    ours = [ln for ln in (proc.stdout + proc.stderr).splitlines()
-            if ln.strip() and not ln.startswith(("Using workflow specific profile", "Config file "))]
+    ours = [
+        ln
+        for ln in (proc.stdout + proc.stderr).splitlines()
+        if ln.strip() and not ln.startswith(("Using workflow specific profile", "Config file "))
+    ]
     return proc.returncode, ours
 
 
@@ -87,7 +96,8 @@ def test_snakemake_unknown_zone_is_one_line():
 def test_run_config_errors_are_one_line(tmp_path, capsys):
     assert main(["run", "demo", "--config", str(tmp_path / "missing.yaml")]) == 1
     assert capsys.readouterr().err.strip() == (
-        f"towerpipe: error: ConfigError: --config {tmp_path / 'missing.yaml'}: no such file")
+        f"towerpipe: error: ConfigError: --config {tmp_path / 'missing.yaml'}: no such file"
+    )
     (tmp_path / "c.yaml").write_text("infrence: {}\n")
     assert main(["run", "demo", "--config", str(tmp_path / "c.yaml")]) == 1
     err = capsys.readouterr().err.strip()
@@ -105,11 +115,22 @@ def test_run_plans_a_zone_with_the_config_after_the_zone(tmp_path, random_model_
     indir.mkdir()
     (indir / "b0.laz").symlink_to(RGBNIR_SMALL)
     cfg = tmp_path / "c.yaml"
-    cfg.write_text(yaml.safe_dump({"zones": {"runz": {"input": str(indir)}}, "workdir": str(tmp_path / "work"),
-                                   "inference": {"model": str(random_model_factory("full"))}}))
+    cfg.write_text(
+        yaml.safe_dump(
+            {
+                "zones": {"runz": {"input": str(indir)}},
+                "workdir": str(tmp_path / "work"),
+                "inference": {"model": str(random_model_factory("full"))},
+            }
+        )
+    )
     # the ordering trap of `snakemake --configfile F TARGET` cannot happen: the zone is positional
-    proc = subprocess.run([sys.executable, "-m", "towerpipe.cli", "run", "runz", "--config", str(cfg), "--cores", "1",
-                           "--dry-run"], cwd=tmp_path, capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "towerpipe.cli", "run", "runz", "--config", str(cfg), "--cores", "1", "--dry-run"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+    )
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out
     assert "split_block" in out and "assemble_zone" in out

@@ -57,4 +57,5 @@ def test_steps_without_rate_but_with_what_was_done(caplog):
     p.close()
     assert [r.getMessage() for r in caplog.records] == [
         "preprocess z/b/0_0: 1/4 stages (25 %), ETA 00:09, ground took 3.0 s",
-        "preprocess z/b/0_0: 1 stages in 3.0 s"]
+        "preprocess z/b/0_0: 1 stages in 3.0 s",
+    ]

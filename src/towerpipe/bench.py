@@ -71,14 +71,20 @@ def read_benchmarks(work: Path) -> list[dict]:
         with open(tsv) as fh:
             for r in csv.DictReader(fh, delimiter="\t"):
                 rel = tsv.relative_to(work).parts
-                rows.append({"rule": rel[2] if len(rel) > 3 else rel[-1].removesuffix(".tsv"),
-                             "job": "/".join(rel[3:]).removesuffix(".tsv"),
-                             "s": float(r["s"]), "max_rss_mb": float(r["max_rss"])})
+                rows.append(
+                    {
+                        "rule": rel[2] if len(rel) > 3 else rel[-1].removesuffix(".tsv"),
+                        "job": "/".join(rel[3:]).removesuffix(".tsv"),
+                        "s": float(r["s"]),
+                        "max_rss_mb": float(r["max_rss"]),
+                    }
+                )
     return rows
 
 
-def run_workflow(block: Path, tmp: Path, *, zone: str, target: str, cores: int = 2,
-                 extra_config: dict | None = None) -> tuple[float, list[dict]]:
+def run_workflow(
+    block: Path, tmp: Path, *, zone: str, target: str, cores: int = 2, extra_config: dict | None = None
+) -> tuple[float, list[dict]]:
     """Run Snakemake on a one-block zone in a fresh working directory."""
     work = tmp / f"work_{zone}"
     shutil.rmtree(work, ignore_errors=True)
@@ -92,8 +98,21 @@ def run_workflow(block: Path, tmp: Path, *, zone: str, target: str, cores: int =
     cfg_file.write_text(yaml.safe_dump(cfg))
     name = block.stem
     tgt = target.format(work=work, zone=zone, block=name)
-    dt = time_cmd([sys.executable, "-m", "snakemake", "--cores", str(cores), "--quiet", "all",
-                   f"--configfile={cfg_file}", "--", tgt], cwd=REPO)
+    dt = time_cmd(
+        [
+            sys.executable,
+            "-m",
+            "snakemake",
+            "--cores",
+            str(cores),
+            "--quiet",
+            "all",
+            f"--configfile={cfg_file}",
+            "--",
+            tgt,
+        ],
+        cwd=REPO,
+    )
     return dt, read_benchmarks(work)
 
 
@@ -105,8 +124,12 @@ def bench_preprocess(args: argparse.Namespace) -> int:
         blocks = [(Path(b).stem, Path(b)) for b in args.block]
     else:
         for scale in args.scales:
-            blocks.append((f"{scale:g}x", make_block(tmp / f"block_{scale:g}x", size=args.size,
-                                                      density=args.density * scale, seed=args.seed)))
+            blocks.append(
+                (
+                    f"{scale:g}x",
+                    make_block(tmp / f"block_{scale:g}x", size=args.size, density=args.density * scale, seed=args.seed),
+                )
+            )
     results = []
     for label, block in blocks:
         n = read_header(block).point_count
@@ -116,19 +139,30 @@ def bench_preprocess(args: argparse.Namespace) -> int:
             dt, rows = run_workflow(block, tmp, zone=f"bench{r}", target="{work}/{zone}/prep/{block}.json")
             wf.append(dt)
             rss.append(max(row["max_rss_mb"] for row in rows))
-        res = {"label": label, "points": n, "translate_s": statistics.median(tr),
-               "preprocess_s": statistics.median(wf), "peak_rss_mb_per_job": max(rss),
-               "translate_runs": tr, "preprocess_runs": wf}
+        res = {
+            "label": label,
+            "points": n,
+            "translate_s": statistics.median(tr),
+            "preprocess_s": statistics.median(wf),
+            "peak_rss_mb_per_job": max(rss),
+            "translate_runs": tr,
+            "preprocess_runs": wf,
+        }
         res["ratio"] = res["preprocess_s"] / res["translate_s"]
         res["mpts_per_s"] = n / res["preprocess_s"] / 1e6
         results.append(res)
-        print(f"{label:>6}: {n / 1e6:6.2f} Mpts  pdal translate {res['translate_s']:6.1f} s  "
-              f"preprocess (--cores 2) {res['preprocess_s']:6.1f} s  ratio {res['ratio']:.2f}  "
-              f"{res['mpts_per_s']:.2f} Mpts/s  peak RSS/job {res['peak_rss_mb_per_job']:.0f} MiB", flush=True)
+        print(
+            f"{label:>6}: {n / 1e6:6.2f} Mpts  pdal translate {res['translate_s']:6.1f} s  "
+            f"preprocess (--cores 2) {res['preprocess_s']:6.1f} s  ratio {res['ratio']:.2f}  "
+            f"{res['mpts_per_s']:.2f} Mpts/s  peak RSS/job {res['peak_rss_mb_per_job']:.0f} MiB",
+            flush=True,
+        )
     if len(results) >= 2:
         a, b = results[0], results[-1]
-        print(f"scaling: {b['points'] / a['points']:.2f}x points -> {b['preprocess_s'] / a['preprocess_s']:.2f}x time "
-              f"(translate {b['translate_s'] / a['translate_s']:.2f}x)")
+        print(
+            f"scaling: {b['points'] / a['points']:.2f}x points -> {b['preprocess_s'] / a['preprocess_s']:.2f}x time "
+            f"(translate {b['translate_s'] / a['translate_s']:.2f}x)"
+        )
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))
     if not args.keep and not args.workdir:
@@ -160,26 +194,45 @@ def gate_stats(work: Path) -> dict[str, int]:
 def bench_e2e(args: argparse.Namespace) -> int:
     tmp = Path(args.workdir or tempfile.mkdtemp(prefix="towerpipe-bench-"))
     tmp.mkdir(parents=True, exist_ok=True)
-    block = Path(args.block) if args.block else make_block(tmp / "block_e2e", size=args.size, density=args.density,
-                                                           seed=args.seed, one_line=True)
+    block = (
+        Path(args.block)
+        if args.block
+        else make_block(tmp / "block_e2e", size=args.size, density=args.density, seed=args.seed, one_line=True)
+    )
     n = read_header(block).point_count
     tr, wf = [], []
     rows: list[dict] = []
     for r in range(args.repeat):
         tr.append(pdal_translate(block, tmp))
-        dt, rows = run_workflow(block, tmp, zone=f"e2e{r}", target="results/{zone}/",
-                                extra_config={"inference": {"model": args.model}} if args.model else None)
+        dt, rows = run_workflow(
+            block,
+            tmp,
+            zone=f"e2e{r}",
+            target="results/{zone}/",
+            extra_config={"inference": {"model": args.model}} if args.model else None,
+        )
         wf.append(dt)
     work = tmp / f"work_e2e{args.repeat - 1}"
     g = gate_stats(work)
-    res = {"points": n, "translate_s": statistics.median(tr), "e2e_s": statistics.median(wf),
-           "translate_runs": tr, "e2e_runs": wf, "stages": stage_split(rows), **g}
+    res = {
+        "points": n,
+        "translate_s": statistics.median(tr),
+        "e2e_s": statistics.median(wf),
+        "translate_runs": tr,
+        "e2e_runs": wf,
+        "stages": stage_split(rows),
+        **g,
+    }
     res["ratio"] = res["e2e_s"] / res["translate_s"]
     res["gate_skip_rate"] = 1 - g["windows_passed_gate"] / max(g["windows_total"], 1)
-    print(f"e2e: {n / 1e6:.2f} Mpts  pdal translate {res['translate_s']:.1f} s  raw block -> zone products "
-          f"(--cores 2) {res['e2e_s']:.1f} s  ratio {res['ratio']:.2f}  {n / res['e2e_s'] / 1e6:.2f} Mpts/s")
-    print(f"gate: {g['windows_total']} windows, {g['windows_passed_gate']} passed, {g['windows_segmented']} segmented "
-          f"-> {100 * res['gate_skip_rate']:.1f} % skipped")
+    print(
+        f"e2e: {n / 1e6:.2f} Mpts  pdal translate {res['translate_s']:.1f} s  raw block -> zone products "
+        f"(--cores 2) {res['e2e_s']:.1f} s  ratio {res['ratio']:.2f}  {n / res['e2e_s'] / 1e6:.2f} Mpts/s"
+    )
+    print(
+        f"gate: {g['windows_total']} windows, {g['windows_passed_gate']} passed, {g['windows_segmented']} segmented "
+        f"-> {100 * res['gate_skip_rate']:.1f} % skipped"
+    )
     for rule, d in sorted(res["stages"].items(), key=lambda kv: -kv[1]["s"]):
         print(f"  {rule:<16} {d['s']:7.1f} s over {d['jobs']:3d} job(s)   peak RSS {d['max_rss_mb']:6.0f} MiB")
     if args.json:

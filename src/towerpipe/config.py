@@ -66,8 +66,12 @@ def update_config(base: MutableMapping[str, Any], overrides: Mapping[str, Any]) 
     return base
 
 
-def load_config(configfiles: Sequence[str | os.PathLike[str]] = (), *, root: str | os.PathLike[str] = ".",
-                schema: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+def load_config(
+    configfiles: Sequence[str | os.PathLike[str]] = (),
+    *,
+    root: str | os.PathLike[str] = ".",
+    schema: str | os.PathLike[str] | None = None,
+) -> dict[str, Any]:
     """The shipped config with ``configfiles`` merged over it, validated, defaults filled in."""
     root = Path(root)
     config = load_yaml(root / CONFIG_FILE)
@@ -115,7 +119,7 @@ def _problems(error: Any) -> list[str]:
         return [f"{_key_path([*error.absolute_path, k])}: unknown key; {_closest(str(k), props)}" for k in extra]
     message = " ".join(error.message.split())
     if len(message) > MAX_PROBLEM_CHARS:
-        message = message[:MAX_PROBLEM_CHARS - 1] + "…"
+        message = message[: MAX_PROBLEM_CHARS - 1] + "…"
     return [f"{where or '(top level)'}: {message}"]
 
 
@@ -130,8 +134,9 @@ def config_problems(config: MutableMapping[str, Any], schema: Mapping[str, Any])
     return lines
 
 
-def validate_config(config: MutableMapping[str, Any], schema: str | os.PathLike[str] | Mapping[str, Any]
-                    ) -> MutableMapping[str, Any]:
+def validate_config(
+    config: MutableMapping[str, Any], schema: str | os.PathLike[str] | Mapping[str, Any]
+) -> MutableMapping[str, Any]:
     """Validate ``config`` in place (defaults filled in) and return it.
 
     Raises
@@ -166,8 +171,9 @@ def repo_root(start: str | os.PathLike[str] | None = None) -> Path:
     raise ConfigError(f"no {SCHEMA_FILE} here: run in the towerpipe directory")
 
 
-def effective_config(configfiles: Sequence[str | os.PathLike[str]] = (), *,
-                     root: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+def effective_config(
+    configfiles: Sequence[str | os.PathLike[str]] = (), *, root: str | os.PathLike[str] | None = None
+) -> dict[str, Any]:
     """What the workflow runs with: :data:`WORKFLOW_CONFIG_FILES`, then ``configfiles`` merged
     over them (as ``snakemake --configfile``), validated, every default filled in."""
     root = repo_root(root)
@@ -186,10 +192,12 @@ def _config_cmd(args: Any) -> int:
 def register(subparsers: Any) -> None:
     """Add ``towerpipe config``."""
     p = subparsers.add_parser(
-        "config", help="print the effective configuration (schema defaults filled in) as YAML",
+        "config",
+        help="print the effective configuration (schema defaults filled in) as YAML",
         description="Print the configuration the workflow runs with, as YAML: config/config.yaml and "
-                    "config/models.yaml, the FILEs merged over them (as `snakemake --configfile FILE`), "
-                    f"and every default of {SCHEMA_FILE} filled in.")
+        "config/models.yaml, the FILEs merged over them (as `snakemake --configfile FILE`), "
+        f"and every default of {SCHEMA_FILE} filled in.",
+    )
     p.add_argument("configfiles", nargs="*", metavar="FILE", help="YAML merged over the shipped config (your zones)")
     p.set_defaults(func=_config_cmd)
 

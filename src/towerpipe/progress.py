@@ -63,9 +63,18 @@ class Progress:
         Time source (monotonic seconds).
     """
 
-    def __init__(self, what: str, total: int | None = None, unit: str = "items", *,
-                 logger: logging.Logger | None = None, interval: float = LOG_INTERVAL_S,
-                 scale: bool | None = None, show_rate: bool = True, clock: Callable[[], float] = time.monotonic):
+    def __init__(
+        self,
+        what: str,
+        total: int | None = None,
+        unit: str = "items",
+        *,
+        logger: logging.Logger | None = None,
+        interval: float = LOG_INTERVAL_S,
+        scale: bool | None = None,
+        show_rate: bool = True,
+        clock: Callable[[], float] = time.monotonic,
+    ):
         self.what, self.total, self.unit = what, total, unit
         self.log = logger or logging.getLogger("towerpipe")
         self.interval = interval
@@ -91,8 +100,10 @@ class Progress:
         if self.total:
             eta = (self.total - self.n) / rate if rate and rate == rate else None
             parts.append(f"ETA {tqdm.format_interval(eta) if eta is not None else '?'}")
-            head = (f"{self.what}: {_count(self.n, self.scale)}/{_count(self.total, self.scale)} {self.unit} "
-                    f"({100.0 * self.n / self.total:.0f} %)")
+            head = (
+                f"{self.what}: {_count(self.n, self.scale)}/{_count(self.total, self.scale)} {self.unit} "
+                f"({100.0 * self.n / self.total:.0f} %)"
+            )
         else:
             head = f"{self.what}: {_count(self.n, self.scale)} {self.unit}"
         return ", ".join([head, *parts, *([detail] if detail else [])])
@@ -111,11 +122,14 @@ class Progress:
             return
         self.closed = True
         elapsed = self.clock() - self.start
-        rate = (f" ({_count(self.n / elapsed, self.scale)} {self.unit}/s)"
-                if self.show_rate and elapsed > 0 and self.n else "")
+        rate = (
+            f" ({_count(self.n / elapsed, self.scale)} {self.unit}/s)"
+            if self.show_rate and elapsed > 0 and self.n
+            else ""
+        )
         self.log.info("%s: %s %s in %.1f s%s", self.what, _count(self.n, self.scale), self.unit, elapsed, rate)
 
-    def __enter__(self) -> "Progress":
+    def __enter__(self) -> Progress:
         return self
 
     def __exit__(self, *exc: Any) -> None:

@@ -6,9 +6,9 @@ from __future__ import annotations
 import pytest
 
 from conftest import inference_settings
-from towerpipe.evaluation.calibrate import sweep, zone_predictions
 from towerpipe.cli import main
 from towerpipe.errors import InputError
+from towerpipe.evaluation.calibrate import sweep, zone_predictions
 
 
 def test_a_zone_without_tiles_names_the_command_to_run(tmp_path):

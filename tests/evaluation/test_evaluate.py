@@ -35,7 +35,9 @@ def test_false_tower_sources_tally_input_classes(tmp_path):
     write_block(tmp_path / "res" / "blocks" / "b.laz", xy[:, 0], xy[:, 1], pred.astype(np.uint8))
     false = gpd.GeoDataFrame(
         {"tower_id": ["T_crane", "T_tree"], "height_m": [41.0, 18.0], "n_points": [40, 20], "prob_mean": [0.9, 0.6]},
-        geometry=[shapely.box(7, 7, 13, 13), shapely.box(57, 57, 63, 63)], crs="EPSG:25831")
+        geometry=[shapely.box(7, 7, 13, 13), shapely.box(57, 57, 63, 63)],
+        crs="EPSG:25831",
+    )
     per_block, labelled = zone_points(tmp_path / "in", tmp_path / "res")
     assert per_block == {"b": {"tp": 30, "fp": 60, "fn": 0}}
     rows = false_tower_sources(false, labelled)

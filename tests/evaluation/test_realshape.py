@@ -22,16 +22,31 @@ def bare_zone(tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("realshape")
     zone = zone_name("ts40k", "no_colour")
-    truth = generate_zone(tmp / "data" / zone, seed=3, real_backgrounds=BACKGROUNDS,
-                          background_files=["ign_bridge.laz"], copies=1, lines=True, tower_source="real",
-                          real_towers=TOWERS, tower_families=["ts40k"], tower_density=(8, 15),
-                          variant="no_colour")
+    truth = generate_zone(
+        tmp / "data" / zone,
+        seed=3,
+        real_backgrounds=BACKGROUNDS,
+        background_files=["ign_bridge.laz"],
+        copies=1,
+        lines=True,
+        tower_source="real",
+        real_towers=TOWERS,
+        tower_families=["ts40k"],
+        tower_density=(8, 15),
+        variant="no_colour",
+    )
     block = truth.blocks[0]
     cache = tmp / "work" / zone / "cache" / block["name"]
     meta = split_block(block["path"], cache, block=block["name"], zone=zone, settings=preprocess_settings())
     for t in tiling.tile_ids(tuple(meta["header_bounds"]), 500.0):
-        preprocess_tile(zone, block["name"], t, {block["name"]: cache},
-                        tmp / "work" / zone / "tiles" / block["name"] / f"{t}.npz", settings=preprocess_settings())
+        preprocess_tile(
+            zone,
+            block["name"],
+            t,
+            {block["name"]: cache},
+            tmp / "work" / zone / "tiles" / block["name"] / f"{t}.npz",
+            settings=preprocess_settings(),
+        )
     return tmp, zone, truth
 
 
@@ -39,13 +54,33 @@ def test_benchmark_rows_auto_and_report(bare_zone, random_model_factory):
     tmp, zone, truth = bare_zone
     assert len(truth.towers) >= 1
     loso = {"full": {"ts40k": random_model_factory("full")}, "shape": {"ts40k": random_model_factory("shape")}}
-    inference = {"window": 40.0, "stride": 20.0, "gate": 0.5, "combine": "max", "batch_size": 8, "min_points": 10,
-                 "min_height": 10.0, "tta": 1, "windows": "grid", "threshold": 0.5}
-    towers = {"threshold": 0.5, "linkage": 2.5, "min_points": 20, "min_height": 10.0, "min_core_prob": 0.0,
-              "min_wire_support": 0.0, "wire_min_height": 20.0, "wire_ring_coverage": 0.0, "max_base_ratio": 1.0}
+    inference = {
+        "window": 40.0,
+        "stride": 20.0,
+        "gate": 0.5,
+        "combine": "max",
+        "batch_size": 8,
+        "min_points": 10,
+        "min_height": 10.0,
+        "tta": 1,
+        "windows": "grid",
+        "threshold": 0.5,
+    }
+    towers = {
+        "threshold": 0.5,
+        "linkage": 2.5,
+        "min_points": 20,
+        "min_height": 10.0,
+        "min_core_prob": 0.0,
+        "min_wire_support": 0.0,
+        "wire_min_height": 20.0,
+        "wire_ring_coverage": 0.0,
+        "max_base_ratio": 1.0,
+    }
     out = tmp / "out"
-    result = run_benchmark(loso, {zone: tmp / "data" / zone}, work=tmp / "work", inference=inference,
-                           towers=towers, out_dir=out)
+    result = run_benchmark(
+        loso, {zone: tmp / "data" / zone}, work=tmp / "work", inference=inference, towers=towers, out_dir=out
+    )
     rows = {r["recipe"]: r for r in result["rows"]}
     # no colour in this variant: the full recipe cannot run, the shape recipe can
     assert not rows["full"]["usable"] and rows["full"]["missing"] == ["nir", "rgb"]
@@ -65,10 +100,26 @@ def test_stamp_cards_writes_the_transfer_figures(tmp_path, random_model_factory)
     model = tmp_path / "m"
     shutil.copytree(random_model_factory("shape"), model)
     scores = tmp_path / "scores.json"
-    scores.write_text(json.dumps({"transfer": {"shape": {"score": 0.93, "point_iou": 0.71, "families": ["uav"]}},
-                                  "rows": [{"recipe": "shape", "usable": True, "family": "uav", "variant": "intact",
-                                            "gate_recall": 1.0, "recall": 0.95, "precision": 0.9, "point_iou": 0.7}]}))
+    scores.write_text(
+        json.dumps(
+            {
+                "transfer": {"shape": {"score": 0.93, "point_iou": 0.71, "families": ["uav"]}},
+                "rows": [
+                    {
+                        "recipe": "shape",
+                        "usable": True,
+                        "family": "uav",
+                        "variant": "intact",
+                        "gate_recall": 1.0,
+                        "recall": 0.95,
+                        "precision": 0.9,
+                        "point_iou": 0.7,
+                    }
+                ],
+            }
+        )
+    )
     stamp_cards(scores, {"shape": model})
-    card = read_card(model)                  # the weights' checksums still hold
+    card = read_card(model)  # the weights' checksums still hold
     assert card["transfer"]["score"] == 0.93 and card["transfer"]["per_family"][0]["recall"] == 0.95
     assert "## Transfer" in (model / "MODEL_CARD.md").read_text()

@@ -38,26 +38,39 @@ def _window(seed=0):
     n = n_t + n_v + n_g
     cls = np.r_[np.full(n_t, 15), np.full(n_v, 5), np.full(n_g, 2)].astype(np.uint8)
     hag = np.r_[rng.uniform(1, 30, n_t), rng.uniform(1, 12, n_v), np.zeros(n_g)].astype(np.float32)
-    a = {"x": rng.uniform(-20, 20, n), "y": rng.uniform(-20, 20, n), "z": 100 + hag.astype(float), "hag": hag,
-         "classification": cls, "model_input": cls != 2,
-         "intensity": rng.integers(100, 4000, n).astype(np.uint16),
-         "return_number": np.ones(n, np.uint8), "number_of_returns": np.ones(n, np.uint8)}
+    a = {
+        "x": rng.uniform(-20, 20, n),
+        "y": rng.uniform(-20, 20, n),
+        "z": 100 + hag.astype(float),
+        "hag": hag,
+        "classification": cls,
+        "model_input": cls != 2,
+        "intensity": rng.integers(100, 4000, n).astype(np.uint16),
+        "return_number": np.ones(n, np.uint8),
+        "number_of_returns": np.ones(n, np.uint8),
+    }
     grey = np.full(n, 30000, np.uint16)
     a["red"], a["green"], a["blue"] = grey.copy(), grey.copy(), grey.copy()
     a["nir"] = grey.copy()
     veg = cls == 5
     a["green"][veg] = 40000
     a["red"][veg] = 10000
-    a["nir"][veg] = 60000                                  # NDVI high on vegetation, 0 on the grey tower
-    return {"tower_id": 1, "design": "x", "center": np.zeros(2), "arrays": a, "tower": cls == 15,
-            "meta": {"color_bits": 16, "valid_attributes": ["intensity", "returns", "rgb", "nir"]}}
+    a["nir"][veg] = 60000  # NDVI high on vegetation, 0 on the grey tower
+    return {
+        "tower_id": 1,
+        "design": "x",
+        "center": np.zeros(2),
+        "arrays": a,
+        "tower": cls == 15,
+        "meta": {"color_bits": 16, "valid_attributes": ["intensity", "returns", "rgb", "nir"]},
+    }
 
 
 def test_a_colour_keyed_model_collapses_under_the_swap():
     w = _window()
     s = swap_scores(ColourKeyed(), w)
     assert set(s) == {"own", "vegetation", "ground", "surroundings"}
-    assert s["own"] == 1.0 and s["vegetation"] == 0.0          # the tower 'turned green': the signature is gone
+    assert s["own"] == 1.0 and s["vegetation"] == 0.0  # the tower 'turned green': the signature is gone
     # the swap replaces only attributes, never coordinates
     assert set(SWAPPED).isdisjoint({"x", "y", "z", "hag"})
 
@@ -79,8 +92,8 @@ def calibration_towers():
 @pytest.mark.shared
 @pytest.mark.slow
 def test_every_shipped_model_keeps_its_calibration_towers_when_attributes_swap(calibration_towers):
-    from towerpipe.model.cards import MODEL_RELEASES, default_model_path
     from towerpipe.model.bundle import load_bundle
+    from towerpipe.model.cards import MODEL_RELEASES, default_model_path
 
     gate = effective_config(root=REPO)["inference"]["gate"]
     assert len(calibration_towers) >= 15
@@ -93,5 +106,6 @@ def test_every_shipped_model_keeps_its_calibration_towers_when_attributes_swap(c
         for source in ("vegetation", "ground", "surroundings"):
             lost = [r for r in kept if source in r and r[source] < gate]
             # a colour-keyed model loses a third to a half of them (full-v3, rgb-v3: docs/model.md)
-            assert len(lost) <= 0.1 * len(kept), \
+            assert len(lost) <= 0.1 * len(kept), (
                 f"{fs}: {len(lost)} of {len(kept)} towers fall under the gate with the {source}'s attributes"
+            )

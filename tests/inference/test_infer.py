@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from conftest import grid_inference
-from towerpipe.model import features
 from towerpipe.errors import ConfigError, ModelError
 from towerpipe.inference.infer import TTA_CHOICES, check_model_compatibility, infer_tile, predict_tile, segment_views
 from towerpipe.io.predictions import PRED_META_KEYS, load_pred
 from towerpipe.io.tiles import Tile, empty_arrays, save_tile
+from towerpipe.model import features
 
 R = features.NORM_RADIUS
 CORE = (400000.0, 4600000.0, 400160.0, 4600160.0)
@@ -91,9 +91,21 @@ def make_tile(seed: int = 0, tower: tuple[float, float] | None = TOWER, density:
     a["point_index"] = rng.permutation(n).astype(np.int64)
     a["core"] = (x >= xmin) & (x < xmax) & (y >= ymin) & (y < ymax)
     a["model_input"] = (hag > 0.3) & (hag < 100)
-    meta = {"zone": "z", "block": "b0", "tile": "t0", "crs_wkt": "", "core_bounds": list(CORE), "buffer": 40.0,
-            "blocks": ["b0", "b1"], "has_rgb": False, "has_nir": False, "color_bits": 16,
-            "ground_source": "class2", "counts": {}, "timings": {}}
+    meta = {
+        "zone": "z",
+        "block": "b0",
+        "tile": "t0",
+        "crs_wkt": "",
+        "core_bounds": list(CORE),
+        "buffer": 40.0,
+        "blocks": ["b0", "b1"],
+        "has_rgb": False,
+        "has_nir": False,
+        "color_bits": 16,
+        "ground_source": "class2",
+        "counts": {},
+        "timings": {},
+    }
     return Tile(a, meta)
 
 
@@ -120,6 +132,7 @@ def by_id(arrays):
 
 
 # ----------------------------------------------------------------------------- gating
+
 
 def test_gate_counts_and_tower_windows():
     tile = make_tile()
@@ -166,6 +179,7 @@ def test_gate_threshold_zero_segments_every_window():
 
 
 # ----------------------------------------------------------------------------- combine, ownership
+
 
 def test_segment_views_are_exact_turns_and_mirrors():
     """Each view is the window turned (and mirrored) about its centre: a segmenter that only
@@ -273,6 +287,7 @@ def test_adjacent_tiles_give_identical_probabilities_on_shared_windows():
 
 # ----------------------------------------------------------------------------- determinism, batching
 
+
 def test_deterministic_order_and_batch_independent():
     tile = make_tile(density=0.3)
     ref, st_ref = predict_tile(tile, FakeBundle(), grid_inference(batch_size=32), seed=5)
@@ -299,6 +314,7 @@ def test_seed_changes_sampling():
 
 # ----------------------------------------------------------------------------- compatibility, config
 
+
 def test_check_model_compatibility_names_missing_attributes():
     class Full(FakeBundle):
         feature_set = "full"
@@ -319,10 +335,12 @@ def test_check_model_compatibility_names_missing_attributes():
 
 # ----------------------------------------------------------------------------- candidate windows
 
+
 def tower_points(tile: Tile) -> np.ndarray:
     a = tile.arrays
-    return np.flatnonzero(a["core"] & a["model_input"] & (np.hypot(a["x"] - TOWER[0], a["y"] - TOWER[1]) < 3)
-                          & (a["hag"] > 0.4))
+    return np.flatnonzero(
+        a["core"] & a["model_input"] & (np.hypot(a["x"] - TOWER[0], a["y"] - TOWER[1]) < 3) & (a["hag"] > 0.4)
+    )
 
 
 def test_candidate_window_is_centred_on_the_tower():
@@ -377,14 +395,22 @@ def test_bad_config_rejected():
 
 # ----------------------------------------------------------------------------- the real model
 
+
 def test_random_initialised_real_bundle_runs(tmp_path):
     torch = pytest.importorskip("torch")
     model = pytest.importorskip("towerpipe.model.pointnet")
     bundles = pytest.importorskip("towerpipe.model.bundle")
     torch.manual_seed(0)
     c = len(features.FEATURE_SETS["geometry"])
-    bundle = bundles.ModelBundle(name="random", version="0", feature_set="geometry", card={}, n_points=2048,
-                                 classifier=model.PointNetClassifier(c), segmenter=model.PointNetSegmenter(c))
+    bundle = bundles.ModelBundle(
+        name="random",
+        version="0",
+        feature_set="geometry",
+        card={},
+        n_points=2048,
+        classifier=model.PointNetClassifier(c),
+        segmenter=model.PointNetSegmenter(c),
+    )
     tile = make_tile(density=0.1)
     save_tile(tmp_path / "t.npz", tile)
     kw = dict(gate=0.0, stride=40.0)  # 25 windows, all segmented: keeps the CPU test short

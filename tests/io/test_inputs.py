@@ -10,8 +10,20 @@ from towerpipe.io.inputs import block_ids, find_blocks, fingerprint, scan_zone
 
 
 def test_plain_names_are_kept_and_odd_ones_made_safe_and_unique():
-    ids = block_ids(["a.laz", "f2/upper_case.LAZ", "b c.laz", "blk{1}.laz", "é.laz", "flight1/a.laz",
-                     "flight1__a.laz", "x.las", "x.laz", ".hidden.laz"])
+    ids = block_ids(
+        [
+            "a.laz",
+            "f2/upper_case.LAZ",
+            "b c.laz",
+            "blk{1}.laz",
+            "é.laz",
+            "flight1/a.laz",
+            "flight1__a.laz",
+            "x.las",
+            "x.laz",
+            ".hidden.laz",
+        ]
+    )
     rel = {r: b for b, r in ids.items()}
     assert rel["a.laz"] == "a" and rel["f2/upper_case.LAZ"] == "f2__upper_case"
     for r in ("b c.laz", "blk{1}.laz", "é.laz", "flight1/a.laz", "flight1__a.laz", "x.las", "x.laz", ".hidden.laz"):

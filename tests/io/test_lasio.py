@@ -109,8 +109,12 @@ def test_crs_units_refused_naming_the_unit():
 
     for ok in ("EPSG:25831", "EPSG:2154+5720", "EPSG:7415"):
         check_metric_crs("b.laz", CRS.from_user_input(ok).to_wkt())
-    for crs, msg in (("EPSG:2263", "horizontal unit 'US survey foot'"), ("EPSG:4326", "horizontal unit 'degree'"),
-                     ("EPSG:25831+6360", "vertical unit 'US survey foot'"), ("EPSG:2227", "US survey foot")):
+    for crs, msg in (
+        ("EPSG:2263", "horizontal unit 'US survey foot'"),
+        ("EPSG:4326", "horizontal unit 'degree'"),
+        ("EPSG:25831+6360", "vertical unit 'US survey foot'"),
+        ("EPSG:2227", "US survey foot"),
+    ):
         with pytest.raises(InputError, match=msg) as exc:
             check_metric_crs("b.laz", CRS.from_user_input(crs).to_wkt(), zone="z", from_config=True)
         assert "\n" not in str(exc.value) and "zones.z.crs" in str(exc.value)

@@ -23,7 +23,9 @@ def _arrays(n=5, seed=0):
     return {
         "block_id": np.array([1, 1, 0, 1, 0][:n]),  # int64 on purpose: cast to int32
         "point_index": rng.integers(0, 10**9, n),
-        "x": rng.uniform(4e5, 4.1e5, n), "y": rng.uniform(4.6e6, 4.7e6, n), "z": rng.uniform(0, 300, n),
+        "x": rng.uniform(4e5, 4.1e5, n),
+        "y": rng.uniform(4.6e6, 4.7e6, n),
+        "z": rng.uniform(0, 300, n),
         "hag": rng.uniform(0, 50, n).astype(np.float32),
         "prob": rng.random(n),  # float64: cast to float32
         "prob_single": rng.random(n),
@@ -44,6 +46,7 @@ def test_roundtrip_dtypes_and_meta(tmp_path):
     assert not list(path.parent.glob("*.part"))
     # uncompressed npz: arrays stored (zip "stored" method)
     import zipfile
+
     with zipfile.ZipFile(path) as zf:
         assert {i.compress_type for i in zf.infolist()} == {zipfile.ZIP_STORED}
 
@@ -97,7 +100,10 @@ def test_invalid_inputs_raise(tmp_path):
     with pytest.raises(InputError, match="rerun the inference"):
         load_pred(tmp_path / "junk.npz")
     # a file missing an array (written by something else) is rejected on load
-    np.savez(tmp_path / "partial.npz", meta=np.frombuffer(json.dumps(_meta()).encode(), np.uint8),
-             **{k: v for k, v in _arrays().items() if k != "x"})
+    np.savez(
+        tmp_path / "partial.npz",
+        meta=np.frombuffer(json.dumps(_meta()).encode(), np.uint8),
+        **{k: v for k, v in _arrays().items() if k != "x"},
+    )
     with pytest.raises(InputError):
         load_pred(tmp_path / "partial.npz")

@@ -12,8 +12,10 @@ from conftest import REPO
 
 def _holder(tmp_path, zone):
     """A live process holding ``zone``'s run lock in ``tmp_path`` (as a running Snakemake does)."""
-    code = ("import sys, time; from towerpipe.jobs.runlock import hold_zone; "
-            f"hold_zone({zone!r}, {str(tmp_path)!r}); print('held', flush=True); time.sleep(60)")
+    code = (
+        "import sys, time; from towerpipe.jobs.runlock import hold_zone; "
+        f"hold_zone({zone!r}, {str(tmp_path)!r}); print('held', flush=True); time.sleep(60)"
+    )
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     assert proc.stdout.readline().strip() == "held"
     return proc
@@ -40,7 +42,7 @@ def test_second_run_of_a_zone_is_refused_naming_the_live_process(tmp_path):
     try:
         hold_zone("z1", tmp_path)
     except TowerpipeError as exc:  # pragma: no cover - the assertion below explains
-        raise AssertionError(f"the lock of a killed run survived: {exc}")
+        raise AssertionError(f"the lock of a killed run survived: {exc}") from exc
 
 
 def test_unlock_only_when_no_run_is_alive(tmp_path):
@@ -71,8 +73,9 @@ def test_nightly_exits_75_while_the_zone_runs_and_never_unlocks_a_live_run(tmp_p
         assert run.returncode == 75, run.stderr
         assert "another run of zone" in run.stderr and time.monotonic() - t0 < 30
         # another zone: its run starts, but Snakemake's lock (shared by all zones) is not cleared
-        run = subprocess.run(["bash", "scripts/nightly.sh", zone + "_other"], cwd=REPO, env=env,
-                             capture_output=True, text=True)
+        run = subprocess.run(
+            ["bash", "scripts/nightly.sh", zone + "_other"], cwd=REPO, env=env, capture_output=True, text=True
+        )
         assert "a run is alive: its lock is left alone" in run.stderr and run.returncode == 9
     finally:
         proc.kill()

@@ -111,7 +111,9 @@ At least one job did not complete successfully.
 """
 
 # a run interrupted (Ctrl-C, kill) while a job ran: the log stops inside the job
-INTERRUPTED = HEADER + """\
+INTERRUPTED = (
+    HEADER
+    + """\
 Select jobs to execute...
 Execute 1 jobs...
 [Mon Nov 23 21:06:39 2026]
@@ -123,6 +125,7 @@ localrule split_block:
     wildcards: zone=demo, block=slow
     resources: tmpdir=/tmp
 """
+)
 
 # the next run of an interrupted one, without --rerun-incomplete
 INCOMPLETE_FILES = """\
@@ -167,18 +170,21 @@ def run_dir(tmp_path, monkeypatch):
 
 
 def test_failed_jobs_with_their_towerpipe_error(run_dir):
-    main = _write(run_dir / ".snakemake/log/main.snakemake.log",
-                  HEADER + FAILED_SPLIT + FAILED_TILE + FINISHED_GOOD + FOOTER)
+    main = _write(
+        run_dir / ".snakemake/log/main.snakemake.log", HEADER + FAILED_SPLIT + FAILED_TILE + FINISHED_GOOD + FOOTER
+    )
     _write(run_dir / "work/demo/logs/split_block/broken.log", SPLIT_LOG)
     _write(run_dir / "work/demo/logs/preprocess_tile/nir/t0.log", TILE_LOG)
     _write(run_dir / "work/demo/logs/split_block/good.log", "2026-11-23 21:06:21,400 INFO towerpipe: done\n")
     failures = failures_from_log(main, "work")
     # the logger prefix is cut; a tile's log names its block (the directory)
-    assert failures == {"demo": {
-        "broken": "split_block: InputError: data/demo/broken.laz: not a LAS/LAZ file (bad signature)",
-        "nir": "preprocess_tile: numpy.core._exceptions._ArrayMemoryError: Unable to allocate 3.20 GiB for an "
-               "array with shape (430000000,)",
-    }}
+    assert failures == {
+        "demo": {
+            "broken": "split_block: InputError: data/demo/broken.laz: not a LAS/LAZ file (bad signature)",
+            "nir": "preprocess_tile: numpy.core._exceptions._ArrayMemoryError: Unable to allocate 3.20 GiB for an "
+            "array with shape (430000000,)",
+        }
+    }
     # the work directory given as an absolute path, the log as a str: the same
     assert failures_from_log(str(main), str(run_dir / "work")) == failures
 
@@ -187,8 +193,9 @@ def test_reason_without_an_error_line_or_a_job_log(run_dir):
     main = _write(run_dir / "smk.log", HEADER + FAILED_SPLIT + FAILED_TILE + FOOTER)
     # no "...Error: " line: the last non-empty line; no job log at all: "<rule> failed"
     _write(run_dir / "work/demo/logs/split_block/broken.log", "pdal: killed by signal 9\n\n  \n")
-    assert failures_from_log(main, "work") == {"demo": {"broken": "split_block: pdal: killed by signal 9",
-                                                        "nir": "preprocess_tile failed"}}
+    assert failures_from_log(main, "work") == {
+        "demo": {"broken": "split_block: pdal: killed by signal 9", "nir": "preprocess_tile failed"}
+    }
     # an empty job log gives "<rule> failed" too
     _write(run_dir / "work/demo/logs/split_block/broken.log", "")
     assert failures_from_log(main, "work")["demo"]["broken"] == "split_block failed"
@@ -197,8 +204,10 @@ def test_reason_without_an_error_line_or_a_job_log(run_dir):
 def test_reason_is_cut_to_300_characters(run_dir):
     main = _write(run_dir / "smk.log", HEADER + FAILED_SPLIT + FOOTER)
     cause = "x" * 400
-    _write(run_dir / "work/demo/logs/split_block/broken.log",
-           f"2026-11-23 21:06:21,200 ERROR towerpipe: InputError: {cause}\n")
+    _write(
+        run_dir / "work/demo/logs/split_block/broken.log",
+        f"2026-11-23 21:06:21,200 ERROR towerpipe: InputError: {cause}\n",
+    )
     reason = failures_from_log(main, "work")["demo"]["broken"]
     assert reason == "split_block: " + ("InputError: " + cause)[:300]
 
@@ -218,15 +227,17 @@ def test_several_logs_first_reason_kept_and_missing_logs_ignored(run_dir):
     _write(run_dir / "work/demo/logs/split_block/broken.log", SPLIT_LOG)
     _write(run_dir / "work/demo/logs/preprocess_block/broken.log", "ValueError: later\n")
     out = failures_from_log([first, second, run_dir / "missing.log"], "work")
-    assert out == {"demo": {"broken": "split_block: InputError: data/demo/broken.laz: not a LAS/LAZ file "
-                                      "(bad signature)"}}
+    assert out == {
+        "demo": {"broken": "split_block: InputError: data/demo/broken.laz: not a LAS/LAZ file (bad signature)"}
+    }
     assert failures_from_log([], "work") == {}
     assert failures_from_log(run_dir / "missing.log", "work") == {}
 
 
 def test_logs_that_name_no_block_are_skipped(run_dir):
-    zone_job = FAILED_SPLIT.replace("split_block", "plan_zone").replace("logs/plan_zone/broken.log",
-                                                                        "logs/plan_zone.log")
+    zone_job = FAILED_SPLIT.replace("split_block", "plan_zone").replace(
+        "logs/plan_zone/broken.log", "logs/plan_zone.log"
+    )
     elsewhere = FAILED_SPLIT.replace("work/demo/logs", "other/demo/logs")
     main = _write(run_dir / "smk.log", HEADER + zone_job + elsewhere + FOOTER)
     _write(run_dir / "work/demo/logs/plan_zone.log", "ConfigError: bad\n")
@@ -237,8 +248,10 @@ def test_logs_that_name_no_block_are_skipped(run_dir):
 def test_zones_are_kept_apart(run_dir):
     other = FAILED_SPLIT.replace("work/demo/", "work/north/").replace("broken", "b7")
     main = _write(run_dir / "smk.log", HEADER + FAILED_SPLIT + other + FOOTER)
-    assert failures_from_log(main, "work") == {"demo": {"broken": "split_block failed"},
-                                               "north": {"b7": "split_block failed"}}
+    assert failures_from_log(main, "work") == {
+        "demo": {"broken": "split_block failed"},
+        "north": {"b7": "split_block failed"},
+    }
 
 
 def test_log_of_a_real_snakemake_run(run_dir):
@@ -268,8 +281,14 @@ rule split_block:
         touch {output}
         """
 ''')
-    proc = subprocess.run([sys.executable, "-m", "snakemake", "-c1", "--keep-going", "--nolock"], check=False,
-                          cwd=run_dir, capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "snakemake", "-c1", "--keep-going", "--nolock"],
+        check=False,
+        cwd=run_dir,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode != 0 and "Error in rule split_block" in proc.stderr, proc.stderr[-2000:]
     logs = sorted((run_dir / ".snakemake/log").glob("*.snakemake.log"))
     assert logs

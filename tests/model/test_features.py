@@ -8,18 +8,30 @@ import numpy as np
 import pytest
 
 from towerpipe.errors import ModelError
-from towerpipe.model.features import (FEATURE_SETS, NORM_RADIUS, intensity_scale, missing_attributes,
-                                required_attributes, tile_feature_meta, window_features)
+from towerpipe.model.features import (
+    FEATURE_SETS,
+    NORM_RADIUS,
+    intensity_scale,
+    missing_attributes,
+    required_attributes,
+    tile_feature_meta,
+    window_features,
+)
 
 
 def _arrays(n: int = 50, seed: int = 0) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(seed)
     return {
-        "x": 400000 + rng.uniform(-20, 20, n), "y": 4600000 + rng.uniform(-20, 20, n),
-        "hag": rng.uniform(0, 50, n).astype(np.float32), "intensity": rng.integers(1, 1000, n).astype(np.uint16),
-        "red": rng.integers(0, 256, n).astype(np.uint16), "green": rng.integers(0, 256, n).astype(np.uint16),
-        "blue": rng.integers(0, 256, n).astype(np.uint16), "nir": rng.integers(0, 256, n).astype(np.uint16),
-        "return_number": np.ones(n, np.uint8), "number_of_returns": rng.integers(1, 4, n).astype(np.uint8),
+        "x": 400000 + rng.uniform(-20, 20, n),
+        "y": 4600000 + rng.uniform(-20, 20, n),
+        "hag": rng.uniform(0, 50, n).astype(np.float32),
+        "intensity": rng.integers(1, 1000, n).astype(np.uint16),
+        "red": rng.integers(0, 256, n).astype(np.uint16),
+        "green": rng.integers(0, 256, n).astype(np.uint16),
+        "blue": rng.integers(0, 256, n).astype(np.uint16),
+        "nir": rng.integers(0, 256, n).astype(np.uint16),
+        "return_number": np.ones(n, np.uint8),
+        "number_of_returns": rng.integers(1, 4, n).astype(np.uint8),
         "model_input": np.ones(n, bool),
     }
 
@@ -58,8 +70,9 @@ def test_colour_bits_and_intensity_scale():
     a = _arrays()
     a16 = dict(a, green=(a["green"].astype(np.uint32) * 257).astype(np.uint16))
     f8 = window_features(a, np.arange(50), (400000.0, 4600000.0), "full", tile_feature_meta(a, META))
-    f16 = window_features(a16, np.arange(50), (400000.0, 4600000.0), "full",
-                          tile_feature_meta(a16, dict(META, color_bits=16)))
+    f16 = window_features(
+        a16, np.arange(50), (400000.0, 4600000.0), "full", tile_feature_meta(a16, dict(META, color_bits=16))
+    )
     np.testing.assert_allclose(f8[:, 4], f16[:, 4], atol=1e-6)
     # doubling every intensity (another sensor) leaves the feature unchanged
     a2 = dict(a, intensity=a["intensity"] * 2)
@@ -96,5 +109,5 @@ def test_shape_and_rgb_columns():
     s = window_features(a, np.arange(50), (400000.0, 4600000.0), "shape", meta)
     assert s.shape == (50, 3)
     r = window_features(a, np.arange(50), (400000.0, 4600000.0), "rgb", meta)
-    np.testing.assert_allclose(r[:, 3], 1.0)                      # red, 8-bit full scale
+    np.testing.assert_allclose(r[:, 3], 1.0)  # red, 8-bit full scale
     np.testing.assert_array_equal(r[:, :3], s)

@@ -9,20 +9,29 @@ import pytest
 import torch
 
 from towerpipe.errors import ModelError
-from towerpipe.model.features import FEATURE_SETS
 from towerpipe.model.bundle import load_bundle, save_bundle
+from towerpipe.model.cards import MODEL_RELEASES, code_version, config_hash, default_model_path, validate_card
+from towerpipe.model.features import FEATURE_SETS
 from towerpipe.model.folded import segment_points
 from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter, count_parameters
-from towerpipe.model.cards import MODEL_RELEASES, code_version, config_hash, default_model_path, validate_card
 
 torch.set_num_threads(2)
 
 
 def _card(feature_set: str = "full") -> dict:
-    return {"name": f"towerpipe-{feature_set}", "version": "1", "bundle_version": 1, "feature_set": feature_set,
-            "features": FEATURE_SETS[feature_set], "normalisation": {"norm_radius_m": 57.45},
-            "sampling": {"n_points": 2048}, "training_data": {"tiles": []}, "metrics": {"classifier": {}},
-            "code": code_version(), "config_hash": config_hash({"a": 1})}
+    return {
+        "name": f"towerpipe-{feature_set}",
+        "version": "1",
+        "bundle_version": 1,
+        "feature_set": feature_set,
+        "features": FEATURE_SETS[feature_set],
+        "normalisation": {"norm_radius_m": 57.45},
+        "sampling": {"n_points": 2048},
+        "training_data": {"tiles": []},
+        "metrics": {"classifier": {}},
+        "code": code_version(),
+        "config_hash": config_hash({"a": 1}),
+    }
 
 
 def _trained_like(model: torch.nn.Module, seed: int = 0) -> torch.nn.Module:
@@ -41,8 +50,11 @@ def _trained_like(model: torch.nn.Module, seed: int = 0) -> torch.nn.Module:
 
 
 def test_parameter_counts_match_paper():
-    counts = {(arch, kind): count_parameters(cls(7, arch)) for arch in ("light", "full")
-              for kind, cls in (("classifier", PointNetClassifier), ("segmenter", PointNetSegmenter))}
+    counts = {
+        (arch, kind): count_parameters(cls(7, arch))
+        for arch in ("light", "full")
+        for kind, cls in (("classifier", PointNetClassifier), ("segmenter", PointNetSegmenter))
+    }
     for key, n in counts.items():
         print(f"{key[0]:>5} {key[1]:<10} {n:>9,d} parameters")
     # paper: PointNet_L ~0.9 M, PointNet ~3.5 M
@@ -86,8 +98,12 @@ def test_bundle_round_trip(tmp_path):
     clf = _trained_like(PointNetClassifier(7, "light"), 3)
     seg = _trained_like(PointNetSegmenter(7, "light"), 4)
     out = save_bundle(tmp_path / "m", clf, seg, _card())
-    assert sorted(p.name for p in out.iterdir()) == ["MODEL_CARD.md", "classifier.pt", "model_card.json",
-                                                    "segmenter.pt"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "MODEL_CARD.md",
+        "classifier.pt",
+        "model_card.json",
+        "segmenter.pt",
+    ]
     b = load_bundle(out)
     assert (b.name, b.version, b.feature_set, b.n_points) == ("towerpipe-full", "1", "full", 2048)
     x = np.random.default_rng(1).normal(size=(4, 256, 7)).astype(np.float32)

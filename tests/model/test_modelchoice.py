@@ -7,18 +7,20 @@ import json
 import pytest
 
 from conftest import grid_inference
-from towerpipe.model import cards as modelcard
 from towerpipe.errors import ConfigError, ModelError
-from towerpipe.model.features import FEATURE_SETS
 from towerpipe.inference.infer import infer_tile
+from towerpipe.model import cards as modelcard
 from towerpipe.model.choice import choose_model, incompatibility_error, resolve_model, zone_attributes
+from towerpipe.model.features import FEATURE_SETS
 
 RELEASES = {"full": 9, "rgb": 9, "geometry": 9, "shape": 9}
 
 
 def _attrs(*valid):
-    return {a: {"present": True, "valid": a in valid, "reason": "ok" if a in valid else "all 0"}
-            for a in ("intensity", "returns", "rgb", "nir")}
+    return {
+        a: {"present": True, "valid": a in valid, "reason": "ok" if a in valid else "all 0"}
+        for a in ("intensity", "returns", "rgb", "nir")
+    }
 
 
 @pytest.fixture
@@ -35,12 +37,23 @@ def shipped(tmp_path, monkeypatch):
         for fs, r in RELEASES.items():
             d = tmp_path / f"towerpipe-{fs}-v{r}"
             d.mkdir(exist_ok=True)
-            card = {"name": f"towerpipe-{fs}", "version": str(r), "bundle_version": modelcard.BUNDLE_VERSION,
-                    "feature_set": fs, "features": FEATURE_SETS[fs], "normalisation": {},
-                    "sampling": {"n_points": 1024}, "training_data": {}, "metrics": {}, "code": {},
-                    "config_hash": "0", "transfer": {"score": transfer.get(fs)}}
+            card = {
+                "name": f"towerpipe-{fs}",
+                "version": str(r),
+                "bundle_version": modelcard.BUNDLE_VERSION,
+                "feature_set": fs,
+                "features": FEATURE_SETS[fs],
+                "normalisation": {},
+                "sampling": {"n_points": 1024},
+                "training_data": {},
+                "metrics": {},
+                "code": {},
+                "config_hash": "0",
+                "transfer": {"score": transfer.get(fs)},
+            }
             (d / "model_card.json").write_text(json.dumps(card))
         return tmp_path
+
     return scores
 
 
@@ -54,8 +67,9 @@ def test_auto_picks_the_best_transfer_among_usable_models(shipped):
     assert c["feature_set"] == "rgb" and c["valid_attributes"] == ["rgb"]
     assert {x["feature_set"]: x["missing"] for x in c["candidates"]}["geometry"] == ["intensity", "returns"]
     # one block without colour: the whole zone runs with what every block has
-    c = choose_model("auto", {"a": _attrs("rgb", "intensity", "returns"), "b": _attrs("intensity", "returns")},
-                     zone="z")
+    c = choose_model(
+        "auto", {"a": _attrs("rgb", "intensity", "returns"), "b": _attrs("intensity", "returns")}, zone="z"
+    )
     assert c["feature_set"] == "shape"
 
 
@@ -68,9 +82,15 @@ def test_richer_is_not_better(shipped):
 def test_failed_blocks_do_not_decide(shipped):
     shipped(full=0.99, rgb=0.9, geometry=0.8, shape=0.7)
     assert zone_attributes({"a": _attrs("intensity", "returns", "rgb", "nir"), "bad": None}) == {
-        "intensity", "returns", "rgb", "nir"}
-    assert choose_model("auto", {"a": _attrs("intensity", "returns", "rgb", "nir"), "bad": None},
-                        zone="z")["feature_set"] == "full"
+        "intensity",
+        "returns",
+        "rgb",
+        "nir",
+    }
+    assert (
+        choose_model("auto", {"a": _attrs("intensity", "returns", "rgb", "nir"), "bad": None}, zone="z")["feature_set"]
+        == "full"
+    )
 
 
 def test_unmeasured_models_rank_last(shipped):
@@ -81,8 +101,12 @@ def test_unmeasured_models_rank_last(shipped):
 
 def test_explicit_choice_lists_incompatible_blocks_with_the_real_key(shipped):
     shipped(full=0.9, shape=0.8)
-    c = choose_model("full", {"a": _attrs("intensity", "returns", "rgb", "nir"), "b": _attrs("rgb")},
-                     zone="zone2", key="zones.zone2.model")
+    c = choose_model(
+        "full",
+        {"a": _attrs("intensity", "returns", "rgb", "nir"), "b": _attrs("rgb")},
+        zone="zone2",
+        key="zones.zone2.model",
+    )
     assert c["mode"] == "explicit" and c["incompatible_blocks"] == {"b": ["intensity", "nir"]}
     msg = incompatibility_error(c, "b")
     assert "`zones.zone2.model: auto`" in msg and "intensity, nir" in msg
@@ -106,10 +130,30 @@ def test_an_explicit_incompatible_model_fails_its_block_only(random_model_factor
     a["model_input"][:] = True
     a["core"][:] = True
     tile = tmp_path / "t.npz"
-    save_tile(tile, Tile(a, {"zone": "z", "block": "b", "tile": "0_0", "blocks": ["b"], "crs_wkt": None,
-                             "core_bounds": [0, 0, 1, 1], "valid_attributes": ["rgb"], "color_bits": 16}))
-    choice = {"mode": "explicit", "key": "inference.model", "name": "towerpipe-random-full", "version": "0",
-              "feature_set": "full", "reason": "set by `inference.model: full`",
-              "incompatible_blocks": {"b": ["intensity", "nir"]}}
+    save_tile(
+        tile,
+        Tile(
+            a,
+            {
+                "zone": "z",
+                "block": "b",
+                "tile": "0_0",
+                "blocks": ["b"],
+                "crs_wkt": None,
+                "core_bounds": [0, 0, 1, 1],
+                "valid_attributes": ["rgb"],
+                "color_bits": 16,
+            },
+        ),
+    )
+    choice = {
+        "mode": "explicit",
+        "key": "inference.model",
+        "name": "towerpipe-random-full",
+        "version": "0",
+        "feature_set": "full",
+        "reason": "set by `inference.model: full`",
+        "incompatible_blocks": {"b": ["intensity", "nir"]},
+    }
     with pytest.raises(ModelError, match="set `inference.model: auto`"):
         infer_tile(tile, random_model_factory("full"), tmp_path / "p.npz", grid_inference(), choice=choice)

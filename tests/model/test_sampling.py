@@ -45,8 +45,9 @@ def test_deterministic_given_rng():
     c = constrained_sample(h, 2048, np.random.default_rng(8))
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, c)
-    np.testing.assert_array_equal(random_sample(5000, 2048, np.random.default_rng(1)),
-                                  random_sample(5000, 2048, np.random.default_rng(1)))
+    np.testing.assert_array_equal(
+        random_sample(5000, 2048, np.random.default_rng(1)), random_sample(5000, 2048, np.random.default_rng(1))
+    )
 
 
 def test_small_windows_padded_with_every_point_kept():

@@ -14,11 +14,15 @@ DIMS = ["x", "y", "z", "intensity", "return_number", "number_of_returns", "red",
 
 def _chunk(n=1000, seed=0, **over):
     rng = np.random.default_rng(seed)
-    c = {"intensity": rng.integers(0, 4000, n).astype(np.uint16),
-         "return_number": rng.integers(1, 3, n).astype(np.uint8),
-         "number_of_returns": rng.integers(2, 4, n).astype(np.uint8),
-         "red": rng.integers(0, 65535, n).astype(np.uint16), "green": rng.integers(0, 65535, n).astype(np.uint16),
-         "blue": rng.integers(0, 65535, n).astype(np.uint16), "nir": rng.integers(0, 65535, n).astype(np.uint16)}
+    c = {
+        "intensity": rng.integers(0, 4000, n).astype(np.uint16),
+        "return_number": rng.integers(1, 3, n).astype(np.uint8),
+        "number_of_returns": rng.integers(2, 4, n).astype(np.uint8),
+        "red": rng.integers(0, 65535, n).astype(np.uint16),
+        "green": rng.integers(0, 65535, n).astype(np.uint16),
+        "blue": rng.integers(0, 65535, n).astype(np.uint16),
+        "nir": rng.integers(0, 65535, n).astype(np.uint16),
+    }
     for k, v in over.items():
         c[k] = np.full(n, v, c[k].dtype)
     return c
@@ -35,7 +39,7 @@ def test_informative_attributes_are_valid():
 def test_a_public_reexport_with_zeroed_attributes():
     """Intensity, returns all 0 and a NIR of zeros: degenerate, not absent."""
     s = AttributeStats(DIMS)
-    for k in range(3):                                    # every chunk of the file is the same
+    for k in range(3):  # every chunk of the file is the same
         s.update(_chunk(seed=k, intensity=0, return_number=0, number_of_returns=0, nir=0))
     r = s.result()
     assert not r["intensity"]["valid"] and r["intensity"]["reason"] == "all 0"
@@ -64,7 +68,7 @@ def test_constant_and_few_values_carry_nothing():
 
 def test_values_spread_over_chunks_count_together():
     s = AttributeStats(DIMS)
-    for v in range(MIN_DISTINCT + 1):                      # one value per chunk
+    for v in range(MIN_DISTINCT + 1):  # one value per chunk
         s.update(_chunk(n=10, intensity=v))
     assert s.result()["intensity"]["valid"]
 

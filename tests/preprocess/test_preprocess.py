@@ -10,10 +10,10 @@ import pytest
 import rasterio
 
 from conftest import HIGH_NOISE, RGB_SUBSET, RGBNIR_BLOCK, RGBNIR_SMALL, preprocess_settings
+from towerpipe.io.tiles import load_tile
 from towerpipe.preprocess import tiling
 from towerpipe.preprocess.split import split_block
 from towerpipe.preprocess.tile import preprocess_tile, summarize_block
-from towerpipe.io.tiles import load_tile
 
 pytestmark = pytest.mark.usefixtures("pdal_cli")
 
@@ -38,9 +38,10 @@ def rgbnir(tmp_path_factory):
 
 
 def core_points(tiles):
-    return {k: np.concatenate([t[k][t["core"]] for t in tiles.values()]) for k in ("point_index", "hag",
-                                                                                   "classification",
-                                                                                   "model_input", "z")}
+    return {
+        k: np.concatenate([t[k][t["core"]] for t in tiles.values()])
+        for k in ("point_index", "hag", "classification", "model_input", "z")
+    }
 
 
 @pytest.mark.shared
@@ -109,8 +110,9 @@ def test_high_noise_points_out_of_model_input(tmp_path):
     assert c["hag"].max() > 1000.0
     assert not c["model_input"][high].any()
     assert c["hag"][c["model_input"]].max() <= 100.0
-    summary = summarize_block(tmp_path / "cache" / "b", [str(tmp_path / "tiles" / f"{t}.npz") for t in tiles],
-                              tmp_path / "summary.json")
+    summary = summarize_block(
+        tmp_path / "cache" / "b", [str(tmp_path / "tiles" / f"{t}.npz") for t in tiles], tmp_path / "summary.json"
+    )
     assert summary["counts"]["noise_hag_core"] >= 20
     assert json.loads((tmp_path / "summary.json").read_text())["points"] == meta["points"]
 
@@ -181,7 +183,16 @@ def test_block_in_another_crs_than_its_zone(tmp_path):
 
     from towerpipe.errors import InputError
 
-    with pytest.raises(InputError, match=r"small\.laz: its CRS \(EPSG:2154\) differs from the rest of zone 'z' "
-                                         r"\(EPSG:25831\); reproject it"):
-        split_block(RGBNIR_SMALL, tmp_path / "c", block="small", zone="z",
-                    zone_crs=CRS.from_epsg(25831).to_wkt(), settings=preprocess_settings())
+    with pytest.raises(
+        InputError,
+        match=r"small\.laz: its CRS \(EPSG:2154\) differs from the rest of zone 'z' "
+        r"\(EPSG:25831\); reproject it",
+    ):
+        split_block(
+            RGBNIR_SMALL,
+            tmp_path / "c",
+            block="small",
+            zone="z",
+            zone_crs=CRS.from_epsg(25831).to_wkt(),
+            settings=preprocess_settings(),
+        )

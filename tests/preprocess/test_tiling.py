@@ -26,8 +26,7 @@ def test_no_sliver_tiles_and_tiles_not_larger_than_requested():
 
 
 def test_neighbours_and_tile_blocks():
-    b = {"a": (0, 0, 1000, 1000), "b": (1000, 0, 2000, 1000), "c": (5000, 0, 6000, 1000),
-         "d": (0, 1000, 1000, 2000)}
+    b = {"a": (0, 0, 1000, 1000), "b": (1000, 0, 2000, 1000), "c": (5000, 0, 6000, 1000), "d": (0, 1000, 1000, 2000)}
     assert tiling.neighbours("a", b, 40) == ["b", "d"]
     # with 250 m tiles, a tile in the middle of a needs no neighbour; one at its east edge needs b
     assert tiling.blocks_for_tile(b["a"], "1_1", 250.0, 40.0, b) == ["a"]

@@ -14,6 +14,7 @@ from pyproj import CRS as ProjCRS
 from conftest import extract
 from towerpipe import __version__
 from towerpipe.errors import InputError
+from towerpipe.model.cards import config_hash
 from towerpipe.products.gpkg import (
     LAYER_POINTS,
     LAYER_TOWERS,
@@ -24,7 +25,6 @@ from towerpipe.products.gpkg import (
     run_metadata,
     write_towers_gpkg,
 )
-from towerpipe.model.cards import config_hash
 from towerpipe.towers.extract import TOWER_COLUMNS, empty_towers
 
 X0, Y0 = 400_000.0, 4_600_000.0
@@ -36,19 +36,35 @@ def tower_points(cx: float, cy: float, height: float = 30.0, step: float = 0.5) 
     """Four converging legs of a tower, base at z = 100."""
     t = np.arange(0.0, height, step)
     half = 3.0 - 2.0 * t / height
-    return np.concatenate([np.column_stack([cx + sx * half, cy + sy * half, 100.0 + t])
-                           for sx, sy in ((-1, -1), (-1, 1), (1, -1), (1, 1))])
+    return np.concatenate(
+        [
+            np.column_stack([cx + sx * half, cy + sy * half, 100.0 + t])
+            for sx, sy in ((-1, -1), (-1, 1), (1, -1), (1, 1))
+        ]
+    )
 
 
 def towers_for(block: str, bounds: tuple[float, float, float, float], centres: list[tuple[float, float]]):
     xyz = np.concatenate([tower_points(cx, cy) for cx, cy in centres])
     n = len(xyz)
-    arrays = {"block_id": np.zeros(n, np.int32), "point_index": np.arange(n, dtype=np.int64),
-              "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "hag": (xyz[:, 2] - 100).astype(np.float32),
-              "prob": np.full(n, 0.9, np.float32)}
+    arrays = {
+        "block_id": np.zeros(n, np.int32),
+        "point_index": np.arange(n, dtype=np.int64),
+        "x": xyz[:, 0],
+        "y": xyz[:, 1],
+        "z": xyz[:, 2],
+        "hag": (xyz[:, 2] - 100).astype(np.float32),
+        "prob": np.full(n, 0.9, np.float32),
+    }
     meta = {"blocks": [block], "crs_wkt": WKT, "model": MODEL}
-    return extract([(arrays, meta)], block, bounds, zone="z1", source_files={block: f"/in/{block}.laz"},
-                   processed_at="2024-05-01T12:00:00+00:00").towers
+    return extract(
+        [(arrays, meta)],
+        block,
+        bounds,
+        zone="z1",
+        source_files={block: f"/in/{block}.laz"},
+        processed_at="2024-05-01T12:00:00+00:00",
+    ).towers
 
 
 @pytest.fixture
@@ -57,8 +73,9 @@ def two_towers():
 
 
 def test_write_read_schema_crs_metadata(tmp_path, two_towers):
-    md = run_metadata(model_meta=MODEL, config={"threshold": 0.5}, run_time="2024-05-01T12:00:00+00:00",
-                      zone="z1", block="b1")
+    md = run_metadata(
+        model_meta=MODEL, config={"threshold": 0.5}, run_time="2024-05-01T12:00:00+00:00", zone="z1", block="b1"
+    )
     path = write_towers_gpkg(tmp_path / "towers.gpkg", two_towers, crs_wkt=WKT, metadata=md)
     layers = dict(pyogrio.list_layers(path))
     assert layers[LAYER_TOWERS] == "Polygon" and layers[LAYER_POINTS] == "Point"
@@ -91,11 +108,22 @@ def test_embedded_qgis_style(tmp_path, two_towers):
     path = write_towers_gpkg(tmp_path / "t.gpkg", two_towers)
     with sqlite3.connect(path) as con:
         cols = [r[1] for r in con.execute("PRAGMA table_info(layer_styles)")]
-        for c in ("f_table_catalog", "f_table_schema", "f_table_name", "f_geometry_column", "styleName",
-                  "styleQML", "styleSLD", "useAsDefault", "update_time"):
+        for c in (
+            "f_table_catalog",
+            "f_table_schema",
+            "f_table_name",
+            "f_geometry_column",
+            "styleName",
+            "styleQML",
+            "styleSLD",
+            "useAsDefault",
+            "update_time",
+        ):
             assert c in cols
-        rows = con.execute("SELECT f_table_name, f_geometry_column, f_table_schema, useAsDefault, styleQML "
-                           "FROM layer_styles ORDER BY f_table_name").fetchall()
+        rows = con.execute(
+            "SELECT f_table_name, f_geometry_column, f_table_schema, useAsDefault, styleQML "
+            "FROM layer_styles ORDER BY f_table_name"
+        ).fetchall()
         geom_col = con.execute("SELECT column_name FROM gpkg_geometry_columns WHERE table_name='towers'").fetchone()[0]
     assert [r[0] for r in rows] == [LAYER_POINTS, LAYER_TOWERS]
     for name, gcol, schema, default, qml in rows:
@@ -110,8 +138,9 @@ def test_embedded_qgis_style(tmp_path, two_towers):
 
 
 def test_empty_block(tmp_path):
-    path = write_towers_gpkg(tmp_path / "empty.gpkg", empty_towers(), crs_wkt=WKT,
-                             metadata=run_metadata(model_meta=MODEL))
+    path = write_towers_gpkg(
+        tmp_path / "empty.gpkg", empty_towers(), crs_wkt=WKT, metadata=run_metadata(model_meta=MODEL)
+    )
     for layer, gtype in ((LAYER_TOWERS, "Polygon"), (LAYER_POINTS, "Point")):
         info = pyogrio.read_info(path, layer=layer)
         assert info["features"] == 0 and info["geometry_type"] == gtype
@@ -176,33 +205,49 @@ def test_geometry_roundtrip_exact(tmp_path):
 # --------------------------------------------------------------------------- hygiene
 def zone_file(tmp_path):
     """A zone-like GeoPackage with every layer: towers, lines, spans, vanished towers."""
-    from towerpipe.towers.lines import build_lines
     from towerpipe.products.registry_file import read_registry
+    from towerpipe.towers.lines import build_lines
     from towerpipe.towers.registry import update_registry, vanished
 
     towers = towers_for("b1", (X0, Y0, X0 + 500, Y0 + 500), [(X0 + 50, Y0 + 50), (X0 + 350, Y0 + 50)])
     u = np.linspace(0, 300, 600)
-    cond = {"x": np.r_[X0 + 50 + u, X0 + 50 + u], "y": np.r_[np.full(600, Y0 + 47), np.full(600, Y0 + 53)],
-            "hag": np.full(1200, 14.0), "direction_deg": np.full(1200, 90.0), "clearance_m": np.full(1200, 7.5)}
+    cond = {
+        "x": np.r_[X0 + 50 + u, X0 + 50 + u],
+        "y": np.r_[np.full(600, Y0 + 47), np.full(600, Y0 + 53)],
+        "hag": np.full(1200, 14.0),
+        "direction_deg": np.full(1200, 90.0),
+        "clearance_m": np.full(1200, 7.5),
+    }
     towers, lines, spans = build_lines(towers, cond)
     gone = towers_for("b1", (X0, Y0, X0 + 500, Y0 + 500), [(X0 + 200, Y0 + 300)])
     reg = update_registry(read_registry(), gone, run_time="2024-04-01T00:00:00Z")
     reg = update_registry(reg, towers, run_time="2024-05-01T00:00:00Z")
-    path = write_towers_gpkg(tmp_path / "towers.gpkg", towers, lines=lines, spans=spans, vanished=vanished(reg),
-                             metadata=run_metadata(model_meta=dict(MODEL, choice={"mode": "auto", "reason": "rgb"})))
+    path = write_towers_gpkg(
+        tmp_path / "towers.gpkg",
+        towers,
+        lines=lines,
+        spans=spans,
+        vanished=vanished(reg),
+        metadata=run_metadata(model_meta=dict(MODEL, choice={"mode": "auto", "reason": "rgb"})),
+    )
     return path, towers, lines, spans
 
 
 def test_geopackage_version_and_fields(tmp_path):
     """GeoPackage 1.2, DATETIME fields, values to the cm, height = top - base, descriptions with units."""
+    from towerpipe.towers.extract import TOWER_FIELDS
     from towerpipe.towers.lines import LINE_FIELDS, SPAN_FIELDS
     from towerpipe.towers.registry import REGISTRY_FIELDS
-    from towerpipe.towers.extract import TOWER_FIELDS
 
     path, towers, lines, spans = zone_file(tmp_path)
-    assert dict(pyogrio.list_layers(path)) == {"towers": "Polygon", "tower_points": "Point", "lines": "LineString",
-                                               "spans": "LineString", "vanished_towers": "Polygon",
-                                               "layer_styles": None}
+    assert dict(pyogrio.list_layers(path)) == {
+        "towers": "Polygon",
+        "tower_points": "Point",
+        "lines": "LineString",
+        "spans": "LineString",
+        "vanished_towers": "Polygon",
+        "layer_styles": None,
+    }
     with sqlite3.connect(path) as con:
         assert con.execute("PRAGMA user_version").fetchone()[0] == 10200 < 10400
         types = {r[1]: r[2] for r in con.execute("PRAGMA table_info(towers)")}
@@ -215,13 +260,27 @@ def test_geopackage_version_and_fields(tmp_path):
             for v in (height, top, base, cx, area):
                 assert v == round(v, 2)
             assert prob == round(prob, 3)
-        cols = {(t, c): (title, desc, cname) for t, c, title, desc, cname in con.execute(
-            "SELECT table_name, column_name, title, description, constraint_name FROM gpkg_data_columns")}
-        enum = [r[0] for r in con.execute("SELECT value FROM gpkg_data_column_constraints "
-                                          "WHERE constraint_name = 'review_status_values' ORDER BY value")]
+        cols = {
+            (t, c): (title, desc, cname)
+            for t, c, title, desc, cname in con.execute(
+                "SELECT table_name, column_name, title, description, constraint_name FROM gpkg_data_columns"
+            )
+        }
+        enum = [
+            r[0]
+            for r in con.execute(
+                "SELECT value FROM gpkg_data_column_constraints "
+                "WHERE constraint_name = 'review_status_values' ORDER BY value"
+            )
+        ]
         ext = con.execute("SELECT count(*) FROM gpkg_extensions WHERE extension_name = 'gpkg_schema'").fetchone()[0]
-    for table, fields in (("towers", TOWER_FIELDS), ("tower_points", TOWER_FIELDS), ("lines", LINE_FIELDS),
-                          ("spans", SPAN_FIELDS), ("vanished_towers", REGISTRY_FIELDS)):
+    for table, fields in (
+        ("towers", TOWER_FIELDS),
+        ("tower_points", TOWER_FIELDS),
+        ("lines", LINE_FIELDS),
+        ("spans", SPAN_FIELDS),
+        ("vanished_towers", REGISTRY_FIELDS),
+    ):
         for name, f in fields.items():
             assert cols[(table, name)][:2] == (f.title, f.description)
     assert cols[("towers", "height_m")][0] == "Height (m)" and "(m)" in cols[("towers", "top_z")][1]
@@ -238,8 +297,9 @@ def test_gdal36_opens_without_warning_and_validates(tmp_path, gdal36):
     """What QGIS LTR on Debian 12 sees: no warning, and GDAL's validator (Req 75: the R-tree
     triggers of GeoPackage 1.2) passes. A GeoPackage 1.4 file, GDAL's default since 3.7, fails both."""
     path, *_ = zone_file(tmp_path)
-    block = write_towers_gpkg(tmp_path / "block.gpkg", towers_for("b", (X0, Y0, X0 + 500, Y0 + 500),
-                                                                     [(X0 + 50, Y0 + 50)]))
+    block = write_towers_gpkg(
+        tmp_path / "block.gpkg", towers_for("b", (X0, Y0, X0 + 500, Y0 + 500), [(X0 + 50, Y0 + 50)])
+    )
     for p in (path, block):
         info = gdal36("ogrinfo", "-so", "-al", str(p))
         assert info.returncode == 0 and "3.6" not in info.stderr and info.stderr.strip() == "", info.stderr
@@ -256,8 +316,13 @@ def test_every_layer_has_its_qgis_style(tmp_path):
     path, *_ = zone_file(tmp_path)
     with sqlite3.connect(path) as con:
         rows = dict(con.execute("SELECT f_table_name, styleQML FROM layer_styles WHERE useAsDefault = 1"))
-    kinds = {"towers": ("fill", 2), "tower_points": ("marker", 0), "lines": ("line", 1), "spans": ("line", 1),
-             "vanished_towers": ("fill", 2)}
+    kinds = {
+        "towers": ("fill", 2),
+        "tower_points": ("marker", 0),
+        "lines": ("line", 1),
+        "spans": ("line", 1),
+        "vanished_towers": ("fill", 2),
+    }
     assert set(rows) == set(kinds)
     for layer, (kind, gtype) in kinds.items():
         root = ET.fromstring(rows[layer].split("\n", 1)[1])

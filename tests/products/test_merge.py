@@ -11,28 +11,34 @@ from laspy.vlrs.known import ExtraBytesVlr, LasZipVlr
 from laspy.vlrs.vlrlist import VLRList
 
 from conftest import BACKGROUNDS, preprocess_settings
-
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.io.lasformat import OWN_DIMENSIONS, PROB_DIMENSION, TOWER_ID_DIMENSION, own_dimensions
+from towerpipe.io.predictions import PRED_META_KEYS, save_pred
 from towerpipe.products.merge import (
     block_probabilities,
     merge_block,
     relabel,
 )
-from towerpipe.io.predictions import PRED_META_KEYS, save_pred
-
-
 
 # ----------------------------------------------------------------------------- helpers
 
-def write_pred(path: Path, block: str, point_index: np.ndarray, prob: np.ndarray,
-               blocks: list[str] | None = None, block_id: np.ndarray | None = None) -> Path:
+
+def write_pred(
+    path: Path,
+    block: str,
+    point_index: np.ndarray,
+    prob: np.ndarray,
+    blocks: list[str] | None = None,
+    block_id: np.ndarray | None = None,
+) -> Path:
     blocks = blocks or [block]
     n = len(point_index)
     arrays = {
         "block_id": np.full(n, blocks.index(block), np.int32) if block_id is None else block_id,
         "point_index": np.asarray(point_index, np.int64),
-        "x": np.zeros(n), "y": np.zeros(n), "z": np.zeros(n),
+        "x": np.zeros(n),
+        "y": np.zeros(n),
+        "z": np.zeros(n),
         "hag": np.zeros(n, np.float32),
         "prob": np.asarray(prob, np.float32),
     }
@@ -57,8 +63,9 @@ def vlr_key(v) -> tuple:
     return (v.user_id, v.record_id, v.description, bytes(v.record_data_bytes()))
 
 
-def assert_invariant(inp: Path, out: Path, expected_prob: np.ndarray, threshold: float = 0.5,
-                     expected_ids: np.ndarray | None = None) -> None:
+def assert_invariant(
+    inp: Path, out: Path, expected_prob: np.ndarray, threshold: float = 0.5, expected_ids: np.ndarray | None = None
+) -> None:
     """Everything but Classification bit for bit; classes, probabilities and tower ids as specified."""
     a = laspy.read(inp)
     b = laspy.read(out)
@@ -100,7 +107,7 @@ def assert_invariant(inp: Path, out: Path, expected_prob: np.ndarray, threshold:
     ids = np.asarray(b[TOWER_ID_DIMENSION])
     assert ids.dtype == np.uint64
     np.testing.assert_array_equal(ids, np.zeros(len(ids), np.uint64) if expected_ids is None else expected_ids)
-    assert np.array_equal(rb[:, size_a:size_a + 4].copy().view(np.float32).ravel(), prob)
+    assert np.array_equal(rb[:, size_a : size_a + 4].copy().view(np.float32).ravel(), prob)
     cls_in = np.asarray(a.classification)
     want = np.where(expected_prob >= threshold, 15, np.where(cls_in == 15, 1, cls_in))
     np.testing.assert_array_equal(np.asarray(b.classification), want)
@@ -131,18 +138,29 @@ def assert_invariant(inp: Path, out: Path, expected_prob: np.ndarray, threshold:
         assert hb.global_encoding.wkt
 
 
-def make_las(path: Path, *, version: str, point_format: int, n: int, seed: int = 0,
-             crs: str | None = "EPSG:25831", extra: bool = False, evlr: bool = False) -> Path:
+def make_las(
+    path: Path,
+    *,
+    version: str,
+    point_format: int,
+    n: int,
+    seed: int = 0,
+    crs: str | None = "EPSG:25831",
+    extra: bool = False,
+    evlr: bool = False,
+) -> Path:
     rng = np.random.default_rng(seed)
     header = laspy.LasHeader(point_format=point_format, version=version)
     header.scales = np.array([0.01, 0.01, 0.001])
     header.offsets = np.array([400000.0, 4600000.0, 0.0])
     header.system_identifier = "towerpipe test"
     if extra:
-        header.add_extra_dims([laspy.ExtraBytesParams("TowerId", "uint32"),
-                               laspy.ExtraBytesParams("Amp", "float64", scales=None)])
+        header.add_extra_dims(
+            [laspy.ExtraBytesParams("TowerId", "uint32"), laspy.ExtraBytesParams("Amp", "float64", scales=None)]
+        )
     if crs is not None:
         import pyproj
+
         header.add_crs(pyproj.CRS.from_user_input(crs))
     las = laspy.LasData(header)
     las.x = 400000 + rng.uniform(0, 500, n)
@@ -169,6 +187,7 @@ def make_las(path: Path, *, version: str, point_format: int, n: int, seed: int =
 
 # ----------------------------------------------------------------------------- unit
 
+
 def test_relabel_rules():
     cls = np.array([1, 2, 15, 15, 6, 65, 2], np.uint8)
     prob = np.array([0.0, 0.7, 0.9, 0.2, 0.5, 0.0, 0.49], np.float32)
@@ -177,8 +196,14 @@ def test_relabel_rules():
 
 def test_block_probabilities_filters_block_and_checks_range(tmp_path):
     blocks = ["a", "b"]
-    p1 = write_pred(tmp_path / "t1.npz", "a", np.array([0, 5, 9]), np.array([0.1, 0.9, 0.6]), blocks=blocks,
-                    block_id=np.array([0, 0, 1], np.int32))
+    p1 = write_pred(
+        tmp_path / "t1.npz",
+        "a",
+        np.array([0, 5, 9]),
+        np.array([0.1, 0.9, 0.6]),
+        blocks=blocks,
+        block_id=np.array([0, 0, 1], np.int32),
+    )
     prob, info = block_probabilities([p1], 10, block="a")
     np.testing.assert_array_equal(prob, np.array([0.1, 0, 0, 0, 0, 0.9, 0, 0, 0, 0], np.float32))
     assert info["pred_points"] == 2
@@ -188,17 +213,19 @@ def test_block_probabilities_filters_block_and_checks_range(tmp_path):
 
 # ----------------------------------------------------------------------------- files
 
+
 @pytest.mark.parametrize("version,pf", [("1.2", 1), ("1.2", 3), ("1.2", 0), ("1.4", 6), ("1.4", 7), ("1.4", 8)])
 def test_merge_generated_formats(tmp_path, version, pf):
     n = 20_000
-    src = make_las(tmp_path / "b.laz", version=version, point_format=pf, n=n, extra=(pf in (3, 8)),
-                   evlr=(pf == 6))
+    src = make_las(tmp_path / "b.laz", version=version, point_format=pf, n=n, extra=(pf in (3, 8)), evlr=(pf == 6))
     rng = np.random.default_rng(1)
     idx = rng.choice(n, 3000, replace=False)
     p = rng.random(3000).astype(np.float32)
     half = 1500
-    preds = [write_pred(tmp_path / "t1.npz", "b", idx[:half], p[:half]),
-             write_pred(tmp_path / "t2.npz", "b", idx[half:], p[half:])]
+    preds = [
+        write_pred(tmp_path / "t1.npz", "b", idx[:half], p[:half]),
+        write_pred(tmp_path / "t2.npz", "b", idx[half:], p[half:]),
+    ]
     out = tmp_path / "out" / "b.laz"
     stats = merge_block(src, preds, out, threshold=0.5, chunk_size=7_000)
     expected = np.zeros(n, np.float32)
@@ -252,8 +279,9 @@ def test_own_output_is_reprocessed_values_replaced(tmp_path, version, pf):
     save_members(tmp_path / "m.npz", {40000004600000: (np.array(["b"] * 400, dtype=object), idx[:400])})
     first = merge_block(src, [pred], tmp_path / "o1.laz", threshold=0.5, tower_points=[tmp_path / "m.npz"])
     assert not first["reprocessed"] and own_dimensions(tmp_path / "o1.laz") == list(OWN_DIMENSIONS)
-    again = merge_block(tmp_path / "o1.laz", [pred], tmp_path / "o2.laz", threshold=0.5,
-                        tower_points=[tmp_path / "m.npz"])
+    again = merge_block(
+        tmp_path / "o1.laz", [pred], tmp_path / "o2.laz", threshold=0.5, tower_points=[tmp_path / "m.npz"]
+    )
     assert again["reprocessed"] and again["towers"] == 1
     assert (tmp_path / "o2.laz").read_bytes() == (tmp_path / "o1.laz").read_bytes()
     # new predictions and no towers: the values are replaced in place, nothing else changes
@@ -271,8 +299,10 @@ def test_own_output_is_reprocessed_values_replaced(tmp_path, version, pf):
             assert np.array_equal(np.asarray(a[name]), np.asarray(c[name])), name
 
 
-@pytest.mark.parametrize("name,dtype,scaled", [(PROB_DIMENSION, "int32", False), (TOWER_ID_DIMENSION, "uint32", False),
-                                               (PROB_DIMENSION, "float32", True)])
+@pytest.mark.parametrize(
+    "name,dtype,scaled",
+    [(PROB_DIMENSION, "int32", False), (TOWER_ID_DIMENSION, "uint32", False), (PROB_DIMENSION, "float32", True)],
+)
 def test_a_foreign_dimension_with_towerpipes_name_is_refused(tmp_path, name, dtype, scaled):
     """Same name, another type (or scaled): somebody else's dimension, refused at the split."""
     from towerpipe.preprocess.split import split_block
@@ -281,23 +311,28 @@ def test_a_foreign_dimension_with_towerpipes_name_is_refused(tmp_path, name, dty
     scale = {"scales": np.array([0.5]), "offsets": np.array([0.0])} if scaled else {}
     header.add_extra_dims([laspy.ExtraBytesParams(name, dtype, **scale)])
     import pyproj
+
     header.add_crs(pyproj.CRS.from_epsg(25831))
     las = laspy.LasData(header)
     las.x, las.y, las.z = np.arange(10.0) + 4e5, np.arange(10.0) + 4.6e6, np.arange(10.0)
     las.write(tmp_path / "f.laz")
     with pytest.raises(InputError, match=rf"f\.laz.*{name}.*rename or remove"):
-        split_block(tmp_path / "f.laz", tmp_path / "cache", block="f", crs="EPSG:25831",
-                    settings=preprocess_settings())
-    meta = split_block(tmp_path / "f.laz", tmp_path / "cache", block="f", crs="EPSG:25831",
-                       settings=preprocess_settings(), record_errors=True)
+        split_block(tmp_path / "f.laz", tmp_path / "cache", block="f", crs="EPSG:25831", settings=preprocess_settings())
+    meta = split_block(
+        tmp_path / "f.laz",
+        tmp_path / "cache",
+        block="f",
+        crs="EPSG:25831",
+        settings=preprocess_settings(),
+        record_errors=True,
+    )
     assert meta["error"]["type"] == "InputError" and name in meta["error"]["cause"]
     with pytest.raises(InputError, match=name):
         merge_block(tmp_path / "f.laz", [], tmp_path / "o.laz", threshold=0.5)
 
 
 @pytest.mark.shared
-@pytest.mark.parametrize("name", ["ign_rgbnir_block.laz", "ign_high_noise.laz", "ign_rgb_subset.laz",
-                                  "ign_bridge.laz"])
+@pytest.mark.parametrize("name", ["ign_rgbnir_block.laz", "ign_high_noise.laz", "ign_rgb_subset.laz", "ign_bridge.laz"])
 def test_merge_real_blocks_invariant(tmp_path, name):
     src = BACKGROUNDS / name
     n = laspy.open(src).header.point_count
@@ -358,13 +393,14 @@ def test_merge_with_tower_points_classifies_only_reported_towers(tmp_path):
     idx = rng.choice(n, 800, replace=False)
     p = np.full(800, 0.95, np.float32)
     pred = write_pred(tmp_path / "t.npz", "b", idx, p)
-    tower = idx[:300]                     # the reported tower; the other 500 points were dropped
+    tower = idx[:300]  # the reported tower; the other 500 points were dropped
     save_members(tmp_path / "own.points.npz", {40000014600001: (np.array(["b"] * 300, dtype=object), tower)})
     # a neighbour's tower file naming other blocks only
     save_members(tmp_path / "nb.points.npz", {40000024600002: (np.array(["c"] * 5, dtype=object), np.arange(5))})
     out = tmp_path / "o.laz"
-    stats = merge_block(src, [pred], out, threshold=0.5,
-                        tower_points=[tmp_path / "own.points.npz", tmp_path / "nb.points.npz"])
+    stats = merge_block(
+        src, [pred], out, threshold=0.5, tower_points=[tmp_path / "own.points.npz", tmp_path / "nb.points.npz"]
+    )
     las = laspy.read(out)
     cls_in = np.asarray(laspy.read(src).classification)
     expected = np.where(cls_in == 15, 1, cls_in)

@@ -27,8 +27,12 @@ DEMO = {"seed": 7, "blocks": 4, "size": 250, "density": 10, "edge_tower": True}
 
 def run(cfg_path):
     zone = yaml.safe_load(cfg_path.read_text())["zones"]
-    proc = subprocess.run([sys.executable, "-m", "snakemake", "--cores", "2", f"results/{next(iter(zone))}/",
-                           f"--configfile={cfg_path}"], cwd=REPO, capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "snakemake", "--cores", "2", f"results/{next(iter(zone))}/", f"--configfile={cfg_path}"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
 
 
@@ -67,8 +71,12 @@ def demo(tmp_path_factory):
 def test_layers_and_geopackage_bars(demo):
     out = demo["out"]
     layers = dict(pyogrio.list_layers(out / "towers.gpkg"))
-    for name, gtype in (("towers", "Polygon"), ("tower_points", "Point"), ("lines", "LineString"),
-                        ("spans", "LineString")):
+    for name, gtype in (
+        ("towers", "Polygon"),
+        ("tower_points", "Point"),
+        ("lines", "LineString"),
+        ("spans", "LineString"),
+    ):
         assert layers[name] == gtype
     with sqlite3.connect(out / "towers.gpkg") as con:
         assert con.execute("PRAGMA user_version").fetchone()[0] < 10400
@@ -128,8 +136,9 @@ def test_rerun_with_other_thresholds_keeps_ids_and_lists_vanished(demo):
     first = demo["first"]["towers"]
     assert (tmp / "work" / name / "registry.gpkg").is_file()
     # other thresholds: the towers are clustered and their points picked on other points
-    cfg = configure(tmp, name, indir, "thresholds", inference={"threshold": 0.6, "model": "geometry"},
-                    towers={"threshold": 0.7})
+    cfg = configure(
+        tmp, name, indir, "thresholds", inference={"threshold": 0.6, "model": "geometry"}, towers={"threshold": 0.7}
+    )
     run(cfg)
     second = layer(demo["out"], "towers")
     m = match_towers(second, first.assign(tower_id=first["tower_id"].astype(str)))

@@ -55,21 +55,38 @@ def make_block(seed: int = 0, towers_at=((X0 + 60, Y0 + 60), (X0 + 150, Y0 + 120
 def towers_of(pts, block="b1"):
     sel = pts["prob"] >= 0.5
     n = int(sel.sum())
-    arrays = {"block_id": np.zeros(n, np.int32), "point_index": np.flatnonzero(sel).astype(np.int64),
-              **{k: pts[k][sel] for k in ("x", "y", "z", "hag", "prob")}}
-    gdf = extract([(arrays, {"blocks": [block], "crs_wkt": "EPSG:25831", "model": MODEL})], block, BOUNDS,
-                  zone="z1").towers
+    arrays = {
+        "block_id": np.zeros(n, np.int32),
+        "point_index": np.flatnonzero(sel).astype(np.int64),
+        **{k: pts[k][sel] for k in ("x", "y", "z", "hag", "prob")},
+    }
+    gdf = extract(
+        [(arrays, {"blocks": [block], "crs_wkt": "EPSG:25831", "model": MODEL})], block, BOUNDS, zone="z1"
+    ).towers
     gdf["wire_support"] = 1.0  # conductors found (unknown support is flagged)
     return gdf
 
 
 def metas(ground_source="class2", passed=3):
-    tiles = [{"core_bounds": [X0, Y0, X0 + SIZE, Y0 + SIZE], "ground_source": ground_source,
-              "counts": {"core": 200_000, "ground": 160_000, "noise": 12, "model_input": 40_000},
-              "timings": {"ground": 1.5, "hag": 0.7}}]
-    preds = [{"windows_total": 25, "windows_passed_gate": passed, "windows_segmented": passed,
-              "points_model_input_core": 40_000, "model": MODEL, "timings": {"classify": 0.4, "segment": 1.1},
-              "peak_rss_mb": 812.0}]
+    tiles = [
+        {
+            "core_bounds": [X0, Y0, X0 + SIZE, Y0 + SIZE],
+            "ground_source": ground_source,
+            "counts": {"core": 200_000, "ground": 160_000, "noise": 12, "model_input": 40_000},
+            "timings": {"ground": 1.5, "hag": 0.7},
+        }
+    ]
+    preds = [
+        {
+            "windows_total": 25,
+            "windows_passed_gate": passed,
+            "windows_segmented": passed,
+            "points_model_input_core": 40_000,
+            "model": MODEL,
+            "timings": {"classify": 0.4, "segment": 1.1},
+            "peak_rss_mb": 812.0,
+        }
+    ]
     return tiles, preds
 
 
@@ -83,13 +100,28 @@ def test_block_report_page_and_json(tmp_path):
     pts["classification"] = cls
     gdf = towers_of(pts)
     bench = tmp_path / "infer.tsv"
-    bench.write_text("s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
-                     "12.5\t0:00:12\t1534.2\t2000\t1400\t1450\t10\t5\t90\t11.0\n")
+    bench.write_text(
+        "s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
+        "12.5\t0:00:12\t1534.2\t2000\t1400\t1450\t10\t5\t90\t11.0\n"
+    )
     tiles, preds = metas()
-    doc = block_report(tmp_path / "b1.html", tmp_path / "b1.json", BlockInputs(block_name="b1", zone="z1",
-                       block_bounds=BOUNDS, stats={"points_written": len(cls)}, tile_metas=tiles,
-                       pred_metas=preds, towers=gdf, classified=pts, truth=truth,
-                       timings={"infer_tile": str(bench), "merge_block": 3.25}, warnings=["tile t3: 2 holes filled"]))
+    doc = block_report(
+        tmp_path / "b1.html",
+        tmp_path / "b1.json",
+        BlockInputs(
+            block_name="b1",
+            zone="z1",
+            block_bounds=BOUNDS,
+            stats={"points_written": len(cls)},
+            tile_metas=tiles,
+            pred_metas=preds,
+            towers=gdf,
+            classified=pts,
+            truth=truth,
+            timings={"infer_tile": str(bench), "merge_block": 3.25},
+            warnings=["tile t3: 2 holes filled"],
+        ),
+    )
     page = (tmp_path / "b1.html").read_text()
     on_disk = json.loads((tmp_path / "b1.json").read_text())
     assert on_disk == json.loads(json.dumps(doc))
@@ -122,8 +154,13 @@ def test_block_flags(tmp_path):
     assert len(gdf) == 1
     gdf["wire_support"] = 0.25  # a low tower kept without conductors (exempt from the rule)
     tiles, preds = metas(ground_source="smrf", passed=20)
-    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", BlockInputs(block_name="b", block_bounds=BOUNDS,
-                       tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts))
+    doc = block_report(
+        tmp_path / "b.html",
+        tmp_path / "b.json",
+        BlockInputs(
+            block_name="b", block_bounds=BOUNDS, tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts
+        ),
+    )
     codes = {f["code"] for f in doc["flags"]}
     assert {"ground_classified", "low_density", "many_windows_gated", "tower"} <= codes
     reasons = " ".join(f["reason"] for f in doc["flags"])
@@ -137,8 +174,13 @@ def test_tower_whose_ring_is_outside_the_data_is_flagged(tmp_path):
     gdf = towers_of(pts)
     gdf["wire_support"] = float("nan")  # towerpipe.towers.wires: ring mostly outside the surveyed area
     tiles, preds = metas()
-    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", BlockInputs(block_name="b", block_bounds=BOUNDS,
-                       tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts))
+    doc = block_report(
+        tmp_path / "b.html",
+        tmp_path / "b.json",
+        BlockInputs(
+            block_name="b", block_bounds=BOUNDS, tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts
+        ),
+    )
     tall = [t for t in doc["towers"] if t["height_m"] >= 20]
     assert tall and all(any("outside the data" in f for f in t["flags"]) for t in tall)
 
@@ -151,14 +193,35 @@ def test_clean_block_is_ok_and_uses_raster(tmp_path):
     ys = Y0 + SIZE - res * (np.arange(100) + 0.5)
     dtm = ground_z(xs[None, :], ys[:, None]).astype(np.float32)
     tif = tmp_path / "dtm.tif"
-    with rasterio.open(tif, "w", driver="GTiff", width=100, height=100, count=1, dtype="float32",
-                       crs="EPSG:25831", transform=Affine(res, 0.0, X0, 0.0, -res, Y0 + SIZE)) as ds:
+    with rasterio.open(
+        tif,
+        "w",
+        driver="GTiff",
+        width=100,
+        height=100,
+        count=1,
+        dtype="float32",
+        crs="EPSG:25831",
+        transform=Affine(res, 0.0, X0, 0.0, -res, Y0 + SIZE),
+    ) as ds:
         ds.write(dtm, 1)
     no_hag = {k: v for k, v in pts.items() if k != "hag"}
     tiles, preds = metas()
     gdf = towers_of(pts)
-    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", BlockInputs(block_name="b", zone="z1", block_bounds=BOUNDS,
-                       tile_metas=tiles, pred_metas=preds, towers=gdf, classified=no_hag, raster=tif))
+    doc = block_report(
+        tmp_path / "b.html",
+        tmp_path / "b.json",
+        BlockInputs(
+            block_name="b",
+            zone="z1",
+            block_bounds=BOUNDS,
+            tile_metas=tiles,
+            pred_metas=preds,
+            towers=gdf,
+            classified=no_hag,
+            raster=tif,
+        ),
+    )
     assert doc["status"] == "ok" and doc["flags"] == []
     assert doc["summary"] == "2 towers found; nothing to check."
     page = (tmp_path / "b.html").read_text()
@@ -183,8 +246,11 @@ def test_block_report_from_files_and_no_towers(tmp_path):
     from towerpipe.products.gpkg import write_towers_gpkg
 
     gpkg = write_towers_gpkg(tmp_path / "b.gpkg", None, crs_wkt="EPSG:25831")
-    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", BlockInputs(block_name="b", towers=gpkg,
-                       classified=tmp_path / "b.laz"))
+    doc = block_report(
+        tmp_path / "b.html",
+        tmp_path / "b.json",
+        BlockInputs(block_name="b", towers=gpkg, classified=tmp_path / "b.laz"),
+    )
     assert doc["n_towers"] == 0 and doc["summary"].startswith("0 towers found")
     assert "No towers in this block" in (tmp_path / "b.html").read_text()
 
@@ -197,16 +263,40 @@ def test_read_benchmark_repeats_and_na(tmp_path):
 
 def test_zone_index(tmp_path):
     tiles, preds = metas()
-    ok = block_report(tmp_path / "qa" / "a.html", tmp_path / "qa" / "a.json", BlockInputs(block_name="a", zone="z1",
-                      block_bounds=BOUNDS, tile_metas=tiles, pred_metas=preds, towers=towers_of(make_block()),
-                      classified=make_block()))
+    ok = block_report(
+        tmp_path / "qa" / "a.html",
+        tmp_path / "qa" / "a.json",
+        BlockInputs(
+            block_name="a",
+            zone="z1",
+            block_bounds=BOUNDS,
+            tile_metas=tiles,
+            pred_metas=preds,
+            towers=towers_of(make_block()),
+            classified=make_block(),
+        ),
+    )
     tiles2, preds2 = metas(ground_source="smrf")
-    look = block_report(tmp_path / "qa" / "b.html", tmp_path / "qa" / "b.json", BlockInputs(block_name="b", zone="z1",
-                        block_bounds=BOUNDS, tile_metas=tiles2, pred_metas=preds2, classified=make_block(towers_at=())))
+    look = block_report(
+        tmp_path / "qa" / "b.html",
+        tmp_path / "qa" / "b.json",
+        BlockInputs(
+            block_name="b",
+            zone="z1",
+            block_bounds=BOUNDS,
+            tile_metas=tiles2,
+            pred_metas=preds2,
+            classified=make_block(towers_at=()),
+        ),
+    )
     assert (ok["status"], look["status"]) == ("ok", "look")
-    doc = zone_index(tmp_path / "index.html", [tmp_path / "qa" / "a.json", tmp_path / "qa" / "b.json"],
-                     failures={"c": "merge_block failed: see logs/z1/merge_block/c.log"}, zone="z1",
-                     out_json=tmp_path / "index.json")
+    doc = zone_index(
+        tmp_path / "index.html",
+        [tmp_path / "qa" / "a.json", tmp_path / "qa" / "b.json"],
+        failures={"c": "merge_block failed: see logs/z1/merge_block/c.log"},
+        zone="z1",
+        out_json=tmp_path / "index.json",
+    )
     assert [b["block"] for b in doc["blocks"]] == ["c", "b", "a"]
     t = doc["totals"]
     assert (t["blocks"], t["failed"], t["look"], t["ok"], t["towers"]) == (4 - 1, 1, 1, 1, 2)
@@ -228,15 +318,28 @@ def test_edge_tower_reported_by_the_neighbour_counts_as_found(tmp_path):
     assert len(gdf) == 1
     tiles, preds = metas()
     truth = pts["classification"].copy()
-    kw = dict(block_name="b1", zone="z1", block_bounds=BOUNDS, tile_metas=tiles, pred_metas=preds, towers=gdf,
-              classified=pts, truth=truth)
+    kw = dict(
+        block_name="b1",
+        zone="z1",
+        block_bounds=BOUNDS,
+        tile_metas=tiles,
+        pred_metas=preds,
+        towers=gdf,
+        classified=pts,
+        truth=truth,
+    )
     alone = block_report(tmp_path / "a.html", tmp_path / "a.json", BlockInputs(**kw))
     assert alone["accuracy"]["recall"] == 0.5 and alone["status"] == "look"
     full_tower = tower(X0 + SIZE - 0.5, Y0 + 100)
     import shapely
 
-    nb = [{"tower_id": "T_z1_east", "footprint_wkt": shapely.MultiPoint(full_tower[:, :2]).convex_hull.wkt,
-           "blocks": "b1,b2"}]
+    nb = [
+        {
+            "tower_id": "T_z1_east",
+            "footprint_wkt": shapely.MultiPoint(full_tower[:, :2]).convex_hull.wkt,
+            "blocks": "b1,b2",
+        }
+    ]
     doc = block_report(tmp_path / "b.html", tmp_path / "b.json", BlockInputs(neighbour_towers=nb, **kw))
     acc = doc["accuracy"]
     assert acc["recall"] == 1.0 and acc["precision"] == 1.0 and acc["fn"] == 0
@@ -258,8 +361,19 @@ def test_seam_tower_handled_whole_is_not_flagged(tmp_path):
     pts, gdf, east = seam_setup()
     tiles, preds = metas()
     # the neighbour gave points: the tower is whole, its centroid 0.5 m from the seam does not matter
-    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", BlockInputs(block_name="b1", block_bounds=BOUNDS,
-                       tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts, data_bounds=[BOUNDS, east]))
+    doc = block_report(
+        tmp_path / "b.html",
+        tmp_path / "b.json",
+        BlockInputs(
+            block_name="b1",
+            block_bounds=BOUNDS,
+            tile_metas=tiles,
+            pred_metas=preds,
+            towers=gdf,
+            classified=pts,
+            data_bounds=[BOUNDS, east],
+        ),
+    )
     t = doc["towers"][0]
     assert t["edge_distance_m"] == pytest.approx(0.5, abs=0.2)
     assert t["flags"] == [] and doc["status"] == "ok"
@@ -270,8 +384,19 @@ def test_tower_at_the_zone_edge_or_a_failed_neighbour_is_flagged(tmp_path):
     pts, gdf, _ = seam_setup()
     tiles, preds = metas()
     # no block east of b1 (zone edge), or its neighbour could not be read: the tower may be cut
-    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", BlockInputs(block_name="b1", block_bounds=BOUNDS,
-                       tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts, data_bounds=[BOUNDS]))
+    doc = block_report(
+        tmp_path / "b.html",
+        tmp_path / "b.json",
+        BlockInputs(
+            block_name="b1",
+            block_bounds=BOUNDS,
+            tile_metas=tiles,
+            pred_metas=preds,
+            towers=gdf,
+            classified=pts,
+            data_bounds=[BOUNDS],
+        ),
+    )
     t = doc["towers"][0]
     assert t["data_edge_m"] == 0.0
     assert len(t["flags"]) == 1 and "may be cut" in t["flags"][0]
@@ -291,9 +416,9 @@ def test_data_edge_joins_adjoining_blocks_without_a_slit():
 
 # --------------------------------------------------------------------------- side views
 def test_side_views_see_a_seam_tower_whole(tmp_path):
-    from towerpipe.products.qa.block import tower_neighbourhoods
-    from towerpipe.io.tiles import Tile, empty_arrays, save_tile
     from towerpipe.io.members import save_members
+    from towerpipe.io.tiles import Tile, empty_arrays, save_tile
+    from towerpipe.products.qa.block import tower_neighbourhoods
 
     pts, gdf, _ = seam_setup()
     tid = gdf["tower_id"].iloc[0]
@@ -305,7 +430,7 @@ def test_side_views_see_a_seam_tower_whole(tmp_path):
         arrays[k] = pts[k].astype(arrays[k].dtype)
     arrays["block_id"] = np.where(in_b1, 0, 1).astype(np.int32)
     arrays["point_index"] = np.zeros(len(in_b1), np.int64)
-    for b, i in idx.items():
+    for i in idx.values():
         arrays["point_index"][i] = np.arange(len(i))
     arrays["core"] = in_b1
     tile = tmp_path / "t.npz"
@@ -320,47 +445,91 @@ def test_side_views_see_a_seam_tower_whole(tmp_path):
     assert hood["x"][hood["tower"]].max() > X0 + SIZE  # the neighbour's half of the tower is there
     assert len(hood["x"]) == len(np.unique(np.column_stack([hood["x"], hood["y"], hood["z"]]), axis=0))
     tiles, preds = metas()
-    block_report(tmp_path / "b.html", tmp_path / "b.json", BlockInputs(block_name="b1", block_bounds=BOUNDS, tile_metas=tiles,
-                 pred_metas=preds, towers=gdf, classified=pts, neighbourhoods=hoods))
+    block_report(
+        tmp_path / "b.html",
+        tmp_path / "b.json",
+        BlockInputs(
+            block_name="b1",
+            block_bounds=BOUNDS,
+            tile_metas=tiles,
+            pred_metas=preds,
+            towers=gdf,
+            classified=pts,
+            neighbourhoods=hoods,
+        ),
+    )
     page = (tmp_path / "b.html").read_text()
     assert 'id="tower-1"' in page and 'href="#tower-1"' in page and "Side views" in page
 
 
 # --------------------------------------------------------------------------- contracts with the split and the model
-ATTRIBUTES = {"intensity": {"valid": True, "reason": "2,471 distinct values"},
-              "returns": {"valid": False, "reason": "return numbers all 0"},
-              "rgb": {"valid": True, "reason": "16-bit colour"}, "nir": {"valid": True, "reason": "varies"}}
+ATTRIBUTES = {
+    "intensity": {"valid": True, "reason": "2,471 distinct values"},
+    "returns": {"valid": False, "reason": "return numbers all 0"},
+    "rgb": {"valid": True, "reason": "16-bit colour"},
+    "nir": {"valid": True, "reason": "varies"},
+}
 
 
 def test_sensor_attributes_and_model_choice(tmp_path):
     tiles, preds = metas()
     preds[0]["model"] = dict(MODEL, choice={"mode": "auto", "reason": "the zone's return numbers are all 0"})
     summary = {"attributes": ATTRIBUTES, "degenerate_attributes": ["returns"], "crs_wkt": 'PROJCRS["x" ' * 80}
-    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", BlockInputs(block_name="b1", block_bounds=BOUNDS,
-                       tile_metas=tiles, pred_metas=preds, classified=make_block(towers_at=()), stats=summary))
-    assert {"code": "degenerate_attributes", "reason": "sensor attributes unusable: returns (return numbers all 0)"} \
-        in doc["flags"]
+    doc = block_report(
+        tmp_path / "b.html",
+        tmp_path / "b.json",
+        BlockInputs(
+            block_name="b1",
+            block_bounds=BOUNDS,
+            tile_metas=tiles,
+            pred_metas=preds,
+            classified=make_block(towers_at=()),
+            stats=summary,
+        ),
+    )
+    assert {
+        "code": "degenerate_attributes",
+        "reason": "sensor attributes unusable: returns (return numbers all 0)",
+    } in doc["flags"]
     assert doc["model"]["choice"]["mode"] == "auto"
     page = (tmp_path / "b.html").read_text()
     assert "Sensor attributes" in page and "2,471 distinct values" in page
     assert "Model used and why</b> (auto): the zone&#39;s return numbers are all 0" in page
     # raw metadata (WKT, JSON) is folded away, not in a table
-    details = page[page.index("<details>"):page.index("</details>")]
+    details = page[page.index("<details>") : page.index("</details>")]
     assert "PROJCRS" in details and "PROJCRS" not in page.replace(details, "")
 
 
 def test_page_of_an_older_run_without_attributes_or_choice(tmp_path):
     tiles, preds = metas()
-    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", BlockInputs(block_name="b1", block_bounds=BOUNDS,
-                       tile_metas=tiles, pred_metas=preds, classified=make_block(towers_at=())))
+    doc = block_report(
+        tmp_path / "b.html",
+        tmp_path / "b.json",
+        BlockInputs(
+            block_name="b1",
+            block_bounds=BOUNDS,
+            tile_metas=tiles,
+            pred_metas=preds,
+            classified=make_block(towers_at=()),
+        ),
+    )
     page = (tmp_path / "b.html").read_text()
     assert doc["attributes"] == {} and "Sensor attributes" not in page and "Model used and why" not in page
 
 
 def test_block_page_links_to_index_and_products(tmp_path):
     tiles, preds = metas()
-    block_report(tmp_path / "qa" / "b1.html", tmp_path / "qa" / "b1.json", BlockInputs(block_name="b1", block_bounds=BOUNDS,
-                 tile_metas=tiles, pred_metas=preds, classified=make_block(towers_at=())))
+    block_report(
+        tmp_path / "qa" / "b1.html",
+        tmp_path / "qa" / "b1.json",
+        BlockInputs(
+            block_name="b1",
+            block_bounds=BOUNDS,
+            tile_metas=tiles,
+            pred_metas=preds,
+            classified=make_block(towers_at=()),
+        ),
+    )
     page = (tmp_path / "qa" / "b1.html").read_text()
     for href in ("index.html", "../blocks/b1.laz", "../towers/b1.gpkg", "../towers.gpkg"):
         assert f'href="{href}"' in page
@@ -376,18 +545,35 @@ def test_zone_index_map_with_lines_and_failed_block(tmp_path):
     qa = tmp_path / "qa"
     tiles, preds = metas()
     pts = make_block()
-    block_report(qa / "a.html", qa / "a.json", BlockInputs(block_name="a", zone="z1", block_bounds=BOUNDS, tile_metas=tiles,
-                 pred_metas=preds, towers=towers_of(pts), classified=pts))
+    block_report(
+        qa / "a.html",
+        qa / "a.json",
+        BlockInputs(
+            block_name="a",
+            zone="z1",
+            block_bounds=BOUNDS,
+            tile_metas=tiles,
+            pred_metas=preds,
+            towers=towers_of(pts),
+            classified=pts,
+        ),
+    )
     gpkg = write_towers_gpkg(tmp_path / "towers.gpkg", towers_of(pts), crs_wkt="EPSG:25831")
     line = shapely.LineString([(X0 + 60, Y0 + 60), (X0 + 150, Y0 + 120)])
     gpd.GeoDataFrame({"line_id": ["L1"]}, geometry=[line], crs="EPSG:25831").to_file(gpkg, layer="lines")
     failed_box = (X0 + SIZE, Y0, X0 + 2 * SIZE, Y0 + SIZE)
-    doc = zone_index(tmp_path / "qa" / "index.html", [qa / "a.json"], failures={"c": "split_block: InputError: c.laz"},
-                     zone="z1", gpkg=gpkg, block_bounds={"c": failed_box})
+    doc = zone_index(
+        tmp_path / "qa" / "index.html",
+        [qa / "a.json"],
+        failures={"c": "split_block: InputError: c.laz"},
+        zone="z1",
+        gpkg=gpkg,
+        block_bounds={"c": failed_box},
+    )
     assert doc["n_lines"] == 1
     assert [b["bounds"] for b in doc["blocks"]] == [list(failed_box), list(BOUNDS)]
     page = (qa / "index.html").read_text()
-    svg = page[page.index("<svg"):page.index("</svg>")]
+    svg = page[page.index("<svg") : page.index("</svg>")]
     assert 'xlink:href="a.html"' in svg or 'href="a.html"' in svg  # the map's block links to its page
     assert "<!-- block: failed -->" in svg and "<!-- line -->" in svg  # matplotlib keeps each text as a comment
     assert "http" not in svg and "_blank" not in svg  # no namespace or metadata addresses; links open in place

@@ -12,7 +12,6 @@ import pytest
 import shapely
 
 from conftest import BACKGROUNDS, TOWERS
-
 from towerpipe.synth import Terrain, generate_zone, preset
 from towerpipe.synth.scene import block_grid, block_points, build_zone
 
@@ -33,9 +32,23 @@ def _read(path):
 
 def _all_points(truth):
     lases = [_read(b["path"]) for b in truth.blocks]
-    cat = {k: np.concatenate([np.asarray(getattr(l, k)) for l in lases])
-           for k in ("x", "y", "z", "classification", "red", "nir", "TowerId", "return_number",
-                     "number_of_returns", "point_source_id", "intensity", "gps_time")}
+    cat = {
+        k: np.concatenate([np.asarray(getattr(las, k)) for las in lases])
+        for k in (
+            "x",
+            "y",
+            "z",
+            "classification",
+            "red",
+            "nir",
+            "TowerId",
+            "return_number",
+            "number_of_returns",
+            "point_source_id",
+            "intensity",
+            "gps_time",
+        )
+    }
     return cat
 
 
@@ -106,7 +119,7 @@ def test_class_shares_and_returns(zone):
     assert share[15] > 0.0005 and share[14] > 0.0005 and share[1] > 0 and share[6] > 0
     assert 0 < share[7] < 0.001 and 0 < share[18] < 0.001
     assert (p["return_number"] >= 1).all() and (p["return_number"] <= p["number_of_returns"]).all()
-    assert (p["number_of_returns"] > 1).mean() > 0.1          # multiple returns through canopies
+    assert (p["number_of_returns"] > 1).mean() > 0.1  # multiple returns through canopies
     assert len(np.unique(p["point_source_id"])) >= 1
 
 
@@ -159,7 +172,7 @@ def test_wires_connect_consecutive_towers(zone):
         ax, ay, bx, by = gpkg.loc[a, "x"], gpkg.loc[a, "y"], gpkg.loc[b, "x"], gpkg.loc[b, "y"]
         d = np.array([bx - ax, by - ay])
         L = np.hypot(*d)
-        t = ((wx - ax) * d[0] + (wy - ay) * d[1]) / L ** 2
+        t = ((wx - ax) * d[0] + (wy - ay) * d[1]) / L**2
         off = np.abs((wx - ax) * d[1] - (wy - ay) * d[0]) / L
         near = (t > 0.1) & (t < 0.9) & (off < 14.0)
         # wire points all along the span (every fifth of it)
@@ -208,8 +221,23 @@ def test_scan_pattern_not_uniform(zone):
 
 def test_cli_synth(tmp_path):
     from towerpipe.cli import main
-    rc = main(["synth", "--seed", "5", "--blocks", "2", "--size", "80", "--density", "6",
-               "--out", str(tmp_path / "z"), "--edge-tower"])
+
+    rc = main(
+        [
+            "synth",
+            "--seed",
+            "5",
+            "--blocks",
+            "2",
+            "--size",
+            "80",
+            "--density",
+            "6",
+            "--out",
+            str(tmp_path / "z"),
+            "--edge-tower",
+        ]
+    )
     assert rc == 0
     files = sorted(p.name for p in (tmp_path / "z").glob("*.laz"))
     assert files == ["400000_4600000.laz", "400080_4600000.laz"]
@@ -218,8 +246,18 @@ def test_cli_synth(tmp_path):
 
 
 def test_tower_points_per_tower_range(tmp_path):
-    t = generate_zone(tmp_path, seed=2, blocks=1, size=300.0, density=10.0, preset="test",
-                      roads=0.0, villages=0.0, forest_cover=0.0, shrub_density=0.0)
+    t = generate_zone(
+        tmp_path,
+        seed=2,
+        blocks=1,
+        size=300.0,
+        density=10.0,
+        preset="test",
+        roads=0.0,
+        villages=0.0,
+        forest_cover=0.0,
+        shrub_density=0.0,
+    )
     n = t.towers["n_points"].to_numpy()
     assert len(n) >= 2
     assert n.min() >= 10 and n.max() <= 3000
@@ -227,20 +265,24 @@ def test_tower_points_per_tower_range(tmp_path):
 
 def test_realism_report(zone, tmp_path):
     from towerpipe.cli import main
+
     rc = main(["synth-report", "--zone", str(zone.out_dir), "--out", str(tmp_path / "rep")])
     assert rc == 0
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "points per tower" in md
     stats = json.loads((tmp_path / "rep" / "report.json").read_text())
     assert stats["n_towers"] == int((zone.towers["n_points"] > 0).sum())
-    assert stats["median_points_per_tower"] == pytest.approx(float(np.median(zone.towers["n_points"][zone.towers["n_points"] > 0])))
+    assert stats["median_points_per_tower"] == pytest.approx(
+        float(np.median(zone.towers["n_points"][zone.towers["n_points"] > 0]))
+    )
     assert (tmp_path / "rep" / "hag_cdf.png").stat().st_size > 10_000
 
 
 @pytest.mark.shared
 def test_real_towers_inserted(tmp_path):
-    t = generate_zone(tmp_path, seed=1, blocks=2, size=150.0, density=10.0, preset="test",
-                      tower_source="real", real_towers=TOWERS)
+    t = generate_zone(
+        tmp_path, seed=1, blocks=2, size=150.0, density=10.0, preset="test", tower_source="real", real_towers=TOWERS
+    )
     assert len(t.towers) >= 1 and t.towers["design"].str.startswith("real:").all()
     p = _all_points(t)
     assert (p["classification"] == 15).sum() == t.towers["n_points"].sum()
@@ -256,7 +298,7 @@ def test_real_backgrounds_keep_crs_and_get_towers(tmp_path):
     assert las.header.parse_crs().to_epsg() == 2154 and las.header.point_format.id == 8
     p = _all_points(t)
     assert (p["TowerId"] > 0).sum() == t.towers["n_points"].sum() > 0
-    assert (p["nir"] > 0).mean() > 0.9          # synthetic NIR where the tile has none
+    assert (p["nir"] > 0).mean() > 0.9  # synthetic NIR where the tile has none
 
 
 @pytest.mark.shared
@@ -266,9 +308,18 @@ def test_realshape_zone_families_lines_and_variants(tmp_path):
     from towerpipe.synth.real import tower_family
 
     bg = BACKGROUNDS
-    kw = dict(seed=5, real_backgrounds=bg, background_files=["ign_rgbnir_block.laz"], copies=1, lines=True,
-              tower_source="real", real_towers=TOWERS, tower_families=["ts40k"], tower_density=(4, 15),
-              tower_variety=True)
+    kw = dict(
+        seed=5,
+        real_backgrounds=bg,
+        background_files=["ign_rgbnir_block.laz"],
+        copies=1,
+        lines=True,
+        tower_source="real",
+        real_towers=TOWERS,
+        tower_families=["ts40k"],
+        tower_density=(4, 15),
+        tower_variety=True,
+    )
     t = generate_zone(tmp_path / "intact", **kw)
     assert len(t.blocks) == 1 and len(t.towers) >= 3
     assert {tower_family(d) for d in t.towers["design"]} == {"ts40k"}

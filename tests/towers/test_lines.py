@@ -25,8 +25,13 @@ def conductors(a, b, offsets=(-7.0, 0.0, 7.0), step=1.0, rng=None, hag=15.0, cle
     pts = np.concatenate([a + t[:, None] * u + o * n for o in offsets])
     pts += rng.normal(0, 0.05, pts.shape)
     az = np.degrees(np.arctan2(u[0], u[1])) % 180.0 + rng.normal(0, 1.0, len(pts))
-    return {"x": pts[:, 0], "y": pts[:, 1], "hag": np.full(len(pts), hag), "direction_deg": az % 180.0,
-            "clearance_m": np.full(len(pts), clearance)}
+    return {
+        "x": pts[:, 0],
+        "y": pts[:, 1],
+        "hag": np.full(len(pts), hag),
+        "direction_deg": az % 180.0,
+        "clearance_m": np.full(len(pts), clearance),
+    }
 
 
 def join(*parts):
@@ -36,9 +41,11 @@ def join(*parts):
 def towers_at(points, ids=None):
     pts = np.asarray(points, float)
     ids = ids if ids is not None else [int(round(x)) * 10**8 + int(round(y)) % 10**8 for x, y in pts]
-    return gpd.GeoDataFrame({"tower_id": np.asarray(ids, np.int64), "centroid_x": pts[:, 0],
-                             "centroid_y": pts[:, 1]},
-                            geometry=[shapely.Point(x, y).buffer(4.0) for x, y in pts], crs=CRS)
+    return gpd.GeoDataFrame(
+        {"tower_id": np.asarray(ids, np.int64), "centroid_x": pts[:, 0], "centroid_y": pts[:, 1]},
+        geometry=[shapely.Point(x, y).buffer(4.0) for x, y in pts],
+        crs=CRS,
+    )
 
 
 def line_order(towers, lid):
@@ -55,8 +62,11 @@ def test_an_angle_line_in_order_with_bearings_and_spans():
     # the conductors leave the zone on both sides of the end towers
     ext0 = p[0] - 200 * (p[1] - p[0]) / 300
     ext4 = p[4] + 200 * (p[4] - p[3]) / 300
-    cond = join(conductors(ext0, p[0]), *[conductors(p[i], p[i + 1], clearance=8.0 + i) for i in range(4)],
-                conductors(p[4], ext4))
+    cond = join(
+        conductors(ext0, p[0]),
+        *[conductors(p[i], p[i + 1], clearance=8.0 + i) for i in range(4)],
+        conductors(p[4], ext4),
+    )
     towers = towers_at(p)
     shuffled = towers.sample(frac=1.0, random_state=3).reset_index(drop=True)
     out, lines, spans = build_lines(shuffled, cond)
@@ -90,9 +100,11 @@ def test_a_parallel_line_and_a_line_passing_by_are_not_taken():
     a = [np.array([X0, Y0 + 300.0 * k]) for k in range(4)]
     twin = [np.array([X0 + 28.0, Y0 + 60.0 + 280.0 * k]) for k in range(4)]
     b = [np.array([X0 - 250.0, Y0 + 314.0]), np.array([X0 + 250.0, Y0 + 314.0])]
-    cond = join(*[conductors(a[i], a[i + 1]) for i in range(3)],
-                *[conductors(twin[i], twin[i + 1]) for i in range(3)],
-                conductors(b[0], b[1]))
+    cond = join(
+        *[conductors(a[i], a[i + 1]) for i in range(3)],
+        *[conductors(twin[i], twin[i + 1]) for i in range(3)],
+        conductors(b[0], b[1]),
+    )
     towers = towers_at(a + twin + b)
     out, lines, spans = build_lines(towers, cond)
     ids = towers["tower_id"].tolist()

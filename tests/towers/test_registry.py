@@ -5,11 +5,10 @@ from __future__ import annotations
 import geopandas as gpd
 import numpy as np
 import pandas as pd
-import pytest
 import shapely
+from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
 
 from conftest import extract
-from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
 from towerpipe.products.gpkg import write_towers_gpkg
 from towerpipe.products.registry_file import published_reviews, read_registry, write_registry
 from towerpipe.towers.registry import (
@@ -43,19 +42,36 @@ def box(cx, cy, half=4.0):
 
 def registry_of(rows):
     return gpd.GeoDataFrame(
-        [{"tower_id": tid, "status": status, "block": "b", "centroid_x": x, "centroid_y": y, "height_m": 30.0,
-          "first_seen": T1, "last_seen": T1, "vanished_since": pd.NaT, "review_status": review}
-         for tid, x, y, status, review in rows],
-        geometry=[box(x, y) for _, x, y, _, _ in rows], crs=CRS)
+        [
+            {
+                "tower_id": tid,
+                "status": status,
+                "block": "b",
+                "centroid_x": x,
+                "centroid_y": y,
+                "height_m": 30.0,
+                "first_seen": T1,
+                "last_seen": T1,
+                "vanished_since": pd.NaT,
+                "review_status": review,
+            }
+            for tid, x, y, status, review in rows
+        ],
+        geometry=[box(x, y) for _, x, y, _, _ in rows],
+        crs=CRS,
+    )
 
 
 def test_assign_ids_keeps_registered_ids_and_makes_new_ones():
-    reg = registry_of([(111, X0 + 100, Y0 + 100, ACTIVE, "confirmed"), (222, X0 + 300, Y0 + 100, VANISHED,
-                                                                        "unreviewed")])
-    feet = [box(X0 + 103, Y0 + 102),      # footprints intersect: the registered id
-            box(X0 + 300 + 4.5 + 4.5 + 3, Y0 + 100),  # no overlap, centroid 12 m away: new
-            box(X0 + 307.5, Y0 + 100),    # overlap with the vanished tower: found again
-            box(X0 + 500, Y0 + 500)]      # nothing near: new
+    reg = registry_of(
+        [(111, X0 + 100, Y0 + 100, ACTIVE, "confirmed"), (222, X0 + 300, Y0 + 100, VANISHED, "unreviewed")]
+    )
+    feet = [
+        box(X0 + 103, Y0 + 102),  # footprints intersect: the registered id
+        box(X0 + 300 + 4.5 + 4.5 + 3, Y0 + 100),  # no overlap, centroid 12 m away: new
+        box(X0 + 307.5, Y0 + 100),  # overlap with the vanished tower: found again
+        box(X0 + 500, Y0 + 500),
+    ]  # nothing near: new
     ids, first, review = assign_ids(feet, reg)
     assert ids[0] == 111 and first[0] == T1 and review[0] == "confirmed"
     assert ids[2] == 222 and review[2] == "unreviewed"
@@ -97,8 +113,9 @@ def test_ids_survive_a_shift_that_changes_the_location_id():
 def test_update_registry_vanished_failed_blocks_and_found_again(tmp_path):
     a, ha = synthetic_tower(X0 + 50, Y0 + 50, seed=1)
     b, hb = synthetic_tower(X0 + 300, Y0 + 50, seed=2)
-    both = extract([pred_pair(np.r_[a, b], np.r_[ha, hb], 0.9, ["b1"])], "b1", BOUNDS, zone="z",
-                   processed_at=str(T1)).towers
+    both = extract(
+        [pred_pair(np.r_[a, b], np.r_[ha, hb], 0.9, ["b1"])], "b1", BOUNDS, zone="z", processed_at=str(T1)
+    ).towers
     reg = update_registry(read_registry(), both, run_time=T1)
     assert list(reg["status"]) == [ACTIVE, ACTIVE] and (reg["first_seen"] == T1).all()
     only_a = both.iloc[:1]
@@ -149,9 +166,16 @@ def test_registry_from_the_published_file_and_analyst_reviews(tmp_path):
 
 def test_unique_ids_keeps_the_nearer_tower():
     reg_id = location_id(X0 + 100, Y0 + 100)
-    towers = gpd.GeoDataFrame({"tower_id": [reg_id, reg_id, 7], "block": ["a", "b", "c"],
-                               "centroid_x": [X0 + 103.0, X0 + 101.0, X0], "centroid_y": [Y0 + 100.0] * 3},
-                              geometry=[box(X0 + 103, Y0 + 100), box(X0 + 101, Y0 + 100), box(X0, Y0)], crs=CRS)
+    towers = gpd.GeoDataFrame(
+        {
+            "tower_id": [reg_id, reg_id, 7],
+            "block": ["a", "b", "c"],
+            "centroid_x": [X0 + 103.0, X0 + 101.0, X0],
+            "centroid_y": [Y0 + 100.0] * 3,
+        },
+        geometry=[box(X0 + 103, Y0 + 100), box(X0 + 101, Y0 + 100), box(X0, Y0)],
+        crs=CRS,
+    )
     out = unique_ids(towers)
     assert out["tower_id"].is_unique and len(out) == 3
     assert out.set_index("block").loc["b", "tower_id"] == reg_id

@@ -10,9 +10,9 @@ import shapely
 
 from conftest import LENIENT_TOWERS, REPO, extract, tower_rules
 from towerpipe.config import SCHEMA_FILE, TowersConfig, load_yaml
-from towerpipe.io.predictions import save_pred
 from towerpipe.errors import InputError
 from towerpipe.io.members import member_mask, save_members
+from towerpipe.io.predictions import save_pred
 from towerpipe.towers.cluster import cluster_towers
 from towerpipe.towers.extract import TOWER_COLUMNS, extract_towers
 from towerpipe.towers.matching import match_towers, towers_from_labels
@@ -24,34 +24,60 @@ MODEL = {"name": "pointnet_l", "version": "1.2.0"}
 STAMP = "2024-05-01T12:00:00+00:00"
 
 
-def synthetic_tower(cx: float, cy: float, *, height: float = 30.0, base_z: float = 100.0,
-                    half_base: float = 3.0, half_top: float = 1.0, arm: float = 7.0,
-                    step: float = 0.4, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def synthetic_tower(
+    cx: float,
+    cy: float,
+    *,
+    height: float = 30.0,
+    base_z: float = 100.0,
+    half_base: float = 3.0,
+    half_top: float = 1.0,
+    arm: float = 7.0,
+    step: float = 0.4,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
     """Points of a lattice tower: four converging legs and a crossarm; (xyz, hag)."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, height, step)
     half = half_base + (half_top - half_base) * t / height
-    parts = [np.stack([cx + sx * half, cy + sy * half, base_z + t], axis=1)
-             for sx, sy in ((-1, -1), (-1, 1), (1, -1), (1, 1))]
+    parts = [
+        np.stack([cx + sx * half, cy + sy * half, base_z + t], axis=1)
+        for sx, sy in ((-1, -1), (-1, 1), (1, -1), (1, 1))
+    ]
     a = np.arange(-arm, arm + step, step)
     parts.append(np.stack([cx + a, np.full_like(a, cy), np.full_like(a, base_z + 0.8 * height)], axis=1))
     xyz = np.concatenate(parts) + rng.normal(0.0, 0.03, (sum(len(p) for p in parts), 3))
     return xyz, (xyz[:, 2] - base_z).astype(np.float32)
 
 
-def pred_pair(xyz: np.ndarray, hag: np.ndarray, prob: np.ndarray | float, blocks: list[str],
-              block_id: np.ndarray | int = 0, tile: str = "t0") -> tuple[dict, dict]:
+def pred_pair(
+    xyz: np.ndarray,
+    hag: np.ndarray,
+    prob: np.ndarray | float,
+    blocks: list[str],
+    block_id: np.ndarray | int = 0,
+    tile: str = "t0",
+) -> tuple[dict, dict]:
     """(arrays, meta) as in a prediction file."""
     n = len(xyz)
     arrays = {
         "block_id": np.broadcast_to(np.asarray(block_id, dtype=np.int32), (n,)).copy(),
         "point_index": np.arange(n, dtype=np.int64),
-        "x": xyz[:, 0].copy(), "y": xyz[:, 1].copy(), "z": xyz[:, 2].copy(),
+        "x": xyz[:, 0].copy(),
+        "y": xyz[:, 1].copy(),
+        "z": xyz[:, 2].copy(),
         "hag": np.asarray(hag, dtype=np.float32),
         "prob": np.broadcast_to(np.asarray(prob, dtype=np.float32), (n,)).copy(),
     }
-    meta = {"zone": "z1", "block": blocks[0], "tile": tile, "blocks": blocks, "crs_wkt": CRS,
-            "core_bounds": [0, 0, 0, 0], "model": MODEL}
+    meta = {
+        "zone": "z1",
+        "block": blocks[0],
+        "tile": tile,
+        "blocks": blocks,
+        "crs_wkt": CRS,
+        "core_bounds": [0, 0, 0, 0],
+        "model": MODEL,
+    }
     return arrays, meta
 
 
@@ -68,14 +94,23 @@ BOUNDS = (X0, Y0, X0 + 500, Y0 + 500)
 def test_two_towers_records():
     xyz, hag = scene()
     rng = np.random.default_rng(5)
-    clutter = np.column_stack([rng.uniform(X0, X0 + 500, 300), rng.uniform(Y0, Y0 + 500, 300),
-                               rng.uniform(100, 120, 300)])
+    clutter = np.column_stack(
+        [rng.uniform(X0, X0 + 500, 300), rng.uniform(Y0, Y0 + 500, 300), rng.uniform(100, 120, 300)]
+    )
     allxyz = np.concatenate([xyz, clutter])
     allhag = np.concatenate([hag, (clutter[:, 2] - 100).astype(np.float32)])
     prob = np.concatenate([np.full(len(xyz), 0.9), np.full(len(clutter), 0.2)])
-    gdf = extract_towers([pred_pair(allxyz, allhag, prob, ["b1"])], "b1", BOUNDS, tower_rules(**LENIENT_TOWERS),
-                         zone="z1", point_threshold=None, model_meta=MODEL, source_files={"b1": "/data/b1.laz"},
-                         processed_at=STAMP).towers
+    gdf = extract_towers(
+        [pred_pair(allxyz, allhag, prob, ["b1"])],
+        "b1",
+        BOUNDS,
+        tower_rules(**LENIENT_TOWERS),
+        zone="z1",
+        point_threshold=None,
+        model_meta=MODEL,
+        source_files={"b1": "/data/b1.laz"},
+        processed_at=STAMP,
+    ).towers
     assert len(gdf) == 2
     assert list(gdf.columns) == list(TOWER_COLUMNS) + ["geometry"]
     assert str(gdf.crs.to_epsg()) == "25831"
@@ -164,19 +199,19 @@ def test_half_open_bounds_exactly_one_owner():
 
 def test_filters_and_threshold():
     big, hb = synthetic_tower(X0 + 50, Y0 + 50)
-    low, hl = synthetic_tower(X0 + 150, Y0 + 50, height=6.0, arm=2.0)          # too low
+    low, hl = synthetic_tower(X0 + 150, Y0 + 50, height=6.0, arm=2.0)  # too low
     few, hf = synthetic_tower(X0 + 250, Y0 + 50, height=12.0, step=3.0, arm=0)  # too few points (spaced 3 m
-    few = few[:8]                                                              # apart: also not linked)
+    few = few[:8]  # apart: also not linked)
     hf = hf[:8]
-    weak, hw = synthetic_tower(X0 + 350, Y0 + 50)                              # low probability
+    weak, hw = synthetic_tower(X0 + 350, Y0 + 50)  # low probability
     xyz = np.concatenate([big, low, few, weak])
     hag = np.concatenate([hb, hl, hf, hw])
     prob = np.concatenate([np.full(len(big) + len(low) + len(few), 0.8), np.full(len(weak), 0.3)])
-    gdf = extract([pred_pair(xyz, hag, prob, ["b"])], "b", BOUNDS, zone="z", min_points=20,
-                  min_height=10.0, threshold=0.5).towers
+    gdf = extract(
+        [pred_pair(xyz, hag, prob, ["b"])], "b", BOUNDS, zone="z", min_points=20, min_height=10.0, threshold=0.5
+    ).towers
     assert len(gdf) == 1 and gdf.iloc[0]["centroid_x"] == pytest.approx(X0 + 50, abs=0.3)
-    gdf = extract([pred_pair(xyz, hag, prob, ["b"])], "b", BOUNDS, zone="z", threshold=0.25,
-                  min_height=5.0).towers
+    gdf = extract([pred_pair(xyz, hag, prob, ["b"])], "b", BOUNDS, zone="z", threshold=0.25, min_height=5.0).towers
     assert len(gdf) == 3
 
 
@@ -205,9 +240,9 @@ def test_wire_chain_is_split_into_towers():
     hag = np.concatenate([ha, hb, (wire[:, 2] - 100).astype(np.float32)])
     labels = cluster_towers(xyz, hag, linkage=2.5, min_points=20, min_height=10.0)
     assert labels.max() == 1
-    assert len(np.unique(labels[: len(a)])) == 1 and len(np.unique(labels[len(a): len(a) + len(b)])) == 1
+    assert len(np.unique(labels[: len(a)])) == 1 and len(np.unique(labels[len(a) : len(a) + len(b)])) == 1
     assert labels[0] != labels[len(a)]
-    assert (labels[len(a) + len(b) + 40: -40] == -1).all()  # mid-span wire dropped
+    assert (labels[len(a) + len(b) + 40 : -40] == -1).all()  # mid-span wire dropped
 
 
 def test_split_footprints_are_merged():
@@ -232,9 +267,19 @@ def test_empty_predictions_give_empty_schema():
 def test_reads_prediction_files(tmp_path):
     xyz, hag = scene()
     arrays, meta = pred_pair(xyz, hag, 0.9, ["b1"])
-    meta.update({"windows_total": 10, "windows_passed_gate": 2, "windows_segmented": 2, "gate_threshold": 0.5,
-                 "combine": "max", "points_core": len(xyz), "points_model_input_core": len(xyz),
-                 "timings": {}, "peak_rss_mb": 1.0})
+    meta.update(
+        {
+            "windows_total": 10,
+            "windows_passed_gate": 2,
+            "windows_segmented": 2,
+            "gate_threshold": 0.5,
+            "combine": "max",
+            "points_core": len(xyz),
+            "points_model_input_core": len(xyz),
+            "timings": {},
+            "peak_rss_mb": 1.0,
+        }
+    )
     save_pred(tmp_path / "t.npz", arrays, meta)
     gdf = extract([tmp_path / "t.npz"], "b1", BOUNDS, zone="z1").towers
     assert len(gdf) == 2 and set(gdf["model_name"]) == {"pointnet_l"}
@@ -253,13 +298,19 @@ def test_degenerate_footprint_is_buffered():
 def test_match_towers_one_to_one():
     import geopandas as gpd
 
-    truth = gpd.GeoDataFrame({"id": ["a", "b", "c"]},
-                             geometry=[shapely.box(0, 0, 6, 6), shapely.box(100, 0, 106, 6), shapely.box(300, 0, 306, 6)])
-    pred = gpd.GeoDataFrame({"tower_id": ["p1", "p2", "p3", "p4"]},
-                            geometry=[shapely.box(1, 1, 7, 7),           # overlaps a
-                                      shapely.box(0.5, 0, 6.5, 6),       # also near a: duplicate -> fp
-                                      shapely.box(108, 0, 112, 6),       # centroid 7 m from b, no overlap
-                                      shapely.box(200, 0, 206, 6)])      # nothing
+    truth = gpd.GeoDataFrame(
+        {"id": ["a", "b", "c"]},
+        geometry=[shapely.box(0, 0, 6, 6), shapely.box(100, 0, 106, 6), shapely.box(300, 0, 306, 6)],
+    )
+    pred = gpd.GeoDataFrame(
+        {"tower_id": ["p1", "p2", "p3", "p4"]},
+        geometry=[
+            shapely.box(1, 1, 7, 7),  # overlaps a
+            shapely.box(0.5, 0, 6.5, 6),  # also near a: duplicate -> fp
+            shapely.box(108, 0, 112, 6),  # centroid 7 m from b, no overlap
+            shapely.box(200, 0, 206, 6),
+        ],
+    )  # nothing
     r = match_towers(pred, truth, max_dist=5.0)
     assert r["tp"] == 1 and r["fp"] == 3 and r["fn"] == 2
     assert r["matches"][0]["pred"] == "p2" and r["matches"][0]["truth"] == "a"  # nearest centroid wins
@@ -301,8 +352,12 @@ def test_tall_tower_without_conductors_is_dropped_and_support_recorded():
     rng = np.random.default_rng(0)
     s = np.sort(rng.random(600))
     # conductors of the first tower only, running north from it for 300 m
-    wires = np.concatenate([np.column_stack([np.full(600, X0 + 50 + a), Y0 + 50 + 300 * s, 124 - 5 * np.sin(np.pi * s)])
-                            for a in (-7.0, 0.0, 7.0)])
+    wires = np.concatenate(
+        [
+            np.column_stack([np.full(600, X0 + 50 + a), Y0 + 50 + 300 * s, 124 - 5 * np.sin(np.pi * s)])
+            for a in (-7.0, 0.0, 7.0)
+        ]
+    )
     ctx_arrays = {"x": wires[:, 0], "y": wires[:, 1], "z": wires[:, 2], "hag": (wires[:, 2] - 100)}
 
     def context(cx, cy):
@@ -315,8 +370,12 @@ def test_tall_tower_without_conductors_is_dropped_and_support_recorded():
     kept = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.5).towers
     assert len(kept) == 1 and abs(kept.iloc[0]["centroid_x"] - (X0 + 50)) < 1
     # exempt below wire_min_height, and no context means unknown support (NaN), never a drop
-    assert len(extract([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.5,
-                       wire_min_height=50.0).towers) == 2
+    assert (
+        len(
+            extract([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.5, wire_min_height=50.0).towers
+        )
+        == 2
+    )
     plain = extract([pair], "b1", BOUNDS, zone="z1", min_wire_support=0.5).towers
     assert len(plain) == 2 and plain["wire_support"].isna().all()
 
@@ -373,8 +432,7 @@ def test_towers_found_on_the_single_view_points_chosen_on_the_view_mean():
     arrays["prob"][~crown] = 0.45
     arrays["prob"][crown] = 0.2
     arrays["prob_single"] = np.full(len(xyz), 0.97, np.float32)
-    found = extract([(arrays, meta)], "b1", BOUNDS, zone="z1", threshold=0.5, point_threshold=0.4,
-                    min_core_prob=0.9)
+    found = extract([(arrays, meta)], "b1", BOUNDS, zone="z1", threshold=0.5, point_threshold=0.4, min_core_prob=0.9)
     gdf, members = found.towers, found.members
     assert len(gdf) == 1
     row = gdf.iloc[0]

@@ -9,8 +9,17 @@ from towerpipe.towers.wires import TileContext, wire_points, wire_support
 X0, Y0 = 400_000.0, 4_600_000.0
 
 
-def conductor(x0: float, y0: float, x1: float, y1: float, z0: float, *, sag: float = 6.0, step: float = 0.7,
-              rng: np.random.Generator) -> np.ndarray:
+def conductor(
+    x0: float,
+    y0: float,
+    x1: float,
+    y1: float,
+    z0: float,
+    *,
+    sag: float = 6.0,
+    step: float = 0.7,
+    rng: np.random.Generator,
+) -> np.ndarray:
     """Points along one sagging conductor (about one return per ``step`` m)."""
     n = int(np.hypot(x1 - x0, y1 - y0) / step)
     s = np.sort(rng.random(n))
@@ -18,8 +27,16 @@ def conductor(x0: float, y0: float, x1: float, y1: float, z0: float, *, sag: flo
     return np.column_stack([x0 + s * (x1 - x0), y0 + s * (y1 - y0), z]) + rng.normal(0, 0.03, (n, 3))
 
 
-def line_through(cx: float, cy: float, angle: float, *, arms=(-6.0, 0.0, 6.0), z0: float = 25.0,
-                 length: float = 300.0, rng: np.random.Generator) -> np.ndarray:
+def line_through(
+    cx: float,
+    cy: float,
+    angle: float,
+    *,
+    arms=(-6.0, 0.0, 6.0),
+    z0: float = 25.0,
+    length: float = 300.0,
+    rng: np.random.Generator,
+) -> np.ndarray:
     """Three conductors through (cx, cy) (crossarm offsets ``arms``), both ways."""
     d = np.array([np.cos(angle), np.sin(angle)])
     n = np.array([-d[1], d[0]])
@@ -48,7 +65,7 @@ def test_wire_points_find_conductors_not_crowns():
     pts = np.concatenate([wires, trees])
     mask, direction = wire_points(pts[:, 0], pts[:, 1], pts[:, 2])
     assert mask[: len(wires)].mean() > 0.8
-    assert mask[len(wires):].mean() < 0.01
+    assert mask[len(wires) :].mean() < 0.01
     d = direction[: len(wires)][mask[: len(wires)]]
     assert np.median(np.abs(d @ np.array([np.cos(0.3), np.sin(0.3)]))) > 0.99
 
@@ -106,8 +123,10 @@ def test_tile_context_picks_the_tile_holding_the_centre(tmp_path):
     arrays, coverage = ctx(X0 + 600, Y0 + 10)
     np.testing.assert_array_equal(arrays["x"], X0 + 500 + np.array([10.0, 20.0]))
     # the data is where the tile's points are (all three, the non-model-input one too)
-    assert coverage.contains(np.array([X0 + 535.0, X0 + 600.0]), np.array([Y0 + 5.0, Y0 + 5.0])).tolist() == \
-        [True, False]
+    assert coverage.contains(np.array([X0 + 535.0, X0 + 600.0]), np.array([Y0 + 5.0, Y0 + 5.0])).tolist() == [
+        True,
+        False,
+    ]
     assert ctx(X0 - 1, Y0) is None
 
 
@@ -117,13 +136,14 @@ def test_tile_context_skips_a_tile_without_points(tmp_path):
     from towerpipe.io.tiles import Tile, empty_arrays, save_tile
 
     empty = tmp_path / "a_failed.npz"
-    save_tile(empty, Tile(empty_arrays(0), {"core_bounds": [X0, Y0, X0 + 500, Y0 + 500], "buffer": 40.0,
-                                            "counts": {"points": 0}}))
+    save_tile(
+        empty,
+        Tile(empty_arrays(0), {"core_bounds": [X0, Y0, X0 + 500, Y0 + 500], "buffer": 40.0, "counts": {"points": 0}}),
+    )
     a = empty_arrays(2)
     a["x"][:], a["y"][:], a["model_input"][:] = X0 + 10, Y0 + 10, True
     good = tmp_path / "b_good.npz"
-    save_tile(good, Tile(a, {"core_bounds": [X0, Y0, X0 + 500, Y0 + 500], "buffer": 40.0,
-                             "counts": {"points": 2}}))
+    save_tile(good, Tile(a, {"core_bounds": [X0, Y0, X0 + 500, Y0 + 500], "buffer": 40.0, "counts": {"points": 2}}))
     arrays, _ = TileContext([str(empty), str(good)])(X0 + 100, Y0 + 100)
     assert len(arrays["x"]) == 2
 
@@ -158,7 +178,7 @@ def test_conductor_points_of_a_block_with_clearance(tmp_path):
     rng = np.random.default_rng(5)
     wires = line_through(X0 + 250, Y0 + 250, 0.0, rng=rng, length=240.0, z0=25.0)  # west-east, sag 6 m
     trees = canopy(X0 + 250, Y0 + 250, 30.0, 20_000, rng)
-    trees[:, 2] = rng.uniform(3, 12, len(trees))                                     # up to 12 m under it
+    trees[:, 2] = rng.uniform(3, 12, len(trees))  # up to 12 m under it
     pts = np.concatenate([wires, trees])
     paths = []
     for k, (x0, block) in enumerate(((X0, "b"), (X0 + 250, "b"), (X0 + 500, "other"))):
@@ -176,7 +196,7 @@ def test_conductor_points_of_a_block_with_clearance(tmp_path):
     is_wire = np.isin(np.round(c["x"], 6), np.round(wires[:, 0], 6))
     assert is_wire.mean() > 0.99 and len(c["x"]) > 0.8 * (wires[:, 0] < X0 + 500).sum()
     assert len(np.unique(np.c_[c["x"], c["y"]], axis=0)) == len(c["x"])  # no point twice
-    assert (c["x"] < X0 + 500).all()                                       # not the other block's
+    assert (c["x"] < X0 + 500).all()  # not the other block's
     assert np.median(np.abs(c["direction_deg"] - 90.0)) < 2.0  # the wires run east (azimuth 90)
     over = np.hypot(c["x"] - X0 - 250, c["y"] - Y0 - 250) < 25
     assert np.isfinite(c["clearance_m"][over]).mean() > 0.9

@@ -5,19 +5,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from towerpipe.training.augment import OPERATIONS, attribute_groups, augment_geometry, corrupt_attributes
 from towerpipe.model.features import FEATURE_SETS
+from towerpipe.training.augment import OPERATIONS, attribute_groups, augment_geometry, corrupt_attributes
 
-FULL = FEATURE_SETS["full"]       # x y z intensity green blue ndvi
+FULL = FEATURE_SETS["full"]  # x y z intensity green blue ndvi
 
 
 def _batch(b=64, n=200, seed=0):
     rng = np.random.default_rng(seed)
     x = rng.uniform(0.05, 0.95, (b, n, len(FULL))).astype(np.float32)
     lab = np.zeros((b, n), np.int64)
-    lab[:, :40] = 1                                       # the tower's points
-    x[:, :40, 3:] = 0.9                                   # a tower signature: bright, grey, low NDVI...
-    x[:, 40:, 3:] = 0.2                                   # ...against its surroundings
+    lab[:, :40] = 1  # the tower's points
+    x[:, :40, 3:] = 0.9  # a tower signature: bright, grey, low NDVI...
+    x[:, 40:, 3:] = 0.2  # ...against its surroundings
     return x, lab
 
 
@@ -64,7 +64,7 @@ def test_corruption_rate_per_window_and_group():
     before = x.copy()
     corrupt_attributes(x, FULL, lab, 0.5, np.random.default_rng(3))
     changed = ~np.all(np.isclose(x[..., 3], before[..., 3]), axis=1)
-    assert 0.35 < changed.mean() < 0.55                 # permute/swap of equal values can look unchanged
+    assert 0.35 < changed.mean() < 0.55  # permute/swap of equal values can look unchanged
 
 
 def test_geometry_rotation_keeps_heights_and_radii():

@@ -5,14 +5,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from towerpipe.training.dataset import build_windows, split_blocks, tall_objects, tower_instances
-from towerpipe.training.windowset import KINDS, SPLITS, load_windows
 from towerpipe.errors import ConfigError
 from towerpipe.io.tiles import Tile, empty_arrays, save_tile
+from towerpipe.training.dataset import build_windows, split_blocks, tall_objects, tower_instances
+from towerpipe.training.windowset import KINDS, SPLITS, load_windows
 
 
-def make_tile(path, block: str, origin: tuple[float, float], towers: list[tuple[float, float]],
-              seed: int = 0, n_veg: int = 6000, size: float = 100.0, tower_pts: int = 400) -> Tile:
+def make_tile(
+    path,
+    block: str,
+    origin: tuple[float, float],
+    towers: list[tuple[float, float]],
+    seed: int = 0,
+    n_veg: int = 6000,
+    size: float = 100.0,
+    tower_pts: int = 400,
+) -> Tile:
     """A tiny labelled tile: scattered vegetation plus lattice-tower columns of class 15."""
     rng = np.random.default_rng(seed)
     ox, oy = origin
@@ -20,8 +28,18 @@ def make_tile(path, block: str, origin: tuple[float, float], towers: list[tuple[
     vx = rng.uniform(ox - 20, ox + size + 20, n_veg)
     vy = rng.uniform(oy - 20, oy + size + 20, n_veg)
     vh = np.abs(rng.gamma(2.0, 2.5, n_veg)) + 0.3
-    parts = [dict(x=vx, y=vy, h=vh, cls=np.where(vh < 3, 3, np.where(vh < 8, 4, 5)),
-                  rgb=(60, 120, 50), nir=200, inten=rng.normal(60, 15, n_veg), nret=rng.integers(1, 4, n_veg))]
+    parts = [
+        dict(
+            x=vx,
+            y=vy,
+            h=vh,
+            cls=np.where(vh < 3, 3, np.where(vh < 8, 4, 5)),
+            rgb=(60, 120, 50),
+            nir=200,
+            inten=rng.normal(60, 15, n_veg),
+            nret=rng.integers(1, 4, n_veg),
+        )
+    ]
     for tx, ty in towers:
         h = rng.uniform(0, 25, tower_pts)
         half = 3.0 * (1 - h / 35)  # legs converge with height
@@ -31,8 +49,18 @@ def make_tile(path, block: str, origin: tuple[float, float], towers: list[tuple[
         along = rng.uniform(-1, 1, tower_pts) * half * (rng.random(tower_pts) < 0.3)  # cross bars
         x = tx + sx + np.where(leg < 2, along, 0)
         y = ty + sy + np.where(leg >= 2, along, 0)
-        parts.append(dict(x=x, y=y, h=h, cls=np.full(tower_pts, 15), rgb=(140, 140, 140), nir=120,
-                          inten=rng.normal(150, 20, tower_pts), nret=np.ones(tower_pts, int)))
+        parts.append(
+            dict(
+                x=x,
+                y=y,
+                h=h,
+                cls=np.full(tower_pts, 15),
+                rgb=(140, 140, 140),
+                nir=120,
+                inten=rng.normal(150, 20, tower_pts),
+                nret=np.ones(tower_pts, int),
+            )
+        )
     n = sum(len(p["x"]) for p in parts)
     a = empty_arrays(n)
     s = 0
@@ -51,9 +79,20 @@ def make_tile(path, block: str, origin: tuple[float, float], towers: list[tuple[
     a["point_index"] = np.arange(n)
     a["model_input"][:] = True
     a["core"] = (a["x"] >= ox) & (a["x"] < ox + size) & (a["y"] >= oy) & (a["y"] < oy + size)
-    meta = {"zone": "t", "block": block, "tile": f"{block}_0", "blocks": [block], "crs_wkt": "",
-            "core_bounds": [ox, oy, ox + size, oy + size], "buffer": 20.0, "has_rgb": True, "has_nir": True,
-            "color_bits": 8, "ground_source": "class2", "counts": {}}
+    meta = {
+        "zone": "t",
+        "block": block,
+        "tile": f"{block}_0",
+        "blocks": [block],
+        "crs_wkt": "",
+        "core_bounds": [ox, oy, ox + size, oy + size],
+        "buffer": 20.0,
+        "has_rgb": True,
+        "has_nir": True,
+        "color_bits": 8,
+        "ground_source": "class2",
+        "counts": {},
+    }
     tile = Tile(a, meta)
     save_tile(path, tile)
     return tile
@@ -81,9 +120,9 @@ def test_tower_instances_link_and_min_points():
 
 def test_tall_objects_group_cells_and_sort_by_height():
     rng = np.random.default_rng(2)
-    tree = np.c_[rng.normal(0, 1.5, (60, 2))]                      # a crown, 12-16 m
-    mast = np.c_[rng.normal(0, 0.3, (40, 2))] + [40, 0]            # a mast, up to 45 m
-    wire = np.c_[np.linspace(-30, 30, 200), np.full(200, 25.0)]    # one long object
+    tree = np.c_[rng.normal(0, 1.5, (60, 2))]  # a crown, 12-16 m
+    mast = np.c_[rng.normal(0, 0.3, (40, 2))] + [40, 0]  # a mast, up to 45 m
+    wire = np.c_[np.linspace(-30, 30, 200), np.full(200, 25.0)]  # one long object
     xy = np.vstack([tree, mast, wire])
     hag = np.r_[rng.uniform(12, 16, 60), np.linspace(10, 45, 40), np.full(200, 20.0)]
     objs = tall_objects(xy, hag, 2.0)
@@ -108,10 +147,12 @@ def test_tallest_object_gets_a_negative_window(tmp_path):
     merged = {name: np.concatenate([v, extra[name].astype(v.dtype)]) for name, v in a.items()}
     merged["point_index"] = np.arange(len(merged["x"]))
     from towerpipe.io.tiles import Tile, save_tile
+
     save_tile(p, Tile(merged, tile.meta))
     for seed in range(3):
-        ws = build_windows([str(p)], {"n_points": 128, "seed": seed, "tall_negatives_per_tile": 2,
-                                      "split": {"val": [], "test": []}})
+        ws = build_windows(
+            [str(p)], {"n_points": 128, "seed": seed, "tall_negatives_per_tile": 2, "split": {"val": [], "test": []}}
+        )
         c = ws.center[ws.kind == KINDS["tall_negative"]]
         assert len(c) >= 1 and np.min(np.abs(c - [80, 80]).max(axis=1)) <= 5.0 + 1.5
         assert ws.meta["tall_objects"] >= 2
@@ -126,12 +167,12 @@ def test_build_windows_counts_and_labels(tmp_path):
     assert (ws.kind == KINDS["hard_negative"]).sum() == 20
     # positives carry the tower points, hard negatives none
     for i in np.flatnonzero(ws.label == 1):
-        assert ws.point_label[ws.offsets[i]:ws.offsets[i + 1]].sum() >= 20
+        assert ws.point_label[ws.offsets[i] : ws.offsets[i + 1]].sum() >= 20
     for i in np.flatnonzero(ws.kind == KINDS["hard_negative"]):
-        assert ws.point_label[ws.offsets[i]:ws.offsets[i + 1]].sum() == 0
+        assert ws.point_label[ws.offsets[i] : ws.offsets[i + 1]].sum() == 0
         assert ws.label[i] == 0
     for i in np.flatnonzero(np.isin(ws.kind, [KINDS["random_negative"], KINDS["tall_negative"]])):
-        assert ws.point_label[ws.offsets[i]:ws.offsets[i + 1]].sum() == 0
+        assert ws.point_label[ws.offsets[i] : ws.offsets[i + 1]].sum() == 0
     assert (ws.kind == KINDS["tall_negative"]).sum() > 0
     x, lab = ws.sampled(np.arange(len(ws)), "full")
     assert x.shape == (len(ws), 256, 7) and lab.shape == (len(ws), 256)
@@ -181,13 +222,15 @@ def test_windows_thinned_to_their_own_density(tmp_path):
     """Each window has a density of its own, from the range; a positive keeps enough tower points."""
     paths = make_tiles(tmp_path, n_blocks=3, tower_pts=800)
     full = build_windows(paths, {"val_fraction": 0.34, "test_fraction": 0.34, "seed": 3})
-    thin = build_windows(paths, {"val_fraction": 0.34, "test_fraction": 0.34, "seed": 3,
-                                 "density_range": [0.05, 0.2], "positive_shifts": 3})
+    thin = build_windows(
+        paths,
+        {"val_fraction": 0.34, "test_fraction": 0.34, "seed": 3, "density_range": [0.05, 0.2], "positive_shifts": 3},
+    )
     pos_full = [np.diff(full.offsets)[i] for i in np.flatnonzero(full.label == 1)]
     pos_thin = [np.diff(thin.offsets)[i] for i in np.flatnonzero(thin.label == 1)]
     assert np.median(pos_thin) < 0.5 * np.median(pos_full)
-    assert len(set(pos_thin)) > len(pos_thin) // 2            # densities differ window to window
-    tower_pts = [int(thin.point_label[thin.offsets[i]:thin.offsets[i + 1]].sum()) for i in np.flatnonzero(thin.label)]
+    assert len(set(pos_thin)) > len(pos_thin) // 2  # densities differ window to window
+    tower_pts = [int(thin.point_label[thin.offsets[i] : thin.offsets[i + 1]].sum()) for i in np.flatnonzero(thin.label)]
     assert min(tower_pts) >= 20
     # three shifted copies per tower on top of the centred one
     assert (thin.kind == KINDS["positive_shifted"]).sum() == 3 * (thin.kind == KINDS["positive"]).sum()
@@ -198,8 +241,8 @@ def test_occlusion_takes_a_face_of_the_tower(tmp_path):
     cfg = {"val_fraction": 0.34, "test_fraction": 0.34, "seed": 5, "positive_shifts": 0}
     plain = build_windows(paths, cfg)
     occl = build_windows(paths, {**cfg, "occlusion": 1.0})
-    t0 = [int(plain.point_label[plain.offsets[i]:plain.offsets[i + 1]].sum()) for i in np.flatnonzero(plain.label)]
-    t1 = [int(occl.point_label[occl.offsets[i]:occl.offsets[i + 1]].sum()) for i in np.flatnonzero(occl.label)]
+    t0 = [int(plain.point_label[plain.offsets[i] : plain.offsets[i + 1]].sum()) for i in np.flatnonzero(plain.label)]
+    t1 = [int(occl.point_label[occl.offsets[i] : occl.offsets[i + 1]].sum()) for i in np.flatnonzero(occl.label)]
     assert len(t0) == len(t1) and all(b < a for a, b in zip(t0, t1))
     assert np.median(np.array(t1) / np.array(t0)) < 0.8
 
@@ -215,12 +258,13 @@ def test_windows_know_their_tower_family(tmp_path):
     rows = []
     for b in range(3):
         ox = 1000.0 * b
-        rows += [{"design": "real:uav:001Tower", "x": ox + 30, "y": 30.0, "geometry": shapely.Point(ox + 30, 30)},
-                 {"design": "lattice_waist", "x": ox + 70, "y": 65.0, "geometry": shapely.Point(ox + 70, 65)}]
+        rows += [
+            {"design": "real:uav:001Tower", "x": ox + 30, "y": 30.0, "geometry": shapely.Point(ox + 30, 30)},
+            {"design": "lattice_waist", "x": ox + 70, "y": 65.0, "geometry": shapely.Point(ox + 70, 65)},
+        ]
     truth = tmp_path / "truth.gpkg"
     gpd.GeoDataFrame(rows, geometry="geometry").to_file(truth, layer="towers")
-    ws = build_windows(paths, {"val_fraction": 0.34, "test_fraction": 0.34, "positive_shifts": 0},
-                       truth={"t": truth})
+    ws = build_windows(paths, {"val_fraction": 0.34, "test_fraction": 0.34, "positive_shifts": 0}, truth={"t": truth})
     pos = np.flatnonzero(ws.kind == KINDS["positive"])
     fams = {int(f) for f in ws.family[pos]}
     assert FAMILY_BITS["uav"] in {f & FAMILY_BITS["uav"] for f in fams}
@@ -230,6 +274,9 @@ def test_windows_know_their_tower_family(tmp_path):
     assert (ws.family[ws.kind == KINDS["random_negative"]] == 0).all()
     out = ws.save(tmp_path / "w.npz")
     np.testing.assert_array_equal(load_windows(out).family, ws.family)
-    assert ws.meta["summary"]["train"]["positive_by_family"]["uav"] + \
-        ws.meta["summary"]["val"]["positive_by_family"]["uav"] + \
-        ws.meta["summary"]["test"]["positive_by_family"]["uav"] >= 3
+    assert (
+        ws.meta["summary"]["train"]["positive_by_family"]["uav"]
+        + ws.meta["summary"]["val"]["positive_by_family"]["uav"]
+        + ws.meta["summary"]["test"]["positive_by_family"]["uav"]
+        >= 3
+    )

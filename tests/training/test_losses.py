@@ -16,8 +16,8 @@ def test_effective_number_by_hand():
 
 def test_weights_by_hand():
     counts = [1000, 10]
-    e_neg = (1 - 0.999 ** 1000) / 0.001  # 632.3046
-    e_pos = (1 - 0.999 ** 10) / 0.001  # 9.95512
+    e_neg = (1 - 0.999**1000) / 0.001  # 632.3046
+    e_pos = (1 - 0.999**10) / 0.001  # 9.95512
     w = np.array([1 / e_neg, 1 / e_pos])
     w = w / w.sum() * 2
     np.testing.assert_allclose(class_balanced_weights(counts, 0.999), w)

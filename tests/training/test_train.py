@@ -6,11 +6,11 @@ import json
 
 import numpy as np
 import pytest
-
 from test_dataset import make_tiles
+
+from towerpipe.model.bundle import load_bundle
 from towerpipe.training.ablation import run_ablation
 from towerpipe.training.dataset import build_windows
-from towerpipe.model.bundle import load_bundle
 from towerpipe.training.metrics import classification_metrics, segmentation_metrics
 from towerpipe.training.train import train_bundle, train_classifier
 
@@ -46,11 +46,16 @@ def test_tiny_classifier_learns(windows):
 
 def test_train_bundle_round_trip(windows, tmp_path):
     _, path = windows
-    out = train_bundle([path], tmp_path / "towerpipe-full-v2", "full",
-                       dict(TINY, epochs=3, segmenter={"epochs": 4}))
+    out = train_bundle([path], tmp_path / "towerpipe-full-v2", "full", dict(TINY, epochs=3, segmenter={"epochs": 4}))
     names = {p.name for p in out.iterdir()}
-    assert {"classifier.pt", "segmenter.pt", "model_card.json", "MODEL_CARD.md", "classifier_curves.png",
-            "segmenter_curves.png"} <= names
+    assert {
+        "classifier.pt",
+        "segmenter.pt",
+        "model_card.json",
+        "MODEL_CARD.md",
+        "classifier_curves.png",
+        "segmenter_curves.png",
+    } <= names
     card = json.loads((out / "model_card.json").read_text())
     assert card["features"] == ["x", "y", "z", "intensity", "green", "blue", "ndvi"]
     assert card["sampling"]["n_points"] == 128 and len(card["config_hash"]) == 16
@@ -82,8 +87,9 @@ def test_warm_start_continues_from_a_bundle(windows, tmp_path, random_model_fact
         net = _initial(kind, cfg, 7)
         for (k, a), b in zip(net.state_dict().items(), getattr(start, kind).state_dict().values()):
             assert torch.equal(a, b), k
-    out = train_bundle([path], tmp_path / "warm", "full", dict(TINY, epochs=1, init_from=str(init),
-                                                               segmenter={"epochs": 1}))
+    out = train_bundle(
+        [path], tmp_path / "warm", "full", dict(TINY, epochs=1, init_from=str(init), segmenter={"epochs": 1})
+    )
     rec = json.loads((out / "model_card.json").read_text())["init_from"]
     assert rec["name"] == "towerpipe-random-full" and set(rec["files_sha256"]) == {"classifier.pt", "segmenter.pt"}
     with pytest.raises(ConfigError, match="geometry"):

@@ -25,11 +25,11 @@ import sys
 import uuid
 
 import laspy
-from laspy.vlrs.vlrlist import VLRList
 import numpy as np
 import pyogrio
 import pytest
 import yaml
+from laspy.vlrs.vlrlist import VLRList
 
 from conftest import REPO, RGBNIR_BLOCK
 
@@ -97,7 +97,7 @@ def _write_zone_a(src: laspy.LasData, d):
     cases["duplicates"] = _subset(dup, np.repeat(np.arange(len(dup.points)), 2))
     out = _moved(src, 4)
     z = np.asarray(out.z).copy()
-    z[::5000] += 3000.0   # birds / atmospheric returns, km above the ground
+    z[::5000] += 3000.0  # birds / atmospheric returns, km above the ground
     z[2500::5000] -= 800.0  # multipath, far below the ground
     out.z = z
     cases["outliers"] = out
@@ -163,12 +163,17 @@ def matrix(tmp_path_factory, random_model_factory):
     _write_zone_a(src, tmp / "in_a")
     _write_zone_b(src, tmp / "in_b")
     za, zb = (f"pytest_bad_{k}_{uuid.uuid4().hex[:6]}" for k in "ab")
-    cfg = {"zones": {za: {"input": str(tmp / "in_a")}, zb: {"input": str(tmp / "in_b"), "crs": "EPSG:2154"}},
-           "workdir": str(tmp / "work"), "inference": {"gate": 1.0}}
-    (tmp / "a.yaml").write_text(yaml.safe_dump({**cfg, "inference": {"gate": 1.0,
-                                                                     "model": str(random_model_factory("full"))}}))
-    (tmp / "b.yaml").write_text(yaml.safe_dump({**cfg, "inference": {"gate": 1.0,
-                                                                     "model": str(random_model_factory("geometry"))}}))
+    cfg = {
+        "zones": {za: {"input": str(tmp / "in_a")}, zb: {"input": str(tmp / "in_b"), "crs": "EPSG:2154"}},
+        "workdir": str(tmp / "work"),
+        "inference": {"gate": 1.0},
+    }
+    (tmp / "a.yaml").write_text(
+        yaml.safe_dump({**cfg, "inference": {"gate": 1.0, "model": str(random_model_factory("full"))}})
+    )
+    (tmp / "b.yaml").write_text(
+        yaml.safe_dump({**cfg, "inference": {"gate": 1.0, "model": str(random_model_factory("geometry"))}})
+    )
     pa = _run("--cores", "2", "--keep-going", f"results/{za}/", f"--configfile={tmp / 'a.yaml'}")
     pb = _run("--cores", "2", "--keep-going", f"results/{zb}/", f"--configfile={tmp / 'b.yaml'}")
     yield {"a": (za, pa, tmp / "in_a"), "b": (zb, pb, tmp / "in_b"), "work": tmp / "work"}
@@ -218,8 +223,9 @@ def test_odd_block_completes_with_every_point(matrix, block):
     ra, rb = a.points.array.copy(), b.points.array.copy()
     ra["classification"], rb["classification"] = 0, 0
     size = ra.dtype.itemsize
-    np.testing.assert_array_equal(ra.view(np.uint8).reshape(len(ra), -1),
-                                  rb.view(np.uint8).reshape(len(rb), -1)[:, :size])
+    np.testing.assert_array_equal(
+        ra.view(np.uint8).reshape(len(ra), -1), rb.view(np.uint8).reshape(len(rb), -1)[:, :size]
+    )
     assert a.header.parse_crs() == b.header.parse_crs()
     assert "TowerProbability" in b.point_format.dimension_names
     # no towers: a valid, empty layer

@@ -28,8 +28,17 @@ ZONE = "ci"
 @pytest.fixture(scope="module")
 def zone_run(tmp_path_factory):
     work = tmp_path_factory.mktemp("work")
-    cmd = [sys.executable, "-m", "snakemake", "--cores", "2", f"results/{ZONE}/",
-           "--configfile=.test/config/config.yaml", "--config", f"workdir={work}"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "snakemake",
+        "--cores",
+        "2",
+        f"results/{ZONE}/",
+        "--configfile=.test/config/config.yaml",
+        "--config",
+        f"workdir={work}",
+    ]
     proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     yield REPO / "results" / ZONE, REPO / "data" / ZONE, cmd
@@ -108,8 +117,14 @@ def test_calibration_sweep_reproduces_the_pipeline(zone_run):
     cfg = effective_config(root=REPO)
     inf, tow = cfg["inference"], cfg["towers"]
     configured = (inf["tta"], tow["threshold"], inf["threshold"], tow["min_core_prob"])
-    rows = sweep({ZONE: data}, [configured, (1, tow["threshold"], 0.6, tow["min_core_prob"])], work=work,
-                 model=chosen_model(cmd), inference=inf, towers=tow)
+    rows = sweep(
+        {ZONE: data},
+        [configured, (1, tow["threshold"], 0.6, tow["min_core_prob"])],
+        work=work,
+        model=chosen_model(cmd),
+        inference=inf,
+        towers=tow,
+    )
     res = evaluate_zone(data, out)
     got = rows[0][ZONE]
     assert got["towers"] == res["towers_predicted"]
@@ -121,7 +136,8 @@ def test_calibration_sweep_reproduces_the_pipeline(zone_run):
     assert one["towers"] == got["towers"] and one["tp"] + one["fn"] == got["tp"] + got["fn"]
     assert rows[1]["mean_point_iou"] == pytest.approx(one["point_iou"])
     assert len(list((Path(work) / ZONE / "calibrate").glob("*/*.npz"))) == 2 * len(
-        list((Path(work) / ZONE / "tiles").glob("*/*.npz")))
+        list((Path(work) / ZONE / "tiles").glob("*/*.npz"))
+    )
 
 
 def test_snakemake_report_holds_the_qa_pages(zone_run, tmp_path):

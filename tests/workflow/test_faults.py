@@ -39,8 +39,9 @@ def _config(tmp, zone, workdir, synth):
     if synth:
         z["synth"] = SYNTH
     path = tmp / f"{workdir}.yaml"
-    path.write_text(yaml.safe_dump({"zones": {zone: z}, "workdir": str(tmp / workdir),
-                                    "preprocess": {"tile_size": 120}}))
+    path.write_text(
+        yaml.safe_dump({"zones": {zone: z}, "workdir": str(tmp / workdir), "preprocess": {"tile_size": 120}})
+    )
     return path
 
 
@@ -68,8 +69,9 @@ def runs(tmp_path_factory):
         shutil.rmtree(out)
         # the same blocks (no regeneration) in a fresh work directory, killed in the middle
         cfg = _config(tmp, zone, "w_kill", synth=False)
-        proc = subprocess.Popen(_cmd(zone, cfg), cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                process_group=0)  # its own process group: killpg ends snakemake and its jobs
+        proc = subprocess.Popen(
+            _cmd(zone, cfg), cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, process_group=0
+        )  # its own process group: killpg ends snakemake and its jobs
         pred = tmp / "w_kill" / zone / "pred"
         deadline = time.monotonic() + 600
         while time.monotonic() < deadline and proc.poll() is None:
@@ -79,12 +81,15 @@ def runs(tmp_path_factory):
         assert proc.poll() is None, "the run finished before it could be killed"
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
-        killed_state = {"results_exists": out.exists(), "work_files": sorted(
-            str(p.relative_to(tmp)) for p in (tmp / "w_kill").rglob("*") if p.is_file())}
+        killed_state = {
+            "results_exists": out.exists(),
+            "work_files": sorted(str(p.relative_to(tmp)) for p in (tmp / "w_kill").rglob("*") if p.is_file()),
+        }
         # rerun with the documented nightly command (clears the killed run's lock)
         env = dict(os.environ, SNAKEMAKE=f"{sys.executable} -m snakemake")
-        proc = subprocess.run(["bash", "scripts/nightly.sh", zone, str(cfg)], cwd=REPO, env=env,
-                              capture_output=True, text=True)
+        proc = subprocess.run(
+            ["bash", "scripts/nightly.sh", zone, str(cfg)], cwd=REPO, env=env, capture_output=True, text=True
+        )
         assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
         yield {"ref": ref, "out": out, "killed": killed_state, "tmp": tmp, "zone": zone}
     finally:
@@ -100,8 +105,9 @@ def test_kill_leaves_no_published_zone(runs):
 
 def test_rerun_after_kill_equals_uninterrupted_run(runs):
     ref, out = runs["ref"], runs["out"]
-    assert sorted(p.relative_to(ref).as_posix() for p in ref.rglob("*") if p.is_file()) == \
-        sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file())
+    assert sorted(p.relative_to(ref).as_posix() for p in ref.rglob("*") if p.is_file()) == sorted(
+        p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file()
+    )
     blocks = sorted((ref / "blocks").glob("*.laz"))
     assert len(blocks) == 2
     towers_total = 0
@@ -121,6 +127,5 @@ def test_rerun_after_kill_equals_uninterrupted_run(runs):
 
 def test_no_partial_file_survives(runs):
     tmp = runs["tmp"]
-    left = [p for root in (tmp / "w_kill", runs["out"]) for p in root.rglob("*")
-            if ".part" in p.name]
+    left = [p for root in (tmp / "w_kill", runs["out"]) for p in root.rglob("*") if ".part" in p.name]
     assert left == []

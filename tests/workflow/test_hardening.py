@@ -80,8 +80,13 @@ def _log_text(work: Path, zone: str, block: str) -> str:
 
 
 def _leftovers(*roots: Path) -> list[str]:
-    return [str(p) for r in roots if r.exists() for p in r.rglob("*")
-            if p.name.endswith((".part", ".staging", ".old")) or ".part." in p.name]
+    return [
+        str(p)
+        for r in roots
+        if r.exists()
+        for p in r.rglob("*")
+        if p.name.endswith((".part", ".staging", ".old")) or ".part." in p.name
+    ]
 
 
 # --------------------------------------------------------------------------- headers
@@ -104,14 +109,20 @@ def headers_run(ci_scene, ci_reference, tmp_path_factory):
     data = (ci_scene / a.name).read_bytes()
     (indir / "400060_4600000.laz").write_bytes(data[: len(data) // 3])
     zone = _zone("headers")
-    cfg = write_zone_config(tmp / "c.yaml", {zone: {"input": str(indir)}}, tmp / "work",
-                            preprocess={"tile_size": 120})
+    cfg = write_zone_config(tmp / "c.yaml", {zone: {"input": str(indir)}}, tmp / "work", preprocess={"tile_size": 120})
     t0 = time.perf_counter()
     dry = snakemake_run("-n", "--cores", "2", f"results/{zone}/", f"--configfile={cfg}")
     dry_s = time.perf_counter() - t0
     proc = snakemake_run("--cores", "2", "--keep-going", f"results/{zone}/", f"--configfile={cfg}")
-    yield {"zone": zone, "dry": dry, "dry_s": dry_s, "proc": proc, "work": tmp / "work",
-           "out": REPO / "results" / zone, "ref": ci_reference}
+    yield {
+        "zone": zone,
+        "dry": dry,
+        "dry_s": dry_s,
+        "proc": proc,
+        "work": tmp / "work",
+        "out": REPO / "results" / zone,
+        "ref": ci_reference,
+    }
     shutil.rmtree(REPO / "results" / zone, ignore_errors=True)
 
 
@@ -132,8 +143,9 @@ def test_header_contradicting_points_gives_same_towers_and_a_warning(headers_run
         assert len(fa) > 0 or block == CI_BLOCKS[1]
         assert fa.drop(columns="geometry").equals(fb.drop(columns="geometry"))
         summary = json.loads((headers_run["work"] / headers_run["zone"] / "prep" / f"{block}.json").read_text())
-        assert any(w.startswith("header: header bounds") and "contradict the points" in w
-                   for w in summary["warnings"]), summary["warnings"]
+        assert any(
+            w.startswith("header: header bounds") and "contradict the points" in w for w in summary["warnings"]
+        ), summary["warnings"]
     fa, fb = tower_features(ref / "towers.gpkg"), tower_features(out / "towers.gpkg")
     assert len(fa) >= 5 and fa.drop(columns="geometry").equals(fb.drop(columns="geometry"))
 
@@ -152,8 +164,13 @@ def test_truncated_block_between_two_good_ones_costs_only_itself(headers_run):
 # --------------------------------------------------------------------------- names, units, neighbours
 
 #: Files of the ``names`` zone that must complete: relative path -> expected id pattern.
-SAFE_NAMES = {"b c.laz": r"b_c-[0-9a-f]{8}", "blk{1}.laz": r"blk_1_-[0-9a-f]{8}", "é.laz": r"e-[0-9a-f]{8}",
-              "flight1/a.laz": r"flight1__a-[0-9a-f]{8}", "flight1__a.laz": r"flight1__a-[0-9a-f]{8}"}
+SAFE_NAMES = {
+    "b c.laz": r"b_c-[0-9a-f]{8}",
+    "blk{1}.laz": r"blk_1_-[0-9a-f]{8}",
+    "é.laz": r"e-[0-9a-f]{8}",
+    "flight1/a.laz": r"flight1__a-[0-9a-f]{8}",
+    "flight1__a.laz": r"flight1__a-[0-9a-f]{8}",
+}
 #: Files that must fail at split: relative path -> regex of the one-line error.
 REFUSED = {
     "feet.laz": r"feet\.laz: the file's CRS \(.*\(ftUS\)\) has horizontal unit 'US survey foot'",
@@ -194,14 +211,29 @@ def names_run(ci_scene, random_model_factory, tmp_path_factory):
     nonir = laspy.LasData(laspy.LasHeader(point_format=7, version="1.4"))
     nonir.header.offsets, nonir.header.scales = mid.header.offsets, mid.header.scales
     nonir.header.add_crs(mid.header.parse_crs())
-    for dim in ("x", "y", "z", "intensity", "classification", "return_number", "number_of_returns", "gps_time",
-                "red", "green", "blue"):
+    for dim in (
+        "x",
+        "y",
+        "z",
+        "intensity",
+        "classification",
+        "return_number",
+        "number_of_returns",
+        "gps_time",
+        "red",
+        "green",
+        "blue",
+    ):
         setattr(nonir, dim, np.asarray(getattr(mid, dim)))
     nonir.write(indir / "nonir_mid.laz")
     _cut(a, x0, y0, 40, shift=(dx + 80, 0.0)).write(indir / "nir_east.laz")
     zone = _zone("names")
-    cfg = write_zone_config(tmp / "c.yaml", {zone: {"input": str(indir)}}, tmp / "work",
-                            inference={"model": str(random_model_factory("full")), "gate": 1.0})
+    cfg = write_zone_config(
+        tmp / "c.yaml",
+        {zone: {"input": str(indir)}},
+        tmp / "work",
+        inference={"model": str(random_model_factory("full")), "gate": 1.0},
+    )
     proc = snakemake_run("--cores", "2", "--keep-going", f"results/{zone}/", f"--configfile={cfg}")
     yield {"zone": zone, "proc": proc, "work": tmp / "work", "out": REPO / "results" / zone, "in": indir}
     shutil.rmtree(REPO / "results" / zone, ignore_errors=True)
@@ -257,16 +289,37 @@ def test_neighbour_without_nir_costs_only_itself(names_run):
 
 # --------------------------------------------------------------------------- formats, nightly rerun
 
-FORMATS = [("1.1", 0), ("1.1", 1), ("1.3", 1), ("1.3", 4), ("1.3", 5),
-           ("1.4", 0), ("1.4", 3), ("1.4", 5), ("1.4", 9), ("1.4", 10)]
+FORMATS = [
+    ("1.1", 0),
+    ("1.1", 1),
+    ("1.3", 1),
+    ("1.3", 4),
+    ("1.3", 5),
+    ("1.4", 0),
+    ("1.4", 3),
+    ("1.4", 5),
+    ("1.4", 9),
+    ("1.4", 10),
+]
 
 
 def _as_format(src: laspy.LasData, version: str, pf: int) -> laspy.LasData:
     las = laspy.LasData(laspy.LasHeader(point_format=pf, version=version))
     las.header.offsets, las.header.scales = src.header.offsets, src.header.scales
     dims = set(las.point_format.dimension_names)
-    for dim in ("x", "y", "z", "intensity", "return_number", "number_of_returns", "gps_time", "red", "green",
-                "blue", "nir"):
+    for dim in (
+        "x",
+        "y",
+        "z",
+        "intensity",
+        "return_number",
+        "number_of_returns",
+        "gps_time",
+        "red",
+        "green",
+        "blue",
+        "nir",
+    ):
         if dim in dims:
             setattr(las, dim, np.asarray(getattr(src, dim)))
     cls = np.asarray(src.classification)
@@ -277,10 +330,10 @@ def _as_format(src: laspy.LasData, version: str, pf: int) -> laspy.LasData:
 def _copc_flagged(src: laspy.LasData) -> laspy.LasData:
     """A LAS 1.4 pf 6 file with COPC's info VLR and hierarchy EVLR (read as plain LAZ)."""
     las = _as_format(src, "1.4", 6)
-    las.header.vlrs.insert(0, laspy.VLR(user_id="copc", record_id=1, description="copc info",
-                                        record_data=bytes(160)))
-    las.header.evlrs = VLRList([laspy.VLR(user_id="copc", record_id=1000, description="EPT hierarchy",
-                                          record_data=bytes(32))])
+    las.header.vlrs.insert(0, laspy.VLR(user_id="copc", record_id=1, description="copc info", record_data=bytes(160)))
+    las.header.evlrs = VLRList(
+        [laspy.VLR(user_id="copc", record_id=1000, description="EPT hierarchy", record_data=bytes(32))]
+    )
     return las
 
 
@@ -297,11 +350,22 @@ def formats_run(ci_scene, random_model_factory, tmp_path_factory):
         las.write(indir / f"las{ver.replace('.', '')}_pf{pf}.laz")
     _copc_flagged(_cut(a, x0, y0, 30, shift=(-1000.0, 0.0))).write(indir / "copc.copc.laz")
     zone = _zone("formats")
-    cfg = write_zone_config(tmp / "c.yaml", {zone: {"input": str(indir), "crs": "EPSG:25831"}}, tmp / "work",
-                            inference={"model": str(random_model_factory("geometry")), "gate": 1.0})
+    cfg = write_zone_config(
+        tmp / "c.yaml",
+        {zone: {"input": str(indir), "crs": "EPSG:25831"}},
+        tmp / "work",
+        inference={"model": str(random_model_factory("geometry")), "gate": 1.0},
+    )
     first = snakemake_run("--cores", "2", f"results/{zone}/", f"--configfile={cfg}")
-    run = {"zone": zone, "first": first, "work": tmp / "work", "out": REPO / "results" / zone, "in": indir,
-           "cfg": cfg, "tmp": tmp}
+    run = {
+        "zone": zone,
+        "first": first,
+        "work": tmp / "work",
+        "out": REPO / "results" / zone,
+        "in": indir,
+        "cfg": cfg,
+        "tmp": tmp,
+    }
     yield run
     shutil.rmtree(REPO / "results" / zone, ignore_errors=True)
 
@@ -317,8 +381,9 @@ def test_every_las_format_is_carried_to_the_end(formats_run, fmt):
     ra, rb = src.points.array.copy(), got.points.array.copy()
     ra["classification" if src.point_format.id >= 6 else "raw_classification"] = 0
     rb["classification" if src.point_format.id >= 6 else "raw_classification"] = 0
-    np.testing.assert_array_equal(ra.view(np.uint8).reshape(len(ra), -1),
-                                  rb.view(np.uint8).reshape(len(rb), -1)[:, :size])
+    np.testing.assert_array_equal(
+        ra.view(np.uint8).reshape(len(ra), -1), rb.view(np.uint8).reshape(len(rb), -1)[:, :size]
+    )
     assert "TowerProbability" in got.point_format.dimension_names
     assert not [v for v in list(got.header.vlrs) + list(got.header.evlrs or []) if v.user_id == "copc"]
 
@@ -357,8 +422,13 @@ def nightly_rerun(formats_run):
     poller.start()
     env = dict(os.environ, SNAKEMAKE=f"{sys.executable} -m snakemake", PYTHON=sys.executable)
     try:
-        proc = subprocess.run(["bash", "scripts/nightly.sh", zone, str(formats_run["cfg"])], cwd=REPO, env=env,
-                              capture_output=True, text=True)
+        proc = subprocess.run(
+            ["bash", "scripts/nightly.sh", zone, str(formats_run["cfg"])],
+            cwd=REPO,
+            env=env,
+            capture_output=True,
+            text=True,
+        )
     finally:
         stop.set()
         poller.join()
@@ -419,12 +489,18 @@ def test_previous_runs_classified_blocks_as_input(request, tmp_path):
     from towerpipe.io import lasformat
 
     if not [n for n in vars(lasformat) if n.endswith("_DIMENSION") and n != "PROB_DIMENSION"]:
-        pytest.skip("replacing the pipeline's own dimensions in an input comes with the tower-id dimension "
-                    "(towerpipe.io.lasformat, products)")
+        pytest.skip(
+            "replacing the pipeline's own dimensions in an input comes with the tower-id dimension "
+            "(towerpipe.io.lasformat, products)"
+        )
     ci_reference = request.getfixturevalue("ci_reference")
     zone = _zone("again")
-    cfg = write_zone_config(tmp_path / "c.yaml", {zone: {"input": str(ci_reference / "blocks")}}, tmp_path / "work",
-                            preprocess={"tile_size": 120})
+    cfg = write_zone_config(
+        tmp_path / "c.yaml",
+        {zone: {"input": str(ci_reference / "blocks")}},
+        tmp_path / "work",
+        preprocess={"tile_size": 120},
+    )
     try:
         proc = snakemake_run("--cores", "2", f"results/{zone}/", f"--configfile={cfg}")
         assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]

@@ -19,8 +19,18 @@ pytestmark = [pytest.mark.usefixtures("pdal_cli")]
 
 
 def _dry(tmp_path, *extra):
-    cmd = [sys.executable, "-m", "snakemake", "-n", *extra, "--configfile=.test/config/config.yaml",
-           "--config", f"workdir={tmp_path / 'work'}", "--", "results/ci/"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "snakemake",
+        "-n",
+        *extra,
+        "--configfile=.test/config/config.yaml",
+        "--config",
+        f"workdir={tmp_path / 'work'}",
+        "--",
+        "results/ci/",
+    ]
     proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return proc.stdout + proc.stderr
@@ -34,9 +44,10 @@ def test_slurm_profile_dry_run(tmp_path):
     local = _dry(tmp_path, "--cores", "2")
     slurm = _dry(tmp_path, "--profile", "workflow/profiles/slurm")
     # the cluster profile, and the workflow profile Snakemake adds to every run
-    assert re.search(r"Using profiles? workflow/profiles/slurm and workflow specific profile workflow/profiles/default", slurm)
+    assert re.search(
+        r"Using profiles? workflow/profiles/slurm and workflow specific profile workflow/profiles/default", slurm
+    )
     assert _jobs(slurm) == _jobs(local) and _jobs(slurm)["total"] > 0
     resources = re.findall(r"^\s+resources: (.*)$", slurm, re.M)
     assert resources and all("slurm_partition=cpu" in r and "slurm_account=mapping" in r for r in resources)
     assert all(re.search(r"\bmem_mb=\d+", r) and re.search(r"\bruntime=\d+", r) for r in resources)
-

@@ -28,14 +28,28 @@ def corridor(tmp_path_factory):
     from towerpipe.synth import generate_zone
 
     tmp = tmp_path_factory.mktemp("corridor")
-    truth = generate_zone(tmp / "in", seed=77, real_backgrounds=BACKGROUNDS,
-                          background_files=["ign_rgb_subset.laz"], copies=3, lines=True, tower_source="real",
-                          real_towers=TOWERS, tower_families=["uav", "ts40k"], tower_density=(10, 20),
-                          tower_variety=True, variant=["no_intensity", "no_nir"])
+    truth = generate_zone(
+        tmp / "in",
+        seed=77,
+        real_backgrounds=BACKGROUNDS,
+        background_files=["ign_rgb_subset.laz"],
+        copies=3,
+        lines=True,
+        tower_source="real",
+        real_towers=TOWERS,
+        tower_families=["uav", "ts40k"],
+        tower_density=(10, 20),
+        tower_variety=True,
+        variant=["no_intensity", "no_nir"],
+    )
     cfg = tmp / "zones.yaml"
     cfg.write_text(yaml.safe_dump({"zones": {ZONE: {"input": str(tmp / "in")}}, "workdir": str(tmp / "work")}))
-    proc = subprocess.run([sys.executable, "-m", "snakemake", "--cores", "2", f"results/{ZONE}/",
-                           f"--configfile={cfg}"], cwd=REPO, capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "snakemake", "--cores", "2", f"results/{ZONE}/", f"--configfile={cfg}"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     yield tmp, truth, REPO / "results" / ZONE
     shutil.rmtree(REPO / "results" / ZONE, ignore_errors=True)
@@ -64,8 +78,11 @@ def test_towers_found_and_named_with_the_model(corridor):
     assert choice["mode"] == "auto" and choice["reason"].startswith("auto:")
 
 
-@pytest.mark.xfail(strict=True, reason="issue #13's bar (no tree reported) is not met: shape-v3 reports real trees "
-                                       "of 10-11 m (class 1 in this tile) as towers; see docs/model.md")
+@pytest.mark.xfail(
+    strict=True,
+    reason="issue #13's bar (no tree reported) is not met: shape-v3 reports real trees "
+    "of 10-11 m (class 1 in this tile) as towers; see docs/model.md",
+)
 def test_no_tree_reported(corridor):
     from towerpipe.evaluation.evaluate import evaluate_zone
 

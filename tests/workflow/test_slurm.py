@@ -35,15 +35,28 @@ def slurm():
 
 def test_zone_on_slurm_equals_local_run(slurm, ci_scene, ci_reference, tmp_path):
     zone = f"pytest_slurm_{uuid.uuid4().hex[:6]}"
-    cfg = write_zone_config(tmp_path / "c.yaml", {zone: {"input": str(ci_scene)}}, tmp_path / "work",
-                            preprocess={"tile_size": 120})
+    cfg = write_zone_config(
+        tmp_path / "c.yaml", {zone: {"input": str(ci_scene)}}, tmp_path / "work", preprocess={"tile_size": 120}
+    )
     out = REPO / "results" / zone
     try:
         proc = snakemake_run(
-            "--profile", "workflow/profiles/slurm", f"--configfile={cfg}",
-            "--default-resources", "slurm_partition=cpu", "mem_mb=2000", "runtime=30",
-            "--slurm-status-command", "squeue", "--slurm-init-seconds-before-status-checks", "1",
-            "--latency-wait", "5", "--", f"results/{zone}/")
+            "--profile",
+            "workflow/profiles/slurm",
+            f"--configfile={cfg}",
+            "--default-resources",
+            "slurm_partition=cpu",
+            "mem_mb=2000",
+            "runtime=30",
+            "--slurm-status-command",
+            "squeue",
+            "--slurm-init-seconds-before-status-checks",
+            "1",
+            "--latency-wait",
+            "5",
+            "--",
+            f"results/{zone}/",
+        )
         text = proc.stdout + proc.stderr
         assert proc.returncode == 0, text[-4000:]
         # every job but the local zone_results ran as a SLURM job: per block its split, tile,

@@ -58,8 +58,12 @@ def zone(tmp_path):
 
 def write_config(tmp_path, zone, indir, model, **extra):
     # gate 1.0: no window passes, the products are made with no towers (plumbing only)
-    cfg = {"zones": {zone: {"input": str(indir)}}, "workdir": str(tmp_path / "work"),
-           "preprocess": {"tile_size": 200.0}, "inference": {"model": str(model), "gate": 1.0}}
+    cfg = {
+        "zones": {zone: {"input": str(indir)}},
+        "workdir": str(tmp_path / "work"),
+        "preprocess": {"tile_size": 200.0},
+        "inference": {"model": str(model), "gate": 1.0},
+    }
     cfg.update(extra)
     path = tmp_path / "config.yaml"
     path.write_text(yaml.safe_dump(cfg))
@@ -146,8 +150,10 @@ def test_bad_block_costs_only_itself(zone, random_model):
     proc = snakemake("--cores", "2", "--keep-going", f"results/{name}/", f"--configfile={cfg}", check=False)
     assert proc.returncode != 0
     # the end-of-run line counts the failed block and says where the QA index is
-    assert re.search(rf"towerpipe: zone {name}: 0 towers in 3 blocks, 1 failed.*QA index: results/{name}/qa/index.html",
-                     proc.stdout + proc.stderr), proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert re.search(
+        rf"towerpipe: zone {name}: 0 towers in 3 blocks, 1 failed.*QA index: results/{name}/qa/index.html",
+        proc.stdout + proc.stderr,
+    ), proc.stdout[-2000:] + proc.stderr[-2000:]
     work = tmp / "work" / name
     assert sorted(p.name for p in (work / "out").iterdir()) == sorted(f"{b.stem}.laz" for b in blocks)
     # the split records the error (neighbours go on without the block), the block's own

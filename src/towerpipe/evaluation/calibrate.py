@@ -24,8 +24,9 @@ import dataclasses
 import itertools
 import json
 import os
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -33,8 +34,7 @@ from towerpipe import classes
 from towerpipe.config import InferenceConfig
 from towerpipe.errors import InputError
 
-__all__ = ["Candidate", "INFERENCE_PACKAGES", "score_zone", "sweep", "tower_labels", "zone_predictions",
-           "zone_tiles"]
+__all__ = ["Candidate", "INFERENCE_PACKAGES", "score_zone", "sweep", "tower_labels", "zone_predictions", "zone_tiles"]
 
 #: One candidate: (views, towers.threshold, inference.threshold, towers.min_core_prob), optionally
 #: followed by inference.gate and towers.min_wire_support (default: the config's).
@@ -59,13 +59,15 @@ def _survey(work: str | os.PathLike[str], zone: str) -> list[list[float]]:
 def zone_tiles(work: str | os.PathLike[str], zone: str) -> list[Path]:
     tiles = sorted(Path(work, zone, "tiles").glob("*/*.npz"))
     if not tiles:
-        raise InputError(Path(work, zone, "tiles"), f"no tiles of zone {zone!r}; run "
-                         f"`snakemake --cores 2 results/{zone}/` first")
+        raise InputError(
+            Path(work, zone, "tiles"), f"no tiles of zone {zone!r}; run `snakemake --cores 2 results/{zone}/` first"
+        )
     return tiles
 
 
-def zone_predictions(work: str | os.PathLike[str], zone: str, model: str | os.PathLike[str],
-                     settings: InferenceConfig) -> list[str]:
+def zone_predictions(
+    work: str | os.PathLike[str], zone: str, model: str | os.PathLike[str], settings: InferenceConfig
+) -> list[str]:
     """Prediction files of every tile of a zone with ``settings.tta`` views, computed once and cached.
 
     Parameters
@@ -142,10 +144,20 @@ def tower_labels(input_dir: Path) -> dict[str, np.ndarray]:
     return out
 
 
-def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: Mapping[str, np.ndarray], *,
-               threshold: float, point_threshold: float, min_core_prob: float, towers: Mapping[str, Any],
-               zone: str = "zone", min_truth_points: int = 0,
-               survey: Sequence[Sequence[float]] = ()) -> dict[str, Any]:
+def score_zone(
+    preds: Sequence[Any],
+    tile_paths: Sequence[str],
+    truth,
+    labels: Mapping[str, np.ndarray],
+    *,
+    threshold: float,
+    point_threshold: float,
+    min_core_prob: float,
+    towers: Mapping[str, Any],
+    zone: str = "zone",
+    min_truth_points: int = 0,
+    survey: Sequence[Sequence[float]] = (),
+) -> dict[str, Any]:
     """Towers of a whole zone from its predictions, scored against its labels.
 
     Parameters
@@ -184,10 +196,17 @@ def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: M
     from towerpipe.towers.wires import TileContext
 
     rules = TowersConfig.from_config({"towers": {**towers, "threshold": threshold, "min_core_prob": min_core_prob}})
-    found = extract_towers(preds, zone, _UNBOUNDED, rules, zone=zone, point_threshold=point_threshold,
-                           context=TileContext(list(tile_paths), survey=survey,
-                                               min_ring_share=float(towers["wire_ring_coverage"])),
-                           model_meta={}, crs=truth.crs)
+    found = extract_towers(
+        preds,
+        zone,
+        _UNBOUNDED,
+        rules,
+        zone=zone,
+        point_threshold=point_threshold,
+        context=TileContext(list(tile_paths), survey=survey, min_ring_share=float(towers["wire_ring_coverage"])),
+        model_meta={},
+        crs=truth.crs,
+    )
     gdf = found.towers
     chosen: dict[str, list[np.ndarray]] = {}
     for blocks, idx in found.members.values():
@@ -208,12 +227,24 @@ def score_zone(preds: Sequence[Any], tile_paths: Sequence[str], truth, labels: M
         truth = truth[~small]
     m = match_towers(gdf, truth, max_dist=5.0)
     false = gdf[gdf["tower_id"].astype(str).isin([str(i) for i in m["unmatched_pred"]])] if len(gdf) else gdf
-    return {"precision": m["precision"], "recall": m["recall"], "f1": m["f1"], "towers": int(len(gdf)),
-            "point_iou": tp / (tp + fp + fn) if tp + fp + fn else float("nan"), "tp": tp, "fp": fp, "fn": fn,
-            "towers_tp": m["tp"], "towers_fp": m["fp"], "towers_fn": m["fn"], "true_towers": int(len(truth)),
-            "gate_recall": gate_recall(preds, truth),
-            "false_towers": [{"height_m": round(float(r["height_m"]), 1), "n_points": int(r["n_points"])}
-                             for _, r in false.iterrows()]}
+    return {
+        "precision": m["precision"],
+        "recall": m["recall"],
+        "f1": m["f1"],
+        "towers": int(len(gdf)),
+        "point_iou": tp / (tp + fp + fn) if tp + fp + fn else float("nan"),
+        "tp": tp,
+        "fp": fp,
+        "fn": fn,
+        "towers_tp": m["tp"],
+        "towers_fp": m["fp"],
+        "towers_fn": m["fn"],
+        "true_towers": int(len(truth)),
+        "gate_recall": gate_recall(preds, truth),
+        "false_towers": [
+            {"height_m": round(float(r["height_m"]), 1), "n_points": int(r["n_points"])} for _, r in false.iterrows()
+        ],
+    }
 
 
 def gate_recall(preds: Sequence[Any], truth) -> float | None:
@@ -231,9 +262,15 @@ def gate_recall(preds: Sequence[Any], truth) -> float | None:
     return float(np.mean(hit))
 
 
-def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Candidate], *, work: str,
-          model: str | Mapping[str, str], inference: Mapping[str, Any], towers: Mapping[str, Any]
-          ) -> list[dict[str, Any]]:
+def sweep(
+    zones: Mapping[str, str | os.PathLike[str]],
+    candidates: Sequence[Candidate],
+    *,
+    work: str,
+    model: str | Mapping[str, str],
+    inference: Mapping[str, Any],
+    towers: Mapping[str, Any],
+) -> list[dict[str, Any]]:
     """Score every candidate on every zone.
 
     Parameters
@@ -261,8 +298,12 @@ def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Cand
         truth_path = Path(input_dir) / "towers_truth.gpkg"
         if not truth_path.exists():
             raise InputError(truth_path, "calibration needs the zone's true towers (a synthetic zone has them)")
-        data[zone] = (gpd.read_file(truth_path, layer="towers"), tower_labels(Path(input_dir)),
-                      [str(p) for p in zone_tiles(work, zone)], _survey(work, zone))
+        data[zone] = (
+            gpd.read_file(truth_path, layer="towers"),
+            tower_labels(Path(input_dir)),
+            [str(p) for p in zone_tiles(work, zone)],
+            _survey(work, zone),
+        )
     settings = InferenceConfig.from_config({"inference": inference})
     preds: dict[tuple[str, int, float], list[Any]] = {}
     rows = []
@@ -271,16 +312,31 @@ def sweep(zones: Mapping[str, str | os.PathLike[str]], candidates: Sequence[Cand
         tta = int(tta)
         gate = float(rest[0]) if rest else float(inference["gate"])
         wire = float(rest[1]) if len(rest) > 1 else float(towers["min_wire_support"])
-        row: dict[str, Any] = {"tta": tta, "threshold": thr, "point_threshold": pthr, "min_core_prob": mcp,
-                               "gate": gate, "min_wire_support": wire}
+        row: dict[str, Any] = {
+            "tta": tta,
+            "threshold": thr,
+            "point_threshold": pthr,
+            "min_core_prob": mcp,
+            "gate": gate,
+            "min_wire_support": wire,
+        }
         for zone, (truth, labels, tiles, survey) in data.items():
             if (zone, tta, gate) not in preds:
                 zm = model if isinstance(model, (str, os.PathLike)) else model[zone]
                 cand_settings = dataclasses.replace(settings, tta=tta, gate=gate)
                 preds[(zone, tta, gate)] = [load_pred(p) for p in zone_predictions(work, zone, zm, cand_settings)]
-            row[zone] = score_zone(preds[(zone, tta, gate)], tiles, truth, labels, threshold=thr,
-                                   point_threshold=pthr, min_core_prob=mcp,
-                                   towers={**towers, "min_wire_support": wire}, zone=zone, survey=survey)
+            row[zone] = score_zone(
+                preds[(zone, tta, gate)],
+                tiles,
+                truth,
+                labels,
+                threshold=thr,
+                point_threshold=pthr,
+                min_core_prob=mcp,
+                towers={**towers, "min_wire_support": wire},
+                zone=zone,
+                survey=survey,
+            )
         row["mean_point_iou"] = float(np.mean([row[z]["point_iou"] for z in data]))
         rows.append(row)
     return rows
@@ -298,8 +354,10 @@ def _zone_model(work: str, zone: str, spec: str) -> str:
         return str(resolve_model(spec))
     path = Path(work, zone, "model.json")
     if not path.exists():
-        raise InputError(path, f"zone {zone!r} has no model choice yet; run `snakemake --cores 2 results/{zone}/` "
-                               "first, or pass --model")
+        raise InputError(
+            path,
+            f"zone {zone!r} has no model choice yet; run `snakemake --cores 2 results/{zone}/` first, or pass --model",
+        )
     return str(read_choice(path)["path"])
 
 
@@ -307,7 +365,7 @@ def _cli(args: argparse.Namespace) -> int:
     from towerpipe.config import SCHEMA_FILE, load_yaml, repo_root, update_config, validate_config
 
     cfg: dict[str, Any] = {}
-    for path in args.config:                     # later files win, merged as Snakemake merges them
+    for path in args.config:  # later files win, merged as Snakemake merges them
         update_config(cfg, load_yaml(path))
     validate_config(cfg, repo_root() / SCHEMA_FILE)  # every default from the schema
     inference, towers = dict(cfg["inference"]), dict(cfg["towers"])
@@ -325,27 +383,43 @@ def _cli(args: argparse.Namespace) -> int:
     mcp = _floats(args.min_core_prob) if args.min_core_prob else [float(towers["min_core_prob"])]
     gates = _floats(args.gate) if args.gate else [float(inference["gate"])]
     wires = _floats(args.min_wire_support) if args.min_wire_support else [float(towers["min_wire_support"])]
-    rows = sweep(zones, list(itertools.product(tta, thr, pthr, mcp, gates, wires)), work=work, model=models,
-                 inference=inference, towers=towers)
+    rows = sweep(
+        zones,
+        list(itertools.product(tta, thr, pthr, mcp, gates, wires)),
+        work=work,
+        model=models,
+        inference=inference,
+        towers=towers,
+    )
     print("models: " + ", ".join(f"{z}: {Path(m).name}" for z, m in models.items()))
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
+
     def f(v: Any) -> str:
         return "  -  " if v is None else f"{v:.3f}"
 
-    print("views  gate  threshold  points  min_core  wire | " + " | ".join(f"{z}: P / R / IoU" for z in zones)
-          + " | mean IoU")
+    print(
+        "views  gate  threshold  points  min_core  wire | "
+        + " | ".join(f"{z}: P / R / IoU" for z in zones)
+        + " | mean IoU"
+    )
     for r in rows:
         cells = " | ".join(f"{f(r[z]['precision'])} / {f(r[z]['recall'])} / {r[z]['point_iou']:.4f}" for z in zones)
-        print(f"{r['tta']:5d}  {r['gate']:4.2f}  {r['threshold']:9.2f}  {r['point_threshold']:6.2f}  "
-              f"{r['min_core_prob']:8.2f}  {r['min_wire_support']:4.2f} | {cells} | {r['mean_point_iou']:.4f}")
+        print(
+            f"{r['tta']:5d}  {r['gate']:4.2f}  {r['threshold']:9.2f}  {r['point_threshold']:6.2f}  "
+            f"{r['min_core_prob']:8.2f}  {r['min_wire_support']:4.2f} | {cells} | {r['mean_point_iou']:.4f}"
+        )
     return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("calibrate", help="score views / thresholds on labelled calibration zones (after their run)")
-    p.add_argument("--config", nargs="+", default=["config/config.yaml", "config/models.yaml"],
-                   help="config files defining the zones and the other rules (later files win)")
+    p.add_argument(
+        "--config",
+        nargs="+",
+        default=["config/config.yaml", "config/models.yaml"],
+        help="config files defining the zones and the other rules (later files win)",
+    )
     p.add_argument("--zones", required=True, help="comma-separated calibration zones (never held-out ones)")
     p.add_argument("--tta", help="views to try, e.g. 1,2,4 (default: the config's)")
     p.add_argument("--threshold", help="towers.threshold values (default: the config's)")

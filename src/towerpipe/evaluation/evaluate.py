@@ -33,9 +33,9 @@ from towerpipe.io.inputs import find_blocks
 from towerpipe.io.las import laz_backend
 
 
-
-def _read_pair(input_block: str | os.PathLike[str], classified_block: str | os.PathLike[str]
-               ) -> tuple[laspy.LasData, np.ndarray]:
+def _read_pair(
+    input_block: str | os.PathLike[str], classified_block: str | os.PathLike[str]
+) -> tuple[laspy.LasData, np.ndarray]:
     """An input block and the classification of its classified copy, each decoded once."""
     src = laspy.read(input_block, laz_backend=laz_backend())
     pred = np.asarray(laspy.read(classified_block, laz_backend=laz_backend()).classification)
@@ -55,8 +55,9 @@ def point_confusion(input_block: str | os.PathLike[str], classified_block: str |
     return _confusion(np.asarray(src.classification), pred)
 
 
-def zone_points(input_dir: str | os.PathLike[str], results_dir: str | os.PathLike[str]
-                ) -> tuple[dict[str, dict[str, int]], dict[str, np.ndarray]]:
+def zone_points(
+    input_dir: str | os.PathLike[str], results_dir: str | os.PathLike[str]
+) -> tuple[dict[str, dict[str, int]], dict[str, np.ndarray]]:
     """Per-block tower point confusion, and the points the pipeline labelled 15, in one pass.
 
     Returns
@@ -103,15 +104,27 @@ def false_tower_sources(false_towers: gpd.GeoDataFrame, labelled: dict[str, np.n
     for _, t in false_towers.iterrows():
         inside = shapely.contains_xy(shapely.buffer(t.geometry, 0.5), labelled["x"], labelled["y"])
         cls, n = np.unique(labelled["classification"][inside], return_counts=True)
-        rows.append({"tower_id": str(t["tower_id"]), "height_m": round(float(t["height_m"]), 1),
-                     "n_points": int(t["n_points"]), "prob_mean": round(float(t["prob_mean"]), 3),
-                     "input_classes": {int(c): int(k) for c, k in zip(cls, n)}})
+        rows.append(
+            {
+                "tower_id": str(t["tower_id"]),
+                "height_m": round(float(t["height_m"]), 1),
+                "n_points": int(t["n_points"]),
+                "prob_mean": round(float(t["prob_mean"]), 3),
+                "input_classes": {int(c): int(k) for c, k in zip(cls, n)},
+            }
+        )
     return rows
 
 
-def evaluate_zone(input_dir: str | os.PathLike[str], results_dir: str | os.PathLike[str], *,
-                  truth_gpkg: str | os.PathLike[str] | None = None, max_dist: float = 5.0,
-                  out_json: str | os.PathLike[str] | None = None, min_truth_points: int = 0) -> dict[str, Any]:
+def evaluate_zone(
+    input_dir: str | os.PathLike[str],
+    results_dir: str | os.PathLike[str],
+    *,
+    truth_gpkg: str | os.PathLike[str] | None = None,
+    max_dist: float = 5.0,
+    out_json: str | os.PathLike[str] | None = None,
+    min_truth_points: int = 0,
+) -> dict[str, Any]:
     """Tower precision/recall and point IoU of a processed zone.
 
     Parameters
@@ -155,11 +168,18 @@ def evaluate_zone(input_dir: str | os.PathLike[str], results_dir: str | os.PathL
     tp, fp, fn = (sum(c[k] for c in per_block.values()) for k in ("tp", "fp", "fn"))
     iou = tp / (tp + fp + fn) if (tp + fp + fn) else float("nan")
     res = {
-        "towers_true": int(len(truth)), "towers_predicted": int(len(pred)),
-        "tower_precision": m["precision"], "tower_recall": m["recall"], "tower_f1": m.get("f1"),
-        "towers_reported_twice": int((claimed > 1).sum()), "duplicate_ids": len(ids) - len(set(ids)),
-        "point_iou_tower": iou, "min_truth_points": int(min_truth_points),
-        "predictions_on_small_towers_ignored": ignored, "points": {"tp": tp, "fp": fp, "fn": fn}, "per_block": per_block,
+        "towers_true": int(len(truth)),
+        "towers_predicted": int(len(pred)),
+        "tower_precision": m["precision"],
+        "tower_recall": m["recall"],
+        "tower_f1": m.get("f1"),
+        "towers_reported_twice": int((claimed > 1).sum()),
+        "duplicate_ids": len(ids) - len(set(ids)),
+        "point_iou_tower": iou,
+        "min_truth_points": int(min_truth_points),
+        "predictions_on_small_towers_ignored": ignored,
+        "points": {"tp": tp, "fp": fp, "fn": fn},
+        "per_block": per_block,
         "unmatched_truth": [str(t) for t in m.get("unmatched_truth", [])],
         "unmatched_pred": [str(t) for t in m.get("unmatched_pred", [])],
     }
@@ -179,14 +199,22 @@ def record_reference(model_dir: str | os.PathLike[str], result: dict[str, Any], 
     from towerpipe.model import cards as modelcard
 
     card = modelcard.read_card(model_dir)
-    keep = ("towers_true", "towers_predicted", "tower_precision", "tower_recall", "tower_f1",
-            "towers_reported_twice", "point_iou_tower")
+    keep = (
+        "towers_true",
+        "towers_predicted",
+        "tower_precision",
+        "tower_recall",
+        "tower_f1",
+        "towers_reported_twice",
+        "point_iou_tower",
+    )
     card.setdefault("metrics", {})["reference_zone"] = {"zone_config": zone_config, **{k: result[k] for k in keep}}
     modelcard.write_card(Path(model_dir), card)
 
 
-def evaluate_windows(model_dir: str | os.PathLike[str], tile_paths: list[str], *,
-                     dataset_config: dict[str, Any] | None = None) -> dict[str, Any]:
+def evaluate_windows(
+    model_dir: str | os.PathLike[str], tile_paths: list[str], *, dataset_config: dict[str, Any] | None = None
+) -> dict[str, Any]:
     """Window-level metrics of a model bundle on labelled tiles of a held-out zone.
 
     Parameters
@@ -205,8 +233,8 @@ def evaluate_windows(model_dir: str | os.PathLike[str], tile_paths: list[str], *
         ``classifier`` (F1, precision, recall, accuracy, n, positives), ``segmenter``
         (IoU tower, IoU background, mIoU, points, windows), ``windows``, ``towers``.
     """
-    from towerpipe.training.dataset import build_windows
     from towerpipe.model.bundle import load_bundle
+    from towerpipe.training.dataset import build_windows
     from towerpipe.training.metrics import classification_metrics, predict_windows, segment_windows_metrics
 
     bundle = load_bundle(model_dir)
@@ -224,8 +252,15 @@ def evaluate_windows(model_dir: str | os.PathLike[str], tile_paths: list[str], *
     thr = float((recorded.get("train") or {}).get("threshold", 0.5))
     clf = classification_metrics(predict_windows(bundle.classifier, ws, idx, fs), ws.label[idx], thr)
     seg = segment_windows_metrics(bundle.segmenter, ws, idx, fs, thr, bundle.chunk)
-    return {"model": bundle.name, "version": bundle.version, "tiles": paths, "windows": int(len(idx)),
-            "towers": int(ws.meta["towers"]), "classifier": clf, "segmenter": seg}
+    return {
+        "model": bundle.name,
+        "version": bundle.version,
+        "tiles": paths,
+        "windows": int(len(idx)),
+        "towers": int(ws.meta["towers"]),
+        "classifier": clf,
+        "segmenter": seg,
+    }
 
 
 def record_windows(model_dir: str | os.PathLike[str], result: dict[str, Any], zone: str) -> None:
@@ -234,8 +269,11 @@ def record_windows(model_dir: str | os.PathLike[str], result: dict[str, Any], zo
 
     card = modelcard.read_card(model_dir)
     card.setdefault("metrics", {}).setdefault("holdout_windows", {})[zone] = {
-        "windows": result["windows"], "towers": result["towers"],
-        "classifier": result["classifier"], "segmenter": result["segmenter"]}
+        "windows": result["windows"],
+        "towers": result["towers"],
+        "classifier": result["classifier"],
+        "segmenter": result["segmenter"],
+    }
     modelcard.write_card(Path(model_dir), card)
 
 
@@ -248,23 +286,30 @@ def _cli_windows(args: argparse.Namespace) -> int:
     if args.record_in_card:
         record_windows(args.model, res, args.zone or args.tiles)
     c, s = res["classifier"], res["segmenter"]
-    print(f"{res['model']} v{res['version']}: {res['windows']} windows, {res['towers']} towers; classifier F1 "
-          f"{c['f1']:.3f} (P {c['precision']:.3f} R {c['recall']:.3f}); segmenter IoU tower {s['iou_tower']:.3f} "
-          f"IoU background {s['iou_background']:.3f} mIoU {s['miou']:.3f}")
+    print(
+        f"{res['model']} v{res['version']}: {res['windows']} windows, {res['towers']} towers; classifier F1 "
+        f"{c['f1']:.3f} (P {c['precision']:.3f} R {c['recall']:.3f}); segmenter IoU tower {s['iou_tower']:.3f} "
+        f"IoU background {s['iou_background']:.3f} mIoU {s['miou']:.3f}"
+    )
     return 0
 
 
 def _cli(args: argparse.Namespace) -> int:
-    res = evaluate_zone(args.zone_dir, args.results, truth_gpkg=args.truth, out_json=args.json,
-                        min_truth_points=args.min_truth_points)
+    res = evaluate_zone(
+        args.zone_dir, args.results, truth_gpkg=args.truth, out_json=args.json, min_truth_points=args.min_truth_points
+    )
     if args.record_in:
         record_reference(args.record_in, res, args.zone_config)
-    print(f"towers: {res['towers_predicted']} predicted, {res['towers_true']} true; "
-          f"precision {res['tower_precision']:.3f} recall {res['tower_recall']:.3f}; "
-          f"reported twice {res['towers_reported_twice']}; point IoU (tower) {res['point_iou_tower']:.3f}")
+    print(
+        f"towers: {res['towers_predicted']} predicted, {res['towers_true']} true; "
+        f"precision {res['tower_precision']:.3f} recall {res['tower_recall']:.3f}; "
+        f"reported twice {res['towers_reported_twice']}; point IoU (tower) {res['point_iou_tower']:.3f}"
+    )
     for t in res["false_towers"]:
-        print(f"false tower {t['tower_id']}: {t['height_m']} m, {t['n_points']} points, mean probability "
-              f"{t['prob_mean']}; input classes of its points {t['input_classes']}")
+        print(
+            f"false tower {t['tower_id']}: {t['height_m']} m, {t['n_points']} points, mean probability "
+            f"{t['prob_mean']}; input classes of its points {t['input_classes']}"
+        )
     return 0
 
 
@@ -274,8 +319,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--results", required=True, help="results/<zone>/")
     p.add_argument("--truth", help="true tower footprints (default: ZONE_DIR/towers_truth.gpkg)")
     p.add_argument("--json", help="write the figures here")
-    p.add_argument("--min-truth-points", type=int, default=0,
-                   help="leave out true towers with fewer points (the paper drops towers under 20 points)")
+    p.add_argument(
+        "--min-truth-points",
+        type=int,
+        default=0,
+        help="leave out true towers with fewer points (the paper drops towers under 20 points)",
+    )
     p.add_argument("--record-in", metavar="MODEL_DIR", help="store the figures in this model's card")
     p.add_argument("--zone-config", default=".test/config/config.yaml", help="config that defines the zone")
     p.set_defaults(func=_cli)
@@ -283,6 +332,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", required=True, help="model bundle directory")
     p.add_argument("--tiles", required=True, help="glob of the zone's tile files, e.g. 'work/holdout/tiles/*/*.npz'")
     p.add_argument("--json", help="write the figures here")
-    p.add_argument("--record-in-card", action="store_true", help="store them in the model card (metrics.holdout_windows)")
+    p.add_argument(
+        "--record-in-card", action="store_true", help="store them in the model card (metrics.holdout_windows)"
+    )
     p.add_argument("--zone", help="zone name recorded with the figures")
     p.set_defaults(func=_cli_windows)

@@ -65,9 +65,15 @@ def zone_valid_attributes(work: str | os.PathLike[str], zone: str) -> set[str]:
     return set.intersection(*sets) if sets else set()
 
 
-def evaluate_model(model: str | os.PathLike[str], zone: str, input_dir: str | os.PathLike[str], *,
-                   work: str | os.PathLike[str], inference: Mapping[str, Any], towers: Mapping[str, Any]
-                   ) -> dict[str, Any]:
+def evaluate_model(
+    model: str | os.PathLike[str],
+    zone: str,
+    input_dir: str | os.PathLike[str],
+    *,
+    work: str | os.PathLike[str],
+    inference: Mapping[str, Any],
+    towers: Mapping[str, Any],
+) -> dict[str, Any]:
     """A model's figures on one preprocessed labelled zone (:func:`towerpipe.evaluation.calibrate.score_zone`).
 
     Predictions are cached per model weights and inference settings
@@ -76,26 +82,40 @@ def evaluate_model(model: str | os.PathLike[str], zone: str, input_dir: str | os
     import geopandas as gpd
 
     from towerpipe.config import InferenceConfig
-    from towerpipe.evaluation.calibrate import tower_labels, zone_tiles, score_zone, zone_predictions
+    from towerpipe.evaluation.calibrate import score_zone, tower_labels, zone_predictions, zone_tiles
     from towerpipe.io.predictions import load_pred
 
     settings = InferenceConfig.from_config({"inference": inference})
     preds = [load_pred(p) for p in zone_predictions(work, zone, model, settings)]
     truth = gpd.read_file(Path(input_dir) / "towers_truth.gpkg", layer="towers")
-    return score_zone(preds, [str(p) for p in zone_tiles(work, zone)], truth, tower_labels(Path(input_dir)),
-                      threshold=float(towers["threshold"]), point_threshold=float(inference["threshold"]),
-                      min_core_prob=float(towers["min_core_prob"]), towers=towers, zone=zone,
-                      min_truth_points=int(towers["min_points"]))
+    return score_zone(
+        preds,
+        [str(p) for p in zone_tiles(work, zone)],
+        truth,
+        tower_labels(Path(input_dir)),
+        threshold=float(towers["threshold"]),
+        point_threshold=float(inference["threshold"]),
+        min_core_prob=float(towers["min_core_prob"]),
+        towers=towers,
+        zone=zone,
+        min_truth_points=int(towers["min_points"]),
+    )
 
 
 def _f1(row: Mapping[str, Any]) -> float:
     return float(row["f1"]) if row.get("f1") is not None else 0.0
 
 
-def run_benchmark(loso: Mapping[str, Mapping[str, str | os.PathLike[str]]], zones: Mapping[str, str | os.PathLike[str]],
-                  *, work: str | os.PathLike[str], inference: Mapping[str, Any], towers: Mapping[str, Any],
-                  out_dir: str | os.PathLike[str], reference: Mapping[str, str | os.PathLike[str]] | None = None
-                  ) -> dict[str, Any]:
+def run_benchmark(
+    loso: Mapping[str, Mapping[str, str | os.PathLike[str]]],
+    zones: Mapping[str, str | os.PathLike[str]],
+    *,
+    work: str | os.PathLike[str],
+    inference: Mapping[str, Any],
+    towers: Mapping[str, Any],
+    out_dir: str | os.PathLike[str],
+    reference: Mapping[str, str | os.PathLike[str]] | None = None,
+) -> dict[str, Any]:
     """Run the benchmark and write ``report.md`` and ``scores.json`` into ``out_dir``.
 
     Parameters
@@ -122,8 +142,8 @@ def run_benchmark(loso: Mapping[str, Mapping[str, str | os.PathLike[str]]], zone
         attributes are not valid on the zone), ``auto`` rows, ``transfer`` per recipe and
         the ``bars`` check.
     """
-    from towerpipe.model.features import required_attributes
     from towerpipe.model.cards import read_card
+    from towerpipe.model.features import required_attributes
 
     valid = {z: zone_valid_attributes(work, z) for z in zones}
     rows: list[dict[str, Any]] = []
@@ -136,24 +156,33 @@ def run_benchmark(loso: Mapping[str, Mapping[str, str | os.PathLike[str]]], zone
                 if zone not in zones:
                     continue
                 missing = sorted(set(need) - valid[zone])
-                row: dict[str, Any] = {"recipe": recipe, "feature_set": card["feature_set"], "family": family,
-                                       "variant": variant, "zone": zone, "model": card["name"],
-                                       "usable": not missing, "missing": missing}
+                row: dict[str, Any] = {
+                    "recipe": recipe,
+                    "feature_set": card["feature_set"],
+                    "family": family,
+                    "variant": variant,
+                    "zone": zone,
+                    "model": card["name"],
+                    "usable": not missing,
+                    "missing": missing,
+                }
                 if not missing:
                     row.update(evaluate_model(model, zone, zones[zone], work=work, inference=inference, towers=towers))
                 rows.append(row)
     transfer = {}
     for recipe in loso:
         intact = [r for r in rows if r["recipe"] == recipe and r["variant"] == "intact" and r["usable"]]
-        transfer[recipe] = {"score": float(np.mean([_f1(r) for r in intact])) if intact else None,
-                            "point_iou": float(np.nanmean([r["point_iou"] for r in intact])) if intact else None,
-                            "families": sorted({r["family"] for r in intact})}
+        transfer[recipe] = {
+            "score": float(np.mean([_f1(r) for r in intact])) if intact else None,
+            "point_iou": float(np.nanmean([r["point_iou"] for r in intact])) if intact else None,
+            "families": sorted({r["family"] for r in intact}),
+        }
     auto = []
     for family in sorted({r["family"] for r in rows}):
         for variant in VARIANTS:
             usable = [r for r in rows if r["family"] == family and r["variant"] == variant and r["usable"]]
             if usable:
-                best = max(usable, key=lambda r: (transfer[r["recipe"]]["score"] or -1.0))
+                best = max(usable, key=lambda r: transfer[r["recipe"]]["score"] or -1.0)
                 ok = all((best.get(k) or 0.0) >= v for k, v in BARS.items())
                 auto.append({**best, "meets_bars": ok})
     refs = []
@@ -162,11 +191,24 @@ def run_benchmark(loso: Mapping[str, Mapping[str, str | os.PathLike[str]]], zone
         need = required_attributes(card["feature_set"])
         for zone in zones:
             if set(need) <= valid[zone]:
-                refs.append({"reference": label, "model": card["name"], "zone": zone,
-                             **evaluate_model(model, zone, zones[zone], work=work, inference=inference, towers=towers)})
-    result = {"rows": rows, "auto": auto, "transfer": transfer, "reference": refs, "bars": BARS,
-              "inference": dict(inference), "towers": dict(towers),
-              "all_bars_met": bool(auto) and all(a["meets_bars"] for a in auto)}
+                refs.append(
+                    {
+                        "reference": label,
+                        "model": card["name"],
+                        "zone": zone,
+                        **evaluate_model(model, zone, zones[zone], work=work, inference=inference, towers=towers),
+                    }
+                )
+    result = {
+        "rows": rows,
+        "auto": auto,
+        "transfer": transfer,
+        "reference": refs,
+        "bars": BARS,
+        "inference": dict(inference),
+        "towers": dict(towers),
+        "all_bars_met": bool(auto) and all(a["meets_bars"] for a in auto),
+    }
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "scores.json").write_text(json.dumps(result, indent=1, default=str))
@@ -182,37 +224,65 @@ def _fmt(v: Any, nd: int = 2) -> str:
 
 def report_markdown(result: Mapping[str, Any]) -> str:
     """The benchmark's tables as Markdown."""
-    lines = ["# Real-shape benchmark (leave one source out)", "",
-             "Each real tower family on the IGN RGB+NIR tile, judged with models trained without it. "
-             "Gate recall: true towers reached by a window passing the gate. Towers: recall / precision "
-             "(true towers); point IoU of class 15.", "",
-             "## What `inference.model: auto` gives", "",
-             "| family held out | variant | model chosen | gate recall | tower recall | precision | point IoU "
-             "| true towers | false towers | bars (R, P >= 0.9) |", "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Real-shape benchmark (leave one source out)",
+        "",
+        "Each real tower family on the IGN RGB+NIR tile, judged with models trained without it. "
+        "Gate recall: true towers reached by a window passing the gate. Towers: recall / precision "
+        "(true towers); point IoU of class 15.",
+        "",
+        "## What `inference.model: auto` gives",
+        "",
+        "| family held out | variant | model chosen | gate recall | tower recall | precision | point IoU "
+        "| true towers | false towers | bars (R, P >= 0.9) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for a in result["auto"]:
-        lines.append(f"| {a['family']} | {a['variant']} | {a['feature_set']} | {_fmt(a['gate_recall'])} | "
-                     f"{_fmt(a['recall'])} | {_fmt(a['precision'])} | {_fmt(a['point_iou'], 3)} | "
-                     f"{a['true_towers']} | {a['towers_fp']} | {'met' if a['meets_bars'] else '**not met**'} |")
-    lines += ["", "## Transfer score per recipe (mean tower F1 over the held-out families, intact zones)", "",
-              "| recipe | score | mean point IoU |", "|---|---|---|"]
+        lines.append(
+            f"| {a['family']} | {a['variant']} | {a['feature_set']} | {_fmt(a['gate_recall'])} | "
+            f"{_fmt(a['recall'])} | {_fmt(a['precision'])} | {_fmt(a['point_iou'], 3)} | "
+            f"{a['true_towers']} | {a['towers_fp']} | {'met' if a['meets_bars'] else '**not met**'} |"
+        )
+    lines += [
+        "",
+        "## Transfer score per recipe (mean tower F1 over the held-out families, intact zones)",
+        "",
+        "| recipe | score | mean point IoU |",
+        "|---|---|---|",
+    ]
     for recipe, t in result["transfer"].items():
         lines.append(f"| {recipe} | {_fmt(t['score'], 3)} | {_fmt(t['point_iou'], 3)} |")
-    lines += ["", "## Every recipe, family and variant", "",
-              "| recipe | family held out | variant | gate recall | tower recall | precision | point IoU | false towers |",
-              "|---|---|---|---|---|---|---|---|"]
+    lines += [
+        "",
+        "## Every recipe, family and variant",
+        "",
+        "| recipe | family held out | variant | gate recall | tower recall | precision | point IoU | false towers |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in result["rows"]:
         if not r["usable"]:
-            lines.append(f"| {r['recipe']} | {r['family']} | {r['variant']} | not usable: no valid "
-                         f"{', '.join(r['missing'])} | | | | |")
+            lines.append(
+                f"| {r['recipe']} | {r['family']} | {r['variant']} | not usable: no valid "
+                f"{', '.join(r['missing'])} | | | | |"
+            )
             continue
-        lines.append(f"| {r['recipe']} | {r['family']} | {r['variant']} | {_fmt(r['gate_recall'])} | "
-                     f"{_fmt(r['recall'])} | {_fmt(r['precision'])} | {_fmt(r['point_iou'], 3)} | {r['towers_fp']} |")
+        lines.append(
+            f"| {r['recipe']} | {r['family']} | {r['variant']} | {_fmt(r['gate_recall'])} | "
+            f"{_fmt(r['recall'])} | {_fmt(r['precision'])} | {_fmt(r['point_iou'], 3)} | {r['towers_fp']} |"
+        )
     if result["reference"]:
-        lines += ["", "## Reference: models that saw every family", "",
-                  "| model | zone | tower recall | precision | point IoU |", "|---|---|---|---|---|"]
+        lines += [
+            "",
+            "## Reference: models that saw every family",
+            "",
+            "| model | zone | tower recall | precision | point IoU |",
+            "|---|---|---|---|---|",
+        ]
         for r in result["reference"]:
-            lines.append(f"| {r['model']} | {r['zone']} | {_fmt(r['recall'])} | {_fmt(r['precision'])} | "
-                         f"{_fmt(r['point_iou'], 3)} |")
+            lines.append(
+                f"| {r['model']} | {r['zone']} | {_fmt(r['recall'])} | {_fmt(r['precision'])} | "
+                f"{_fmt(r['point_iou'], 3)} |"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -235,11 +305,17 @@ def stamp_cards(scores_json: str | os.PathLike[str], models: Mapping[str, str | 
         if t is None:
             continue
         card = read_card(model)
-        card["transfer"] = {"benchmark": "real-shape, leave one source out (towerpipe.evaluation.realshape)",
-                            "score": t["score"], "point_iou": t["point_iou"], "families": t["families"],
-                            "per_family": [{k: r.get(k) for k in ("family", "variant", "gate_recall", "recall",
-                                                                  "precision", "point_iou")}
-                                           for r in result["rows"] if r["recipe"] == recipe and r["usable"]]}
+        card["transfer"] = {
+            "benchmark": "real-shape, leave one source out (towerpipe.evaluation.realshape)",
+            "score": t["score"],
+            "point_iou": t["point_iou"],
+            "families": t["families"],
+            "per_family": [
+                {k: r.get(k) for k in ("family", "variant", "gate_recall", "recall", "precision", "point_iou")}
+                for r in result["rows"]
+                if r["recipe"] == recipe and r["usable"]
+            ],
+        }
         write_card(model, card)
         done.append(Path(model))
     return done
@@ -256,7 +332,10 @@ def _stamp(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``towerpipe realshape-stamp`` to the command line."""
-    p = sub.add_parser("realshape-stamp", help="copy the real-shape benchmark's transfer scores into the shipped "
-                       "model cards (what inference.model: auto ranks by)")
+    p = sub.add_parser(
+        "realshape-stamp",
+        help="copy the real-shape benchmark's transfer scores into the shipped "
+        "model cards (what inference.model: auto ranks by)",
+    )
     p.add_argument("--scores", default="results/benchmark/realshape/scores.json")
     p.set_defaults(func=_stamp)

@@ -28,12 +28,16 @@ from towerpipe import classes
 #: The point dimensions a swap replaces (everything a feature set may read besides x, y, z).
 SWAPPED = ("intensity", "return_number", "number_of_returns", "red", "green", "blue", "nir")
 #: Where the replacing attributes come from: ASPRS classes (``None``: every non-tower point).
-SOURCES: dict[str, tuple[int, ...] | None] = {"vegetation": classes.VEGETATION, "ground": (classes.GROUND,),
-                                                "surroundings": None}
+SOURCES: dict[str, tuple[int, ...] | None] = {
+    "vegetation": classes.VEGETATION,
+    "ground": (classes.GROUND,),
+    "surroundings": None,
+}
 
 
-def tower_windows(block_paths: Sequence[str | os.PathLike[str]], truth, *, window: float = 40.0
-                  ) -> list[dict[str, Any]]:
+def tower_windows(
+    block_paths: Sequence[str | os.PathLike[str]], truth, *, window: float = 40.0
+) -> list[dict[str, Any]]:
     """One window per true tower: its points' arrays (with ``hag``), the tower mask and metadata.
 
     Parameters
@@ -53,8 +57,12 @@ def tower_windows(block_paths: Sequence[str | os.PathLike[str]], truth, *, windo
     for path in block_paths:
         las = laspy.read(path, laz_backend=laz_backend())
         dims = set(las.point_format.dimension_names)
-        a = {"x": np.asarray(las.x), "y": np.asarray(las.y), "z": np.asarray(las.z),
-             "classification": np.asarray(las.classification)}
+        a = {
+            "x": np.asarray(las.x),
+            "y": np.asarray(las.y),
+            "z": np.asarray(las.z),
+            "classification": np.asarray(las.classification),
+        }
         for d in SWAPPED:
             a[d] = np.asarray(las[d]) if d in dims else np.zeros(len(a["x"]), np.uint16)
         ground = a["classification"] == classes.GROUND
@@ -63,8 +71,12 @@ def tower_windows(block_paths: Sequence[str | os.PathLike[str]], truth, *, windo
         a["hag"] = (a["z"] - a["z"][ground][k].mean(axis=1)).astype(np.float32)
         a["model_input"] = ~ground & ~np.isin(a["classification"], classes.NOISE) & (a["hag"] > -2) & (a["hag"] < 100)
         has_rgb = "red" in dims and a["red"].max() > 0
-        meta = {"color_bits": 16, "valid_attributes": ["intensity", "returns"] + (["rgb"] if has_rgb else [])
-                + (["nir"] if "nir" in dims and a["nir"].max() > 0 else [])}
+        meta = {
+            "color_bits": 16,
+            "valid_attributes": ["intensity", "returns"]
+            + (["rgb"] if has_rgb else [])
+            + (["nir"] if "nir" in dims and a["nir"].max() > 0 else []),
+        }
         name = Path(path).stem
         for _, t in truth[truth["block"] == name].iterrows():
             c = np.array([float(t["x"]), float(t["y"])])
@@ -73,13 +85,22 @@ def tower_windows(block_paths: Sequence[str | os.PathLike[str]], truth, *, windo
             tower = win["classification"] == classes.TOWER
             if tower.sum() < 20:
                 continue
-            out.append({"tower_id": int(t["tower_id"]), "design": str(t["design"]), "center": c, "arrays": win,
-                        "tower": tower, "meta": meta})
+            out.append(
+                {
+                    "tower_id": int(t["tower_id"]),
+                    "design": str(t["design"]),
+                    "center": c,
+                    "arrays": win,
+                    "tower": tower,
+                    "meta": meta,
+                }
+            )
     return out
 
 
-def swap_scores(bundle, win: Mapping[str, Any], *, seed: int = 0, sources: Mapping[str, tuple[int, ...] | None] = SOURCES
-                ) -> dict[str, float]:
+def swap_scores(
+    bundle, win: Mapping[str, Any], *, seed: int = 0, sources: Mapping[str, tuple[int, ...] | None] = SOURCES
+) -> dict[str, float]:
     """Classifier probability of one tower window as it is and with swapped attributes.
 
     Parameters

@@ -38,21 +38,28 @@ from __future__ import annotations
 import hashlib
 import os
 import time
-from typing import Any, Mapping, Protocol
+from collections.abc import Mapping
+from typing import Any, Protocol
 
 import numpy as np
 
 from towerpipe import classes
 from towerpipe.config import InferenceConfig
 from towerpipe.errors import ConfigError, ModelError
-from towerpipe.io.predictions import save_pred
-from towerpipe.progress import Progress
-from towerpipe.progress import peak_rss_mb
-from towerpipe.io.tiles import Tile, load_tile
 from towerpipe.inference.windows import CandidateWindows, TileWindows, candidate_windows, sliding_windows
+from towerpipe.io.predictions import save_pred
+from towerpipe.io.tiles import Tile, load_tile
+from towerpipe.progress import Progress, peak_rss_mb
 
-__all__ = ["TTA_CHOICES", "BundleLike", "check_model_compatibility", "infer_tile", "predict_tile", "segment_views",
-           "window_rng"]
+__all__ = [
+    "TTA_CHOICES",
+    "BundleLike",
+    "check_model_compatibility",
+    "infer_tile",
+    "predict_tile",
+    "segment_views",
+    "window_rng",
+]
 
 _COMBINE = ("max", "mean")
 #: How a tile's windows are laid: centred on height peaks, or the paper's sliding grid.
@@ -60,8 +67,16 @@ WINDOW_MODES = ("candidates", "grid")
 #: test-time views of a window's plan, in the order they are added: the window as it is,
 #: the half turn, the quarter turns, then the mirror images (x -> -x etc.). Each is the
 #: matrix (a, b, c, d): x' = a x + b y, y' = c x + d y, on the first two feature columns.
-_TTA_VIEWS = ((1, 0, 0, 1), (-1, 0, 0, -1), (0, -1, 1, 0), (0, 1, -1, 0),
-              (-1, 0, 0, 1), (0, 1, 1, 0), (1, 0, 0, -1), (0, -1, -1, 0))
+_TTA_VIEWS = (
+    (1, 0, 0, 1),
+    (-1, 0, 0, -1),
+    (0, -1, 1, 0),
+    (0, 1, -1, 0),
+    (-1, 0, 0, 1),
+    (0, 1, 1, 0),
+    (1, 0, 0, -1),
+    (0, -1, -1, 0),
+)
 TTA_CHOICES = (1, 2, 4, 8)
 
 
@@ -126,8 +141,9 @@ def segment_views(bundle: BundleLike, feats: np.ndarray, views: int) -> tuple[np
 
 def window_rng(seed: int, kx: int, ky: int) -> np.random.Generator:
     """The sampler's generator of window ``(kx, ky)`` (global grid indices)."""
-    return np.random.default_rng(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, int(kx) & 0xFFFFFFFF,
-                                                         int(ky) & 0xFFFFFFFF]))
+    return np.random.default_rng(
+        np.random.SeedSequence([int(seed) & 0xFFFFFFFF, int(kx) & 0xFFFFFFFF, int(ky) & 0xFFFFFFFF])
+    )
 
 
 def check_model_compatibility(tile_meta: Mapping[str, Any], bundle: BundleLike) -> None:
@@ -156,7 +172,8 @@ def check_model_compatibility(tile_meta: Mapping[str, Any], bundle: BundleLike) 
         raise ModelError(
             f"{where} has no valid {', '.join(missing)} but model {bundle.name!r} v{bundle.version} "
             f"(feature set {bundle.feature_set!r}) needs {', '.join(features.required_attributes(bundle.feature_set))}; "
-            f"set `inference: {{model: auto}}` (or the zone's `model: auto`) to use a model these data support")
+            f"set `inference: {{model: auto}}` (or the zone's `model: auto`) to use a model these data support"
+        )
 
 
 def _model_info(bundle: BundleLike, model_path: str | os.PathLike[str] | None) -> dict[str, Any]:
@@ -165,8 +182,13 @@ def _model_info(bundle: BundleLike, model_path: str | os.PathLike[str] | None) -
     sha = None
     if isinstance(files, Mapping) and files:
         sha = hashlib.sha256("".join(f"{k}:{files[k]}" for k in sorted(files)).encode()).hexdigest()
-    return {"name": bundle.name, "version": str(bundle.version), "feature_set": bundle.feature_set,
-            "path": None if path is None else str(path), "sha256": sha}
+    return {
+        "name": bundle.name,
+        "version": str(bundle.version),
+        "feature_set": bundle.feature_set,
+        "path": None if path is None else str(path),
+        "sha256": sha,
+    }
 
 
 def _classified_wire(arrays: Mapping[str, np.ndarray], idx: np.ndarray) -> np.ndarray:
@@ -223,13 +245,21 @@ def predict_tile(
         ``points_predicted``, ``timings`` (s) and ``window_probs`` (list of
         ``[kx, ky, p]`` for the windows that passed the gate).
     """
-    from towerpipe.model import features
-    from towerpipe.model import sampling
+    from towerpipe.model import features, sampling
 
-    window, stride, windows, gate, combine = (settings.window, settings.stride, settings.windows, settings.gate,
-                                              settings.combine)
-    batch_size, min_points, min_height, tta = (settings.batch_size, settings.min_points, settings.min_height,
-                                               settings.tta)
+    window, stride, windows, gate, combine = (
+        settings.window,
+        settings.stride,
+        settings.windows,
+        settings.gate,
+        settings.combine,
+    )
+    batch_size, min_points, min_height, tta = (
+        settings.batch_size,
+        settings.min_points,
+        settings.min_height,
+        settings.tta,
+    )
     if combine not in _COMBINE:
         raise ConfigError(f"infer.combine must be one of {_COMBINE}, got {combine!r}")
     if windows not in WINDOW_MODES:
@@ -252,13 +282,27 @@ def predict_tile(
     if windows == "candidates":
         floor = 0.0 if min_height is None else min_height
         ws: TileWindows | CandidateWindows = candidate_windows(
-            arrays["x"][mi], arrays["y"][mi], hag[mi], core[mi], window=window,
-            min_height=floor, min_points=max(int(min_points), 1),
-            canonical_order=canon, exclude=overhead_wires(arrays, mi, floor))
+            arrays["x"][mi],
+            arrays["y"][mi],
+            hag[mi],
+            core[mi],
+            window=window,
+            min_height=floor,
+            min_points=max(int(min_points), 1),
+            canonical_order=canon,
+            exclude=overhead_wires(arrays, mi, floor),
+        )
         n_all = len(ws)
     else:
-        all_windows = sliding_windows(arrays["x"][mi], arrays["y"][mi], core[mi], window=window, stride=stride,
-                                      min_points=1, canonical_order=canon)
+        all_windows = sliding_windows(
+            arrays["x"][mi],
+            arrays["y"][mi],
+            core[mi],
+            window=window,
+            stride=stride,
+            min_points=1,
+            canonical_order=canon,
+        )
         ws = all_windows.select(all_windows.counts >= max(int(min_points), 1))
         n_all = len(all_windows)
     fmeta = features.tile_feature_meta(arrays, tile.meta)

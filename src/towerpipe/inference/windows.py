@@ -37,8 +37,8 @@ slices of its ``ceil(window / stride)²`` cells, filtered on the far edge when
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import numpy as np
 
@@ -125,11 +125,21 @@ class TileWindows:
             idx = idx[(self._x[idx] < xe) & (self._y[idx] < ye)]
         return idx
 
-    def select(self, mask_or_index: np.ndarray) -> "TileWindows":
+    def select(self, mask_or_index: np.ndarray) -> TileWindows:
         """A window set with only the selected windows (same points and grid)."""
-        return TileWindows(self.window, self.stride, self.keys[mask_or_index], self.counts[mask_or_index],
-                         self.core_counts[mask_or_index], self._x, self._y, self._order, self._cell_start,
-                         self._c0, self._shape)
+        return TileWindows(
+            self.window,
+            self.stride,
+            self.keys[mask_or_index],
+            self.counts[mask_or_index],
+            self.core_counts[mask_or_index],
+            self._x,
+            self._y,
+            self._order,
+            self._cell_start,
+            self._c0,
+            self._shape,
+        )
 
     def __iter__(self) -> Iterator[np.ndarray]:
         for i in range(len(self)):
@@ -207,8 +217,19 @@ def sliding_windows(
     n = len(x)
     if n == 0 or not core.any():
         empty = np.empty((0, 2), dtype=np.int64)
-        return TileWindows(float(window), float(stride), empty, np.empty(0, np.int64), np.empty(0, np.int64),
-                         x, y, np.empty(0, np.int64), np.zeros(1, np.int64), (0, 0), (0, 0))
+        return TileWindows(
+            float(window),
+            float(stride),
+            empty,
+            np.empty(0, np.int64),
+            np.empty(0, np.int64),
+            x,
+            y,
+            np.empty(0, np.int64),
+            np.zeros(1, np.int64),
+            (0, 0),
+            (0, 0),
+        )
 
     cx = np.floor(x / stride).astype(np.int64)
     cy = np.floor(y / stride).astype(np.int64)
@@ -231,8 +252,19 @@ def sliding_windows(
     if exact_cells:
         keys, counts, core_counts = _windows_from_cells(cell, core, c0, (nx, ny), m)
         keep = counts >= max(int(min_points), 1)
-        return TileWindows(float(window), float(stride), keys[keep], counts[keep], core_counts[keep],
-                         x, y, order, cell_start, c0, (nx, ny))
+        return TileWindows(
+            float(window),
+            float(stride),
+            keys[keep],
+            counts[keep],
+            core_counts[keep],
+            x,
+            y,
+            order,
+            cell_start,
+            c0,
+            (nx, ny),
+        )
 
     # general case (window not a multiple of stride): candidate windows from core points
     ccx, ccy = cx[core], cy[core]
@@ -249,12 +281,24 @@ def sliding_windows(
     keys = np.stack([keycodes >> 32, (keycodes & 0xFFFFFFFF).astype(np.int64)], axis=1)
     keys[:, 1] = np.where(keys[:, 1] >= 2**31, keys[:, 1] - 2**32, keys[:, 1])
 
-    ws = TileWindows(float(window), float(stride), keys, np.empty(0, np.int64), np.empty(0, np.int64),
-                   x, y, order, cell_start, c0, (nx, ny))
+    ws = TileWindows(
+        float(window),
+        float(stride),
+        keys,
+        np.empty(0, np.int64),
+        np.empty(0, np.int64),
+        x,
+        y,
+        order,
+        cell_start,
+        c0,
+        (nx, ny),
+    )
     counts, core_counts = _window_counts(ws, cx, cy, core)
     keep = counts >= max(int(min_points), 1)
-    return TileWindows(float(window), float(stride), keys[keep], counts[keep], core_counts[keep],
-                     x, y, order, cell_start, c0, (nx, ny))
+    return TileWindows(
+        float(window), float(stride), keys[keep], counts[keep], core_counts[keep], x, y, order, cell_start, c0, (nx, ny)
+    )
 
 
 def _windows_from_cells(
@@ -272,14 +316,18 @@ def _windows_from_cells(
     def box(grid: np.ndarray) -> np.ndarray:
         # padded grid: window with padded index (a, b) spans cells a-m+1..a, b-m+1..b
         pad = np.zeros((nx + 2 * m - 1, ny + 2 * m - 1), dtype=np.int64)
-        pad[m - 1:m - 1 + nx, m - 1:m - 1 + ny] = grid
+        pad[m - 1 : m - 1 + nx, m - 1 : m - 1 + ny] = grid
         sat = np.zeros((pad.shape[0] + 1, pad.shape[1] + 1), dtype=np.int64)
         sat[1:, 1:] = pad.cumsum(0).cumsum(1)
         # window whose first cell (relative) is a - (m-1) for a in 0..nx+m-2
         a = np.arange(nx + m - 1)
         b = np.arange(ny + m - 1)
-        return (sat[a[:, None] + m, b[None, :] + m] - sat[a[:, None], b[None, :] + m]
-                - sat[a[:, None] + m, b[None, :]] + sat[a[:, None], b[None, :]])
+        return (
+            sat[a[:, None] + m, b[None, :] + m]
+            - sat[a[:, None], b[None, :] + m]
+            - sat[a[:, None] + m, b[None, :]]
+            + sat[a[:, None], b[None, :]]
+        )
 
     wt, wc = box(tot), box(cor)
     ia, ib = np.nonzero(wc > 0)
@@ -345,20 +393,35 @@ class CandidateWindows:
 
     def indices(self, i: int) -> np.ndarray:
         """Indices of window ``i``'s points, in the canonical order given at construction."""
-        return self._idx[self._ptr[i]:self._ptr[i + 1]]
+        return self._idx[self._ptr[i] : self._ptr[i + 1]]
 
-    def select(self, mask_or_index: np.ndarray) -> "CandidateWindows":
+    def select(self, mask_or_index: np.ndarray) -> CandidateWindows:
         """The selected windows."""
         sel = np.arange(len(self))[mask_or_index]
         parts = [self.indices(int(i)) for i in sel]
         ptr = np.concatenate([[0], np.cumsum([len(p) for p in parts])]).astype(np.int64)
         idx = np.concatenate(parts) if parts else np.empty(0, np.int64)
-        return CandidateWindows(self.window, self.keys[sel], self.centers[sel], self.heights[sel],
-                                self.counts[sel], self.core_counts[sel], ptr, idx)
+        return CandidateWindows(
+            self.window,
+            self.keys[sel],
+            self.centers[sel],
+            self.heights[sel],
+            self.counts[sel],
+            self.core_counts[sel],
+            ptr,
+            idx,
+        )
 
 
-def height_peaks(x: np.ndarray, y: np.ndarray, hag: np.ndarray, *, min_height: float,
-                 radius: float = PEAK_RADIUS, res: float = PEAK_RES) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def height_peaks(
+    x: np.ndarray,
+    y: np.ndarray,
+    hag: np.ndarray,
+    *,
+    min_height: float,
+    radius: float = PEAK_RADIUS,
+    res: float = PEAK_RES,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Local maxima of the height raster at or above ``min_height``.
 
     Returns
@@ -379,7 +442,7 @@ def height_peaks(x: np.ndarray, y: np.ndarray, hag: np.ndarray, *, min_height: f
     r = np.full((int(ix.max()) - ox + 1, int(iy.max()) - oy + 1), -np.inf, np.float32)
     np.maximum.at(r, (ix - ox, iy - oy), np.asarray(hag, np.float32))
     k = int(np.ceil(radius / res))
-    disk = np.hypot(*np.mgrid[-k:k + 1, -k:k + 1]) * res <= radius
+    disk = np.hypot(*np.mgrid[-k : k + 1, -k : k + 1]) * res <= radius
     peak = (r == ndimage.maximum_filter(r, footprint=disk, mode="constant", cval=-np.inf)) & (r >= min_height)
     lab, n = ndimage.label(peak, structure=np.ones((3, 3), bool))
     if n == 0:
@@ -431,8 +494,9 @@ def candidate_windows(
     y = np.asarray(y, dtype=np.float64)
     core = np.asarray(core, dtype=bool)
     peak_pts = np.ones(len(x), bool) if exclude is None else ~np.asarray(exclude, dtype=bool)
-    keys, centers, heights = height_peaks(x[peak_pts], y[peak_pts], np.asarray(hag)[peak_pts],
-                                          min_height=min_height, radius=radius)
+    keys, centers, heights = height_peaks(
+        x[peak_pts], y[peak_pts], np.asarray(hag)[peak_pts], min_height=min_height, radius=radius
+    )
     n = len(x)
     rank = np.empty(n, np.int64)
     rank[np.arange(n) if canonical_order is None else np.asarray(canonical_order)] = np.arange(n)

@@ -91,8 +91,11 @@ def staging_path(out: str | os.PathLike[str]) -> Path:
     return out.with_name(f".{out.name}.staging")
 
 
-def assemble_directory(out_dir: str | os.PathLike[str], files: Mapping[str, str | os.PathLike[str]],
-                       build: Callable[[Path], None] | None = None) -> Path:
+def assemble_directory(
+    out_dir: str | os.PathLike[str],
+    files: Mapping[str, str | os.PathLike[str]],
+    build: Callable[[Path], None] | None = None,
+) -> Path:
     """Atomically (re)build ``out_dir``, never deleting it first.
 
     Parameters

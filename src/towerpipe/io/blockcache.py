@@ -37,8 +37,14 @@ CACHE_META = "meta.json"
 RECORDS_FILE = "records.npy"
 
 #: dtype of each cache column; columns not named here are ``u2`` (intensity, colour, NIR).
-COLUMN_DTYPES = {"x": "f8", "y": "f8", "z": "f8", "classification": "u1", "return_number": "u1",
-                 "number_of_returns": "u1"}
+COLUMN_DTYPES = {
+    "x": "f8",
+    "y": "f8",
+    "z": "f8",
+    "classification": "u1",
+    "return_number": "u1",
+    "number_of_returns": "u1",
+}
 
 
 def column_file(name: str) -> str:
@@ -52,8 +58,9 @@ class _NpyStream:
     def __init__(self, path: Path, dtype: str, shape: tuple[int, ...]):
         self.path, self.dtype, self.shape = path, np.dtype(dtype), shape
         self.fh = open(path, "wb")
-        np.lib.format.write_array_header_1_0(self.fh, {"descr": np.lib.format.dtype_to_descr(self.dtype),
-                                                      "fortran_order": False, "shape": shape})
+        np.lib.format.write_array_header_1_0(
+            self.fh, {"descr": np.lib.format.dtype_to_descr(self.dtype), "fortran_order": False, "shape": shape}
+        )
         self.rows = 0
 
     def write(self, a: np.ndarray) -> None:
@@ -121,7 +128,7 @@ class BlockCache:
         self._cols: dict[str, np.ndarray] = {}
 
     @classmethod
-    def open(cls, directory: str | os.PathLike[str], *, allow_failed: bool = False) -> "BlockCache":
+    def open(cls, directory: str | os.PathLike[str], *, allow_failed: bool = False) -> BlockCache:
         """Open a cache; a cache that records a failed split raises that block's error.
 
         With ``allow_failed`` it is returned instead (check :attr:`failed`).

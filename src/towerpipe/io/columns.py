@@ -19,8 +19,9 @@ import numpy as np
 from towerpipe.errors import InputError
 
 
-def validate_columns(arrays: Mapping[str, np.ndarray], schema: Mapping[str, np.dtype],
-                     path: str | os.PathLike[str], what: str, hint: str) -> int:
+def validate_columns(
+    arrays: Mapping[str, np.ndarray], schema: Mapping[str, np.dtype], path: str | os.PathLike[str], what: str, hint: str
+) -> int:
     """Check names, dtypes and lengths against ``schema``; return the length.
 
     Raises
@@ -55,8 +56,9 @@ def save_columns(path: str | os.PathLike[str], arrays: Mapping[str, np.ndarray],
         tmp.unlink(missing_ok=True)
 
 
-def load_columns(path: str | os.PathLike[str], names: list[str], what: str,
-                 hint: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+def load_columns(
+    path: str | os.PathLike[str], names: list[str], what: str, hint: str
+) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Read the ``names`` arrays and the metadata of a file written by :func:`save_columns`."""
     try:
         with np.load(path, allow_pickle=False) as z:

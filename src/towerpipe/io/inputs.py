@@ -124,8 +124,11 @@ def block_ids(relpaths: list[str]) -> dict[str, str]:
 def find_blocks(input_dir: str | os.PathLike[str]) -> dict[str, str]:
     """Block id → path of every ``.las``/``.laz`` file under ``input_dir`` (sorted by id)."""
     root = Path(input_dir)
-    rels = [p.relative_to(root).as_posix() for p in sorted(root.rglob("*"))
-            if p.suffix.lower() in LAS_SUFFIXES and p.is_file()]
+    rels = [
+        p.relative_to(root).as_posix()
+        for p in sorted(root.rglob("*"))
+        if p.suffix.lower() in LAS_SUFFIXES and p.is_file()
+    ]
     return {b: str(root / rel) for b, rel in block_ids(rels).items()}
 
 
@@ -158,12 +161,16 @@ def _header(path: str) -> dict[str, Any] | None:
         h = read_header(path)
     except TowerpipeError:
         return None
-    return {"point_count": h.point_count, "version": h.version, "point_format": h.point_format,
-            "crs_wkt": h.crs_wkt, "bounds": [float(v) for v in h.bounds]}
+    return {
+        "point_count": h.point_count,
+        "version": h.version,
+        "point_format": h.point_format,
+        "crs_wkt": h.crs_wkt,
+        "bounds": [float(v) for v in h.bounds],
+    }
 
 
-def scan_zone(input_dir: str | os.PathLike[str], cache: str | os.PathLike[str] | None = None
-              ) -> dict[str, BlockInput]:
+def scan_zone(input_dir: str | os.PathLike[str], cache: str | os.PathLike[str] | None = None) -> dict[str, BlockInput]:
     """Every block of a zone with its fingerprint (id → :class:`BlockInput`, sorted by id).
 
     Parameters
@@ -197,8 +204,15 @@ def scan_zone(input_dir: str | os.PathLike[str], cache: str | os.PathLike[str] |
             rec = {"stat": key, "version": FINGERPRINT_VERSION, "fingerprint": fingerprint(p), "header": _header(p)}
         fresh[rel] = rec
         twins = [paths[o] for o in stems[_stem(rel)] if o != b]
-        out[b] = BlockInput(b, p, rel, key[2], rec["fingerprint"], rec["header"],
-                            Path(twins[0]).relative_to(root).as_posix() if twins else None)
+        out[b] = BlockInput(
+            b,
+            p,
+            rel,
+            key[2],
+            rec["fingerprint"],
+            rec["header"],
+            Path(twins[0]).relative_to(root).as_posix() if twins else None,
+        )
     if cache is not None and fresh != known:
         write_text_atomic(cache, json.dumps(fresh, indent=0, sort_keys=True))
     return out

@@ -22,8 +22,17 @@ from towerpipe.errors import InputError
 
 #: Columns every block provides after :func:`read_block` (absent ones are zeros).
 BLOCK_COLUMNS = (
-    "x", "y", "z", "intensity", "red", "green", "blue", "nir",
-    "classification", "return_number", "number_of_returns",
+    "x",
+    "y",
+    "z",
+    "intensity",
+    "red",
+    "green",
+    "blue",
+    "nir",
+    "classification",
+    "return_number",
+    "number_of_returns",
 )
 
 
@@ -99,7 +108,8 @@ def read_header(path: str | os.PathLike[str]) -> BlockHeader:
                 version=str(h.version),
                 point_format=int(h.point_format.id),
                 dimensions=list(h.point_format.dimension_names),
-                mins=tuple(float(v) for v in h.mins), maxs=tuple(float(v) for v in h.maxs),
+                mins=tuple(float(v) for v in h.mins),
+                maxs=tuple(float(v) for v in h.maxs),
                 scales=tuple(float(v) for v in h.scales),
             )
     except laspy.errors.LaspyException as exc:
@@ -108,8 +118,9 @@ def read_header(path: str | os.PathLike[str]) -> BlockHeader:
         raise InputError(path, f"cannot read the LAS header ({exc})") from exc
 
 
-def resolve_crs(path: str | os.PathLike[str], file_wkt: str | None, override: str | None,
-                zone: str | None = None) -> str:
+def resolve_crs(
+    path: str | os.PathLike[str], file_wkt: str | None, override: str | None, zone: str | None = None
+) -> str:
     """The CRS to use for a block, as WKT.
 
     The zone's ``crs:`` override wins; else the file's own CRS; else an
@@ -154,8 +165,9 @@ def crs_units(wkt: str) -> dict[str, tuple[str, float] | None]:
     return out
 
 
-def check_metric_crs(path: str | os.PathLike[str], wkt: str, *, zone: str | None = None,
-                     from_config: bool = False) -> None:
+def check_metric_crs(
+    path: str | os.PathLike[str], wkt: str, *, zone: str | None = None, from_config: bool = False
+) -> None:
     """Refuse a block whose CRS is not in metres (horizontally and vertically).
 
     Every length in towerpipe (40 m windows, 100 m HAG limit, tile size, tower heights,
@@ -174,9 +186,12 @@ def check_metric_crs(path: str | os.PathLike[str], wkt: str, *, zone: str | None
         u = units[axis]
         if u is None or (u[0].lower() in _METRE_NAMES and abs(u[1] - 1.0) < 1e-12):
             continue
-        raise InputError(path, f"{where} ({name}) has {axis} unit {u[0]!r}; towerpipe's parameters and models "
-                               "are in metres: reproject the block to a metre CRS (e.g. pdal translate with "
-                               "filters.reprojection)")
+        raise InputError(
+            path,
+            f"{where} ({name}) has {axis} unit {u[0]!r}; towerpipe's parameters and models "
+            "are in metres: reproject the block to a metre CRS (e.g. pdal translate with "
+            "filters.reprojection)",
+        )
 
 
 @dataclass
@@ -210,8 +225,14 @@ def _chunk_columns(points: laspy.ScaleAwarePointRecord, dims: set[str]) -> dict[
     return cols
 
 
-def iter_block(path: str | os.PathLike[str], *, crs: str | None = None, zone: str | None = None,
-               chunk_size: int = 2_000_000, records: bool = False):
+def iter_block(
+    path: str | os.PathLike[str],
+    *,
+    crs: str | None = None,
+    zone: str | None = None,
+    chunk_size: int = 2_000_000,
+    records: bool = False,
+):
     """Check a block and decode it chunk by chunk.
 
     Parameters
@@ -249,8 +270,7 @@ def iter_block(path: str | os.PathLike[str], *, crs: str | None = None, zone: st
                 if records:
                     raw = points.array
                     cols["records"] = raw.view(np.uint8).reshape(len(raw), raw.dtype.itemsize)
-                if not (np.isfinite(cols["x"]).all() and np.isfinite(cols["y"]).all()
-                        and np.isfinite(cols["z"]).all()):
+                if not (np.isfinite(cols["x"]).all() and np.isfinite(cols["y"]).all() and np.isfinite(cols["z"]).all()):
                     raise InputError(path, "non-finite coordinates")
                 seen += len(points)
                 yield cols
@@ -294,9 +314,14 @@ def read_block(path: str | os.PathLike[str], *, crs: str | None = None, zone: st
     return Block(cols, header, crs_wkt, has_rgb, has_nir, bits)
 
 
-def las_header_for(template: laspy.LasHeader | None = None, *, point_format: int = 8,
-                   crs_wkt: str | None = None, scales=(0.01, 0.01, 0.01),
-                   offsets=(0.0, 0.0, 0.0)) -> laspy.LasHeader:
+def las_header_for(
+    template: laspy.LasHeader | None = None,
+    *,
+    point_format: int = 8,
+    crs_wkt: str | None = None,
+    scales=(0.01, 0.01, 0.01),
+    offsets=(0.0, 0.0, 0.0),
+) -> laspy.LasHeader:
     """A LAS 1.4 header with the CRS stored as WKT and the WKT global-encoding bit set.
 
     PDAL 2.2 warns ("Global encoding WKT flag not set for point format 6 - 10")
@@ -315,7 +340,11 @@ def header_info(path: str | os.PathLike[str]) -> dict[str, Any]:
     """A JSON-able summary of a block header (for logs and QA)."""
     h = read_header(path)
     return {
-        "path": h.path, "bounds": list(h.bounds), "point_count": h.point_count,
-        "version": h.version, "point_format": h.point_format, "has_crs": h.crs_wkt is not None,
+        "path": h.path,
+        "bounds": list(h.bounds),
+        "point_count": h.point_count,
+        "version": h.version,
+        "point_format": h.point_format,
+        "has_crs": h.crs_wkt is not None,
         "dimensions": h.dimensions,
     }

@@ -23,8 +23,15 @@ from laspy.vlrs.known import ExtraBytesVlr
 
 from towerpipe.errors import InputError
 
-__all__ = ["PROB_DIMENSION", "TOWER_ID_DIMENSION", "OWN_DIMENSIONS", "SUPPORTED_FORMATS", "check_format",
-           "own_dimensions", "VerbatimExtraBytesVlr"]
+__all__ = [
+    "PROB_DIMENSION",
+    "TOWER_ID_DIMENSION",
+    "OWN_DIMENSIONS",
+    "SUPPORTED_FORMATS",
+    "check_format",
+    "own_dimensions",
+    "VerbatimExtraBytesVlr",
+]
 
 #: Name of the extra dimension holding the tower probability.
 PROB_DIMENSION = "TowerProbability"
@@ -40,8 +47,12 @@ OWN_DIMENSIONS: dict[str, tuple[np.dtype, str]] = {
 
 #: LAS versions and the point formats each defines: all are read and written (COPC files
 #: are LAS 1.4 LAZ and read as such; their COPC records are not copied to the output).
-SUPPORTED_FORMATS = {(1, 1): frozenset(range(2)), (1, 2): frozenset(range(4)), (1, 3): frozenset(range(6)),
-                     (1, 4): frozenset(range(11))}
+SUPPORTED_FORMATS = {
+    (1, 1): frozenset(range(2)),
+    (1, 2): frozenset(range(4)),
+    (1, 3): frozenset(range(6)),
+    (1, 4): frozenset(range(11)),
+}
 
 
 def check_format(version: Any, point_format: int, path: str | os.PathLike[str]) -> None:
@@ -54,8 +65,11 @@ def check_format(version: Any, point_format: int, path: str | os.PathLike[str]) 
     """
     major, minor = (int(v) for v in (str(version).split(".") if not isinstance(version, tuple) else version))
     if int(point_format) not in SUPPORTED_FORMATS.get((major, minor), ()):
-        raise InputError(path, f"LAS {major}.{minor} point format {point_format} is not a valid LAS point format "
-                               "(LAS 1.1: 0-1, 1.2: 0-3, 1.3: 0-5, 1.4: 0-10); convert it with pdal translate")
+        raise InputError(
+            path,
+            f"LAS {major}.{minor} point format {point_format} is not a valid LAS point format "
+            "(LAS 1.1: 0-1, 1.2: 0-3, 1.3: 0-5, 1.4: 0-10); convert it with pdal translate",
+        )
 
 
 class VerbatimExtraBytesVlr(ExtraBytesVlr):
@@ -72,8 +86,9 @@ class VerbatimExtraBytesVlr(ExtraBytesVlr):
         pass
 
 
-def own_dimensions(header: laspy.LasHeader | str | os.PathLike[str], path: str | os.PathLike[str] | None = None
-                   ) -> list[str]:
+def own_dimensions(
+    header: laspy.LasHeader | str | os.PathLike[str], path: str | os.PathLike[str] | None = None
+) -> list[str]:
     """The dimensions of :data:`OWN_DIMENSIONS` a block already has (it is towerpipe output).
 
     Parameters
@@ -101,9 +116,12 @@ def own_dimensions(header: laspy.LasHeader | str | os.PathLike[str], path: str |
         dim = header.point_format.dimension_by_name(name)
         scaled = getattr(dim, "scales", None) is not None or getattr(dim, "offsets", None) is not None
         if dim.is_standard or dim.dtype != dtype or scaled:
-            raise InputError(path or "<block>", f"has a dimension {name!r} of type {dim.dtype}"
-                                                f"{' (scaled)' if scaled else ''}, but towerpipe writes {name!r} "
-                                                f"as unscaled {dtype}; rename or remove that dimension (e.g. with "
-                                                "PDAL filters.ferry / writers.las extra_dims) and rerun")
+            raise InputError(
+                path or "<block>",
+                f"has a dimension {name!r} of type {dim.dtype}"
+                f"{' (scaled)' if scaled else ''}, but towerpipe writes {name!r} "
+                f"as unscaled {dtype}; rename or remove that dimension (e.g. with "
+                "PDAL filters.ferry / writers.las extra_dims) and rerun",
+            )
         found.append(name)
     return found

@@ -18,8 +18,11 @@ from towerpipe.io.columns import load_columns, save_columns, validate_columns
 #: Arrays of a tower-points file: the points (in any block) of the accepted towers that have
 #: points in one block, ``block_id`` indexing ``meta["blocks"]`` and ``tower`` indexing
 #: ``meta["towers"]``.
-MEMBER_ARRAYS: dict[str, np.dtype] = {"block_id": np.dtype("i4"), "point_index": np.dtype("i8"),
-                                      "tower": np.dtype("i4")}
+MEMBER_ARRAYS: dict[str, np.dtype] = {
+    "block_id": np.dtype("i4"),
+    "point_index": np.dtype("i8"),
+    "tower": np.dtype("i4"),
+}
 
 
 def save_members(path: str | os.PathLike[str], members: Mapping[int, tuple[np.ndarray, np.ndarray]]) -> None:
@@ -36,8 +39,10 @@ def save_members(path: str | os.PathLike[str], members: Mapping[int, tuple[np.nd
         parts["block_id"].append(np.array([code[str(b)] for b in np.asarray(bl).tolist()], dtype=np.int32))
         parts["point_index"].append(np.asarray(idx, dtype=np.int64))
         parts["tower"].append(np.full(len(idx), t, dtype=np.int32))
-    arrays = {k: (np.concatenate(v) if v else np.empty(0, d)).astype(d) for (k, d), v in
-              zip(MEMBER_ARRAYS.items(), parts.values())}
+    arrays = {
+        k: (np.concatenate(v) if v else np.empty(0, d)).astype(d)
+        for (k, d), v in zip(MEMBER_ARRAYS.items(), parts.values())
+    }
     save_columns(path, arrays, {"blocks": names, "towers": ids})
 
 
@@ -64,13 +69,17 @@ def member_ids(paths: Sequence[str | os.PathLike[str]], block: str, n_points: in
         try:
             ids = np.asarray([int(t) for t in meta.get("towers") or []], dtype=np.uint64)
         except (TypeError, ValueError) as exc:
-            raise InputError(p, f"tower ids are not integers ({exc}): the file is from an older version; rerun "
-                                "the towers_block job") from exc
+            raise InputError(
+                p, f"tower ids are not integers ({exc}): the file is from an older version; rerun the towers_block job"
+            ) from exc
         sel = arrays["block_id"] == names.index(block)
         idx, tower = arrays["point_index"][sel], arrays["tower"][sel]
         if len(idx) and (idx.min() < 0 or idx.max() >= n_points):
-            raise InputError(p, f"point_index out of range for block {block!r} ({n_points} points); the file is "
-                                "stale: rerun the towers_block job")
+            raise InputError(
+                p,
+                f"point_index out of range for block {block!r} ({n_points} points); the file is "
+                "stale: rerun the towers_block job",
+            )
         if len(tower) and (tower.min() < 0 or tower.max() >= len(ids)):
             raise InputError(p, "tower index outside meta['towers']: rerun the towers_block job")
         out[idx] = ids[tower]

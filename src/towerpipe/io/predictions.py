@@ -30,14 +30,15 @@ array             dtype     meaning
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
-from towerpipe.io.columns import load_columns, save_columns, validate_columns
 from towerpipe.errors import InputError
+from towerpipe.io.columns import load_columns, save_columns, validate_columns
 
 #: Arrays of a prediction file and their dtypes, in file order.
 PRED_ARRAYS: dict[str, np.dtype] = {

@@ -87,7 +87,7 @@ class Tile:
     def __getitem__(self, name: str) -> np.ndarray:
         return self.arrays[name]
 
-    def subset(self, mask_or_index: np.ndarray) -> "Tile":
+    def subset(self, mask_or_index: np.ndarray) -> Tile:
         """A new tile with only the selected points (same metadata)."""
         return Tile({k: v[mask_or_index] for k, v in self.arrays.items()}, dict(self.meta))
 
@@ -117,8 +117,9 @@ def load_tile(path: str | os.PathLike[str], columns: list[str] | None = None) ->
     columns
         Only these arrays (default: all).
     """
-    arrays, meta = load_columns(path, list(TILE_ARRAYS) if columns is None else columns, "tile",
-                                "rerun the preprocessing")
+    arrays, meta = load_columns(
+        path, list(TILE_ARRAYS) if columns is None else columns, "tile", "rerun the preprocessing"
+    )
     tile = Tile(arrays, meta)
     if columns is None:
         tile.validate(path)

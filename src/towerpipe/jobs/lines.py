@@ -7,6 +7,7 @@ GeoPackages are assembled as a zone's are (:func:`towerpipe.jobs.steps.zone_towe
 from __future__ import annotations
 
 import json
+from datetime import UTC
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +35,7 @@ def lines_across_zones(zone_dirs: list[str | Path], out_path: str | Path) -> dic
     dict
         ``towers``, ``lines``, ``spans`` counts.
     """
-    from datetime import datetime, timezone
+    from datetime import datetime
 
     from towerpipe.errors import InputError
     from towerpipe.jobs.steps import zone_towers
@@ -47,12 +48,16 @@ def lines_across_zones(zone_dirs: list[str | Path], out_path: str | Path) -> dic
         if not found:
             raise InputError(d, "holds no towers/<block>.gpkg: give published zone directories (results/<zone>)")
         gpkgs += found
-    content = zone_towers(gpkgs, registry=empty_registry(), run_time=datetime.now(timezone.utc))
+    content = zone_towers(gpkgs, registry=empty_registry(), run_time=datetime.now(UTC))
     crs = content["crs"]
-    write_towers_gpkg(out_path, content["towers"] if len(content["towers"]) else None,
-                      crs_wkt=crs.to_wkt() if hasattr(crs, "to_wkt") else crs, lines=content["lines"],
-                      spans=content["spans"], metadata={"zones": json.dumps([str(d) for d in zone_dirs]),
-                                                         **content["metadata"]})
+    write_towers_gpkg(
+        out_path,
+        content["towers"] if len(content["towers"]) else None,
+        crs_wkt=crs.to_wkt() if hasattr(crs, "to_wkt") else crs,
+        lines=content["lines"],
+        spans=content["spans"],
+        metadata={"zones": json.dumps([str(d) for d in zone_dirs]), **content["metadata"]},
+    )
     return {k: 0 if content[k] is None else len(content[k]) for k in ("towers", "lines", "spans")}
 
 

@@ -53,16 +53,17 @@ def profile_settings(root: Path) -> dict[str, Any]:
     known = {
         "cores": ("resources", "cores", int),
         "rerun-incomplete": ("dag", "force_incomplete", bool),
-        "rerun-triggers": ("dag", "rerun_triggers",
-                           lambda v: frozenset(RerunTrigger.parse_choice(t) for t in v)),
+        "rerun-triggers": ("dag", "rerun_triggers", lambda v: frozenset(RerunTrigger.parse_choice(t) for t in v)),
         "show-failed-logs": ("output", "show_failed_logs", bool),
         "printshellcmds": ("output", "printshellcmds", bool),
     }
     out: dict[str, dict[str, Any]] = {"resources": {}, "dag": {}, "output": {}}
     for key, value in prof.items():
         if key not in known:
-            raise ConfigError(f"{root / PROFILE}: key {key!r} is not applied by `towerpipe run`; "
-                              f"add it to towerpipe.jobs.run.profile_settings")
+            raise ConfigError(
+                f"{root / PROFILE}: key {key!r} is not applied by `towerpipe run`; "
+                f"add it to towerpipe.jobs.run.profile_settings"
+            )
         group, name, conv = known[key]
         out[group][name] = conv(value)
     return out
@@ -72,15 +73,24 @@ def check_zone(config: Mapping[str, Any], zone: str) -> None:
     """The zone is configured and its input is there (or will be generated)."""
     zones = config.get("zones") or {}
     if zone not in zones:
-        raise ConfigError(f"zone {zone!r} is not configured (known: {', '.join(sorted(zones))}); add "
-                          f"`zones: {{{zone}: {{input: DIR}}}}` to a YAML file and pass it with --config")
+        raise ConfigError(
+            f"zone {zone!r} is not configured (known: {', '.join(sorted(zones))}); add "
+            f"`zones: {{{zone}: {{input: DIR}}}}` to a YAML file and pass it with --config"
+        )
     zc = zones[zone]
     if "synth" not in zc and not Path(zc["input"]).is_dir():
         raise ConfigError(f"zones.{zone}.input: directory {zc['input']!r} does not exist")
 
 
-def run_zone(zone: str, configfile: str | os.PathLike[str] | None = None, *, cores: int | None = None,
-             dry_run: bool = False, keep_going: bool = True, root: str | os.PathLike[str] | None = None) -> int:
+def run_zone(
+    zone: str,
+    configfile: str | os.PathLike[str] | None = None,
+    *,
+    cores: int | None = None,
+    dry_run: bool = False,
+    keep_going: bool = True,
+    root: str | os.PathLike[str] | None = None,
+) -> int:
     """Run (or plan, ``dry_run``) ``results/<zone>/``; returns the exit status.
 
     Raises
@@ -112,12 +122,18 @@ def run_zone(zone: str, configfile: str | os.PathLike[str] | None = None, *, cor
     logging.getLogger("snakemake").propagate = False
     try:
         with SnakemakeApi(OutputSettings(dryrun=dry_run, **prof["output"])) as api:
-            workflow = api.workflow(resource_settings=ResourceSettings(**resources),
-                                    config_settings=ConfigSettings(configfiles=configfiles),
-                                    snakefile=root / SNAKEFILE, workdir=root)
+            workflow = api.workflow(
+                resource_settings=ResourceSettings(**resources),
+                config_settings=ConfigSettings(configfiles=configfiles),
+                snakefile=root / SNAKEFILE,
+                workdir=root,
+            )
             dag = workflow.dag(DAGSettings(targets={target}, **prof["dag"]))
-            dag.execute_workflow(executor="local", pseudo_executor="dryrun" if dry_run else None,
-                                 execution_settings=ExecutionSettings(keep_going=keep_going))
+            dag.execute_workflow(
+                executor="local",
+                pseudo_executor="dryrun" if dry_run else None,
+                execution_settings=ExecutionSettings(keep_going=keep_going),
+            )
     except SystemExit as exc:  # the workflow's config checks print their one line and exit
         return int(exc.code) if isinstance(exc.code, int) else 1
     except TowerpipeError:
@@ -137,12 +153,16 @@ def _cmd(args: argparse.Namespace) -> int:
 
 def register(subparsers: Any) -> None:
     """Add ``towerpipe run``."""
-    p = subparsers.add_parser("run", help="process a zone (results/ZONE/) through the workflow",
-                              description=__doc__.split("\n\n")[1])
+    p = subparsers.add_parser(
+        "run", help="process a zone (results/ZONE/) through the workflow", description=__doc__.split("\n\n")[1]
+    )
     p.add_argument("zone", metavar="ZONE", help="a zone of the config (zones: ...)")
     p.add_argument("--config", metavar="FILE", help="YAML merged over config/config.yaml (e.g. your zones)")
     p.add_argument("--cores", type=int, metavar="N", help="CPU cores to use (default: the workflow profile's)")
     p.add_argument("-n", "--dry-run", action="store_true", help="list the jobs that would run, run nothing")
-    p.add_argument("--stop-early", action="store_true",
-                   help="stop at the first failed job (default: keep going, publish the zone INCOMPLETE)")
+    p.add_argument(
+        "--stop-early",
+        action="store_true",
+        help="stop at the first failed job (default: keep going, publish the zone INCOMPLETE)",
+    )
     p.set_defaults(func=_cmd)

@@ -64,8 +64,9 @@ def hold_zone(zone: str, root: str | os.PathLike[str] = ".") -> None:
     except BlockingIOError:
         owner = Path(path).read_text().strip() or "unknown"
         os.close(fd)
-        raise TowerpipeError(f"zone {zone} is being processed by another run (process {owner}); "
-                             "nothing done: wait for it to finish") from None
+        raise TowerpipeError(
+            f"zone {zone} is being processed by another run (process {owner}); nothing done: wait for it to finish"
+        ) from None
     os.ftruncate(fd, 0)
     os.write(fd, str(os.getpid()).encode())
     _held[key] = fd

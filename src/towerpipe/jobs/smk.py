@@ -30,8 +30,9 @@ def run_step(smk: Any, step: Callable[[], Any]) -> Any:
     handlers: list[logging.Handler] = [logging.StreamHandler(sys.stderr)]
     if log_file:
         handlers.append(logging.FileHandler(log_file, mode="w"))
-    logging.basicConfig(level=logging.INFO, handlers=handlers, force=True,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=logging.INFO, handlers=handlers, force=True, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
     threads = int(getattr(smk, "threads", 1) or 1)
     torch = sys.modules.get("torch")  # only jobs that use torch pay for importing it
     if torch is not None:

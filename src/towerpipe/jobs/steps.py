@@ -12,20 +12,18 @@ import logging
 import os
 import tempfile
 from collections.abc import Mapping, Sequence
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from towerpipe import classes
-from towerpipe import __version__
-
-from towerpipe.products import layout
+from towerpipe import __version__, classes
 from towerpipe.io.atomic import assemble_directory, publish_copy, write_text_atomic
 from towerpipe.io.blockcache import BlockCache
 from towerpipe.io.columns import read_meta
 from towerpipe.model.cards import config_hash
+from towerpipe.products import layout
 
 if TYPE_CHECKING:  # geopandas is imported by the steps that need it: the DAG does not
     import geopandas as gpd
@@ -39,12 +37,23 @@ def _json(path: str | os.PathLike[str]) -> dict[str, Any]:
     return json.loads(Path(path).read_text())
 
 
-def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Sequence[str],
-                out_gpkg: str | os.PathLike[str], *, towers_cfg: Mapping[str, Any],
-                source_files: Mapping[str, str], run_cfg: Mapping[str, Any],
-                point_threshold: float | None, out_neighbours: str | os.PathLike[str] | None = None,
-                tile_files: Sequence[str] = (), out_members: str | os.PathLike[str] | None = None,
-                survey: Sequence[Sequence[float]] = (), registry: Sequence[str] = ()) -> dict[str, Any]:
+def towers_step(
+    zone: str,
+    block: str,
+    block_bounds: Sequence[float],
+    preds: Sequence[str],
+    out_gpkg: str | os.PathLike[str],
+    *,
+    towers_cfg: Mapping[str, Any],
+    source_files: Mapping[str, str],
+    run_cfg: Mapping[str, Any],
+    point_threshold: float | None,
+    out_neighbours: str | os.PathLike[str] | None = None,
+    tile_files: Sequence[str] = (),
+    out_members: str | os.PathLike[str] | None = None,
+    survey: Sequence[Sequence[float]] = (),
+    registry: Sequence[str] = (),
+) -> dict[str, Any]:
     """Towers owned by ``block`` (from its and its neighbours' predictions) → GeoPackage.
 
     ``out_neighbours`` (JSON) receives the towers with points in the block that a
@@ -62,15 +71,14 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
     """
     import geopandas as gpd
 
-    from towerpipe.products.gpkg import run_metadata, write_towers_gpkg
-    from towerpipe.io.predictions import load_pred
-    from towerpipe.products.registry_file import read_registry
     from towerpipe.config import TowersConfig
+    from towerpipe.errors import ModelError
     from towerpipe.io.members import save_members
+    from towerpipe.io.predictions import load_pred
+    from towerpipe.products.gpkg import run_metadata, write_towers_gpkg
+    from towerpipe.products.registry_file import read_registry
     from towerpipe.towers.extract import extract_towers
     from towerpipe.towers.wires import TileContext, conductor_points
-
-    from towerpipe.errors import ModelError
 
     rules = TowersConfig.from_config({"towers": towers_cfg})
     ring_share = float(towers_cfg["wire_ring_coverage"])
@@ -83,28 +91,46 @@ def towers_step(zone: str, block: str, block_bounds: Sequence[float], preds: Seq
     own = [p for p in loaded if p.meta.get("block") == block] or loaded
     model_meta = own[0].meta.get("model") if own else None
     crs_wkt = own[0].meta.get("crs_wkt") if own else None
-    found = extract_towers(loaded, block, block_bounds, rules, zone=zone, model_meta=model_meta,
-                           source_files=source_files, crs=crs_wkt, point_threshold=point_threshold,
-                           context=TileContext(tile_files, survey=survey, min_ring_share=ring_share) if tile_files else None,
-                           registry=read_registry(*registry))
+    found = extract_towers(
+        loaded,
+        block,
+        block_bounds,
+        rules,
+        zone=zone,
+        model_meta=model_meta,
+        source_files=source_files,
+        crs=crs_wkt,
+        point_threshold=point_threshold,
+        context=TileContext(tile_files, survey=survey, min_ring_share=ring_share) if tile_files else None,
+        registry=read_registry(*registry),
+    )
     gdf, neighbours = found.towers, found.neighbours
     if out_members is not None:
         save_members(out_members, found.members)
     wires = conductor_points(tile_files, block)
-    conductors = gpd.GeoDataFrame({"block": [block] * len(wires["x"]), **{k: wires[k] for k in
-                                   ("z", "hag", "direction_deg", "clearance_m")}},
-                                  geometry=gpd.points_from_xy(wires["x"], wires["y"]), crs=crs_wkt)
-    meta = run_metadata(model_meta=model_meta, config=run_cfg, zone=zone, block=block,
-                        bounds=[float(v) for v in block_bounds])
+    conductors = gpd.GeoDataFrame(
+        {"block": [block] * len(wires["x"]), **{k: wires[k] for k in ("z", "hag", "direction_deg", "clearance_m")}},
+        geometry=gpd.points_from_xy(wires["x"], wires["y"]),
+        crs=crs_wkt,
+    )
+    meta = run_metadata(
+        model_meta=model_meta, config=run_cfg, zone=zone, block=block, bounds=[float(v) for v in block_bounds]
+    )
     write_towers_gpkg(out_gpkg, gdf, crs_wkt=crs_wkt, metadata=meta, conductors=conductors)
     if out_neighbours is not None:
-        write_text_atomic(out_neighbours, json.dumps({"block": block, "towers_owned_by_neighbours": neighbours},
-                                                     indent=1))
+        write_text_atomic(
+            out_neighbours, json.dumps({"block": block, "towers_owned_by_neighbours": neighbours}, indent=1)
+        )
     return {"towers": len(gdf), "towers_owned_by_neighbours": len(neighbours), "conductor_points": len(conductors)}
 
 
-def infer_step(tile_path: str | os.PathLike[str], model: str | os.PathLike[str] | None, out_path: str | os.PathLike[str],
-               settings: InferenceConfig, **kw: Any) -> dict[str, Any]:
+def infer_step(
+    tile_path: str | os.PathLike[str],
+    model: str | os.PathLike[str] | None,
+    out_path: str | os.PathLike[str],
+    settings: InferenceConfig,
+    **kw: Any,
+) -> dict[str, Any]:
     """:func:`towerpipe.inference.infer.infer_tile`, a model that cannot run on the tile recorded, not raised.
 
     A :class:`~towerpipe.errors.ModelError` (e.g. the model needs NIR and the block has
@@ -121,18 +147,34 @@ def infer_step(tile_path: str | os.PathLike[str], model: str | os.PathLike[str] 
         return infer_tile(tile_path, model, out_path, settings, **kw)
     except ModelError as exc:
         meta = read_meta(tile_path)
-        log.error("ModelError: %s; recorded in %s: the block fails at its towers step, its neighbours go on",
-                  exc, out_path)
+        log.error(
+            "ModelError: %s; recorded in %s: the block fails at its towers step, its neighbours go on", exc, out_path
+        )
         rec = {k: meta.get(k) for k in ("zone", "block", "tile", "blocks", "crs_wkt", "core_bounds")}
-        rec.update(model={}, windows_total=0, windows_passed_gate=0, windows_segmented=0,
-                   gate_threshold=settings.gate, combine=settings.combine, points_core=0,
-                   points_model_input_core=0, timings={}, peak_rss_mb=0.0, error=str(exc))
+        rec.update(
+            model={},
+            windows_total=0,
+            windows_passed_gate=0,
+            windows_segmented=0,
+            gate_threshold=settings.gate,
+            combine=settings.combine,
+            points_core=0,
+            points_model_input_core=0,
+            timings={},
+            peak_rss_mb=0.0,
+            error=str(exc),
+        )
         save_pred(out_path, {k: np.zeros(0, d) for k, d in PRED_ARRAYS.items()}, rec)
         return rec
 
 
-def classified_points(cache_dir: str | os.PathLike[str], pred_files: Sequence[str], block: str,
-                      threshold: float, member_files: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+def classified_points(
+    cache_dir: str | os.PathLike[str],
+    pred_files: Sequence[str],
+    block: str,
+    threshold: float,
+    member_files: Sequence[str] | None = None,
+) -> dict[str, np.ndarray]:
     """The block's points as the merge step classifies them, from the decoded cache.
 
     ``x, y, z`` (memory-mapped), the output ``classification`` and ``prob``, as
@@ -143,18 +185,32 @@ def classified_points(cache_dir: str | os.PathLike[str], pred_files: Sequence[st
 
     cache = BlockCache(cache_dir)
     cols = {c: cache.column(c) for c in ("x", "y", "z", "classification")}
-    labels = block_labels(pred_files, len(cols["x"]), block=block, block_path=str(cache.directory),
-                          tower_points=member_files)
+    labels = block_labels(
+        pred_files, len(cols["x"]), block=block, block_path=str(cache.directory), tower_points=member_files
+    )
     cols["classification"] = labels.classes(np.asarray(cols["classification"]), threshold)
     cols["prob"] = labels.prob
     return cols
 
 
-def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_files: Sequence[str],
-            pred_files: Sequence[str], towers_gpkg: str, dtm_files: Sequence[str],
-            benchmarks: Mapping[str, Sequence[str]], out_html: str, out_json: str, threshold: float,
-            neighbours_json: str | None = None, member_files: Sequence[str] | None = None,
-            block_bounds: Mapping[str, Sequence[float]] | None = None) -> dict[str, Any]:
+def qa_step(
+    zone: str,
+    block: str,
+    *,
+    summary_json: str,
+    cache_dir: str,
+    tile_files: Sequence[str],
+    pred_files: Sequence[str],
+    towers_gpkg: str,
+    dtm_files: Sequence[str],
+    benchmarks: Mapping[str, Sequence[str]],
+    out_html: str,
+    out_json: str,
+    threshold: float,
+    neighbours_json: str | None = None,
+    member_files: Sequence[str] | None = None,
+    block_bounds: Mapping[str, Sequence[float]] | None = None,
+) -> dict[str, Any]:
     """The block's QA page: preprocessing summary, gate counts, towers, side views, labels if any.
 
     ``block_bounds`` (block → header bounds, the block's and its neighbours') gives the
@@ -174,8 +230,11 @@ def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_fi
     for stage, tsvs in benchmarks.items():
         rows = [read_benchmark(t) for t in tsvs if Path(t).exists()]
         if rows:
-            timings[stage] = {"seconds": sum(r.get("seconds", 0.0) for r in rows),
-                              "max_rss_mb": max(r.get("max_rss_mb", 0.0) for r in rows), "jobs": len(rows)}
+            timings[stage] = {
+                "seconds": sum(r.get("seconds", 0.0) for r in rows),
+                "max_rss_mb": max(r.get("max_rss_mb", 0.0) for r in rows),
+                "jobs": len(rows),
+            }
     tile_metas = [read_meta(p) for p in tile_files]
     data_bounds = None
     if block_bounds is not None:
@@ -185,20 +244,38 @@ def qa_step(zone: str, block: str, *, summary_json: str, cache_dir: str, tile_fi
     hoods = tower_neighbourhoods(tile_files, member_files or [], towers)
     with tempfile.TemporaryDirectory(prefix="towerpipe-qa-") as tmp:
         raster = mosaic_dtm(dtm_files, Path(tmp) / "dtm.tif")
-        return block_report(out_html, out_json, BlockInputs(
-            block_name=block, zone=zone, block_bounds=summary["bounds"], stats=summary,
-            tile_metas=tile_metas, pred_metas=[read_meta(p) for p in pred_files], data_bounds=data_bounds,
-            neighbourhoods=hoods,
-            towers=towers, classified=classified_points(cache_dir, pred_files, block, threshold, member_files),
-            raster=str(raster) if raster else None, truth=truth,
-            timings=timings, warnings=summary.get("warnings", []),
-            neighbour_towers=_json(neighbours_json)["towers_owned_by_neighbours"] if neighbours_json else None,
-        ))
+        return block_report(
+            out_html,
+            out_json,
+            BlockInputs(
+                block_name=block,
+                zone=zone,
+                block_bounds=summary["bounds"],
+                stats=summary,
+                tile_metas=tile_metas,
+                pred_metas=[read_meta(p) for p in pred_files],
+                data_bounds=data_bounds,
+                neighbourhoods=hoods,
+                towers=towers,
+                classified=classified_points(cache_dir, pred_files, block, threshold, member_files),
+                raster=str(raster) if raster else None,
+                truth=truth,
+                timings=timings,
+                warnings=summary.get("warnings", []),
+                neighbour_towers=_json(neighbours_json)["towers_owned_by_neighbours"] if neighbours_json else None,
+            ),
+        )
 
 
-def zone_towers(tower_gpkgs: Sequence[str], *, registry: gpd.GeoDataFrame, run_time: Any,
-                keep_blocks: Sequence[str] = (), published: str | os.PathLike[str] | None = None,
-                crs_wkt: str | None = None) -> dict[str, Any]:
+def zone_towers(
+    tower_gpkgs: Sequence[str],
+    *,
+    registry: gpd.GeoDataFrame,
+    run_time: Any,
+    keep_blocks: Sequence[str] = (),
+    published: str | os.PathLike[str] | None = None,
+    crs_wkt: str | None = None,
+) -> dict[str, Any]:
     """The content of a zone's ``towers.gpkg`` and its new registry, from the blocks' GeoPackages.
 
     Towers of all blocks (each id once, :func:`towerpipe.towers.registry.unique_ids`), linked into
@@ -215,8 +292,8 @@ def zone_towers(tower_gpkgs: Sequence[str], *, registry: gpd.GeoDataFrame, run_t
     import shapely
 
     from towerpipe.products.gpkg import LAYER_CONDUCTORS, concat_towers, list_layers, read_metadata
-    from towerpipe.towers.lines import build_lines
     from towerpipe.products.registry_file import published_reviews
+    from towerpipe.towers.lines import build_lines
     from towerpipe.towers.registry import unique_ids, update_registry, vanished
 
     towers = unique_ids(concat_towers(tower_gpkgs, crs_wkt=crs_wkt))
@@ -239,16 +316,32 @@ def zone_towers(tower_gpkgs: Sequence[str], *, registry: gpd.GeoDataFrame, run_t
         status = dict(zip(new_registry["tower_id"], new_registry["review_status"]))
         towers["review_status"] = [status.get(t, r) for t, r in zip(towers["tower_id"], towers["review_status"])]
     model = {k: v for k, v in (metas[0] if metas else {}).items() if k.startswith("model_")}
-    return {"towers": towers, "lines": lines, "spans": spans, "vanished": vanished(new_registry),
-            "registry": new_registry, "crs": crs, "metadata": model}
+    return {
+        "towers": towers,
+        "lines": lines,
+        "spans": spans,
+        "vanished": vanished(new_registry),
+        "registry": new_registry,
+        "crs": crs,
+        "metadata": model,
+    }
 
 
-def zone_step(zone: str, out_dir: str, files: Mapping[str, str], *, tower_gpkgs: Sequence[str],
-              qa_jsons: Sequence[str], failures: Mapping[str, str] | None = None,
-              run_cfg: Mapping[str, Any] | None = None, stage_dir: str | os.PathLike[str] | None = None,
-              manifest: str | os.PathLike[str] | None = None, sources: Mapping[str, str] | None = None,
-              block_bounds: Mapping[str, Sequence[float] | None] | None = None,
-              registry: str | os.PathLike[str] | None = None) -> Path:
+def zone_step(
+    zone: str,
+    out_dir: str,
+    files: Mapping[str, str],
+    *,
+    tower_gpkgs: Sequence[str],
+    qa_jsons: Sequence[str],
+    failures: Mapping[str, str] | None = None,
+    run_cfg: Mapping[str, Any] | None = None,
+    stage_dir: str | os.PathLike[str] | None = None,
+    manifest: str | os.PathLike[str] | None = None,
+    sources: Mapping[str, str] | None = None,
+    block_bounds: Mapping[str, Sequence[float] | None] | None = None,
+    registry: str | os.PathLike[str] | None = None,
+) -> Path:
     """Publish ``results/<zone>/``: per-block links, zone GeoPackage, QA index (+ ``INCOMPLETE.txt``).
 
     The zone is built in ``stage_dir`` (the last published zone, kept so that a deleted
@@ -268,41 +361,73 @@ def zone_step(zone: str, out_dir: str, files: Mapping[str, str], *, tower_gpkgs:
     from towerpipe.products.qa.index import zone_index
     from towerpipe.products.registry_file import read_registry, write_registry
 
-    run_time = datetime.now(timezone.utc).replace(microsecond=0)
+    run_time = datetime.now(UTC).replace(microsecond=0)
     failures = dict(failures or {})
     published = Path(str(out_dir).rstrip("/")) / layout.ZONE_GPKG
     content = None
     vanished_rows: list[dict[str, Any]] = []
     if tower_gpkgs:
-        content = zone_towers(tower_gpkgs, registry=read_registry(registry, published), run_time=run_time,
-                              keep_blocks=list(failures), published=published)
-        vanished_rows = [{"tower_id": int(r.tower_id), "block": r.block, "centroid_x": r.centroid_x,
-                          "centroid_y": r.centroid_y, "height_m": r.height_m, "last_seen": r.last_seen.isoformat(),
-                          "vanished_since": r.vanished_since.isoformat(), "review_status": r.review_status}
-                         for r in content["vanished"].itertuples()]
+        content = zone_towers(
+            tower_gpkgs,
+            registry=read_registry(registry, published),
+            run_time=run_time,
+            keep_blocks=list(failures),
+            published=published,
+        )
+        vanished_rows = [
+            {
+                "tower_id": int(r.tower_id),
+                "block": r.block,
+                "centroid_x": r.centroid_x,
+                "centroid_y": r.centroid_y,
+                "height_m": r.height_m,
+                "last_seen": r.last_seen.isoformat(),
+                "vanished_since": r.vanished_since.isoformat(),
+                "review_status": r.review_status,
+            }
+            for r in content["vanished"].itertuples()
+        ]
 
     def build(tmp: Path) -> None:
         gpkg = tmp / layout.ZONE_GPKG
         if content is not None:
             crs = content["crs"]
-            write_towers_gpkg(gpkg, content["towers"] if len(content["towers"]) else None,
-                              crs_wkt=crs.to_wkt() if hasattr(crs, "to_wkt") else crs,
-                              lines=content["lines"], spans=content["spans"], vanished=content["vanished"],
-                              metadata={"zone": zone, "towerpipe_version": __version__, **content["metadata"],
-                                        "assembled_at": run_time.isoformat(),
-                                        "config_hash": config_hash(run_cfg or {}),
-                                        "blocks": str(len(tower_gpkgs)), "n_towers": str(len(content["towers"])),
-                                        "n_lines": str(0 if content["lines"] is None else len(content["lines"]))})
+            write_towers_gpkg(
+                gpkg,
+                content["towers"] if len(content["towers"]) else None,
+                crs_wkt=crs.to_wkt() if hasattr(crs, "to_wkt") else crs,
+                lines=content["lines"],
+                spans=content["spans"],
+                vanished=content["vanished"],
+                metadata={
+                    "zone": zone,
+                    "towerpipe_version": __version__,
+                    **content["metadata"],
+                    "assembled_at": run_time.isoformat(),
+                    "config_hash": config_hash(run_cfg or {}),
+                    "blocks": str(len(tower_gpkgs)),
+                    "n_towers": str(len(content["towers"])),
+                    "n_lines": str(0 if content["lines"] is None else len(content["lines"])),
+                },
+            )
         index = tmp / layout.QA_INDEX
         index.parent.mkdir(parents=True, exist_ok=True)
-        zone_index(index, [str(index.parent / Path(j).name) for j in qa_jsons],
-                   failures=failures, zone=zone, out_json=tmp / layout.QA_INDEX_JSON,
-                   gpkg=gpkg if content is not None else None, block_bounds=block_bounds, vanished=vanished_rows)
+        zone_index(
+            index,
+            [str(index.parent / Path(j).name) for j in qa_jsons],
+            failures=failures,
+            zone=zone,
+            out_json=tmp / layout.QA_INDEX_JSON,
+            gpkg=gpkg if content is not None else None,
+            block_bounds=block_bounds,
+            vanished=vanished_rows,
+        )
         if failures:
             (tmp / "INCOMPLETE.txt").write_text(
                 "This zone is INCOMPLETE: the run failed for these blocks (see qa/index.html):\n"
                 + "".join(f"  {b}: {r}\n" for b, r in sorted(failures.items()))
-                + "Fix the inputs (or remove them) and rerun the same snakemake command.\n")
+                + "Fix the inputs (or remove them) and rerun the same snakemake command.\n"
+            )
 
     stage = Path(stage_dir) if stage_dir is not None else None
     if stage is None:
@@ -315,10 +440,20 @@ def zone_step(zone: str, out_dir: str, files: Mapping[str, str], *, tower_gpkgs:
         write_registry(registry, content["registry"], crs.to_wkt() if hasattr(crs, "to_wkt") else crs)
     if manifest is not None:
         blocks = sorted({Path(rel).stem for rel in files if rel.startswith("blocks/")})
-        write_text_atomic(manifest, json.dumps({
-            "zone": zone, "published": str(out), "complete": not failures,
-            "published_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-            "blocks": {b: (sources or {}).get(b) for b in blocks}, "failures": failures}, indent=1))
+        write_text_atomic(
+            manifest,
+            json.dumps(
+                {
+                    "zone": zone,
+                    "published": str(out),
+                    "complete": not failures,
+                    "published_at": datetime.now(UTC).isoformat(timespec="seconds"),
+                    "blocks": {b: (sources or {}).get(b) for b in blocks},
+                    "failures": failures,
+                },
+                indent=1,
+            ),
+        )
     return out
 
 
@@ -335,8 +470,12 @@ def model_results_step(bundle_dir: str, ablation_dirs: Sequence[str], out_dir: s
     return assemble_directory(out_dir, files, build)
 
 
-def current_blocks(files: Mapping[str, str], caches: Mapping[str, str], fingerprints: Mapping[str, str],
-                   neighbours: Mapping[str, Sequence[str]] | None = None) -> tuple[set[str], dict[str, str]]:
+def current_blocks(
+    files: Mapping[str, str],
+    caches: Mapping[str, str],
+    fingerprints: Mapping[str, str],
+    neighbours: Mapping[str, Sequence[str]] | None = None,
+) -> tuple[set[str], dict[str, str]]:
     """Blocks whose products are those of their current input, and why the others are not.
 
     A block's products are current when they all exist, its split ran on the input's
@@ -375,14 +514,21 @@ def current_blocks(files: Mapping[str, str], caches: Mapping[str, str], fingerpr
     return ok, why
 
 
-def assemble_incomplete_zone(zone: str, out_dir: str, files: Mapping[str, str], failures: Mapping[str, str],
-                             *, run_cfg: Mapping[str, Any] | None = None, caches: Mapping[str, str] | None = None,
-                             fingerprints: Mapping[str, str] | None = None,
-                             neighbours: Mapping[str, Sequence[str]] | None = None,
-                             stage_dir: str | os.PathLike[str] | None = None,
-                             sources: Mapping[str, str] | None = None,
-                             block_bounds: Mapping[str, Sequence[float] | None] | None = None,
-                             registry: str | os.PathLike[str] | None = None) -> Path:
+def assemble_incomplete_zone(
+    zone: str,
+    out_dir: str,
+    files: Mapping[str, str],
+    failures: Mapping[str, str],
+    *,
+    run_cfg: Mapping[str, Any] | None = None,
+    caches: Mapping[str, str] | None = None,
+    fingerprints: Mapping[str, str] | None = None,
+    neighbours: Mapping[str, Sequence[str]] | None = None,
+    stage_dir: str | os.PathLike[str] | None = None,
+    sources: Mapping[str, str] | None = None,
+    block_bounds: Mapping[str, Sequence[float] | None] | None = None,
+    registry: str | os.PathLike[str] | None = None,
+) -> Path:
     """``results/<zone>/`` from the blocks that completed, the failed ones listed.
 
     Written after a failed run (``--keep-going``): the QA index names each failed
@@ -395,13 +541,27 @@ def assemble_incomplete_zone(zone: str, out_dir: str, files: Mapping[str, str], 
     if caches is not None and fingerprints is not None:
         ok, stale = current_blocks(files, caches, fingerprints, neighbours)
     else:
-        have = {Path(rel).stem for rel, src in files.items() if rel.startswith("qa/") and rel.endswith(".json")
-                and Path(src).exists()}
+        have = {
+            Path(rel).stem
+            for rel, src in files.items()
+            if rel.startswith("qa/") and rel.endswith(".json") and Path(src).exists()
+        }
         ok, stale = have, {}
     failures = {**{b: r for b, r in stale.items() if b not in failures}, **failures}
     ok -= set(failures)
     have = {rel: src for rel, src in files.items() if Path(rel).stem in ok}
     gpkgs = [src for rel, src in have.items() if rel.startswith("towers/")]
     qa = [src for rel, src in have.items() if rel.startswith("qa/") and rel.endswith(".json")]
-    return zone_step(zone, out_dir, have, tower_gpkgs=gpkgs, qa_jsons=qa, failures=failures, run_cfg=run_cfg,
-                     stage_dir=stage_dir, sources=sources, block_bounds=block_bounds, registry=registry)
+    return zone_step(
+        zone,
+        out_dir,
+        have,
+        tower_gpkgs=gpkgs,
+        qa_jsons=qa,
+        failures=failures,
+        run_cfg=run_cfg,
+        stage_dir=stage_dir,
+        sources=sources,
+        block_bounds=block_bounds,
+        registry=registry,
+    )

@@ -57,8 +57,10 @@ class ModelBundle:
     chunk: int = DEFAULT_CHUNK
 
     def __post_init__(self) -> None:
-        self._runners = (NetRunner(self.classifier, self.n_points, self.chunk),
-                         NetRunner(self.segmenter, self.n_points, self.chunk))
+        self._runners = (
+            NetRunner(self.classifier, self.n_points, self.chunk),
+            NetRunner(self.segmenter, self.n_points, self.chunk),
+        )
 
     def classify(self, feats: np.ndarray) -> np.ndarray:
         """Tower probability of windows ``feats`` ``(B, n, C)`` float32 -> ``(B,)`` float32."""
@@ -81,8 +83,12 @@ def _state(model: nn.Module) -> dict[str, Any]:
     return {"hparams": dict(model.hparams), "state_dict": model.state_dict(), "bundle_version": BUNDLE_VERSION}
 
 
-def save_bundle(out_dir: str | os.PathLike[str], classifier: PointNetClassifier, segmenter: PointNetSegmenter,
-                card: Mapping[str, Any]) -> Path:
+def save_bundle(
+    out_dir: str | os.PathLike[str],
+    classifier: PointNetClassifier,
+    segmenter: PointNetSegmenter,
+    card: Mapping[str, Any],
+) -> Path:
     """Write a checkpoint directory (``classifier.pt``, ``segmenter.pt``, model card json + md).
 
     Parameters
@@ -123,14 +129,18 @@ def _load_net(path: Path, feature_channels: int, kind: str) -> nn.Module:
         if hp.get("kind") != kind:
             raise ModelError(f"{path}: holds a {hp.get('kind')!r}, expected a {kind}")
         if int(hp["in_channels"]) != feature_channels:
-            raise ModelError(f"{path}: expects {hp['in_channels']} input columns but the model card lists "
-                             f"{feature_channels} features; the card and weights do not match, retrain")
+            raise ModelError(
+                f"{path}: expects {hp['in_channels']} input columns but the model card lists "
+                f"{feature_channels} features; the card and weights do not match, retrain"
+            )
         model = build_model(hp)
         model.load_state_dict(ckpt["state_dict"])
     except ModelError:
         raise
     except Exception as exc:  # noqa: BLE001 - any unpickling/shape error is a corrupt checkpoint
-        raise ModelError(f"{path}: not a readable towerpipe checkpoint ({exc}); retrain with `towerpipe train`") from exc
+        raise ModelError(
+            f"{path}: not a readable towerpipe checkpoint ({exc}); retrain with `towerpipe train`"
+        ) from exc
     model.eval()
     return model
 
@@ -148,11 +158,21 @@ def load_bundle(path: str | os.PathLike[str]) -> ModelBundle:
 
     p = Path(path)
     if not p.is_dir():
-        raise ModelError(f"{p}: model directory not found; train one with `towerpipe train` or set "
-                         f"${MODELS_ENV} to the directory holding towerpipe-<feature_set>-v<release>/")
+        raise ModelError(
+            f"{p}: model directory not found; train one with `towerpipe train` or set "
+            f"${MODELS_ENV} to the directory holding towerpipe-<feature_set>-v<release>/"
+        )
     card = modelcard.read_card(p)
     n_feat = len(card["features"])
     clf = _load_net(p / "classifier.pt", n_feat, "classifier")
     seg = _load_net(p / "segmenter.pt", n_feat, "segmenter")
-    return ModelBundle(name=card["name"], version=str(card["version"]), feature_set=card["feature_set"],
-                       card=card, n_points=int(card["sampling"]["n_points"]), classifier=clf, segmenter=seg, path=p)
+    return ModelBundle(
+        name=card["name"],
+        version=str(card["version"]),
+        feature_set=card["feature_set"],
+        card=card,
+        n_points=int(card["sampling"]["n_points"]),
+        classifier=clf,
+        segmenter=seg,
+        path=p,
+    )

@@ -20,8 +20,19 @@ from typing import Any
 from towerpipe.errors import ModelError
 
 #: Keys every card must have.
-REQUIRED_KEYS: tuple[str, ...] = ("name", "version", "bundle_version", "feature_set", "features",
-                                  "normalisation", "sampling", "training_data", "metrics", "code", "config_hash")
+REQUIRED_KEYS: tuple[str, ...] = (
+    "name",
+    "version",
+    "bundle_version",
+    "feature_set",
+    "features",
+    "normalisation",
+    "sampling",
+    "training_data",
+    "metrics",
+    "code",
+    "config_hash",
+)
 
 
 #: Bundle format version (checkpoint layout and card schema).
@@ -35,6 +46,7 @@ MODEL_RELEASES = {"geometry": 3, "shape": 3}
 
 #: Environment variable overriding the shipped models directory.
 MODELS_ENV = "TOWERPIPE_MODELS"
+
 
 def repo_root() -> Path | None:
     """The repository root (directory with ``pyproject.toml`` above the package), if any."""
@@ -61,9 +73,11 @@ def default_model_path(feature_set: str = "shape") -> Path:
     if feature_set not in FEATURE_SETS:
         raise ModelError(f"unknown feature set {feature_set!r}; use one of {sorted(FEATURE_SETS)}")
     if feature_set not in MODEL_RELEASES:
-        raise ModelError(f"no shipped model of feature set {feature_set!r} (shipped: {', '.join(MODEL_RELEASES)}); "
-                         f"train one (`towerpipe train --feature-set {feature_set}`) and set `inference.model` "
-                         "to its directory")
+        raise ModelError(
+            f"no shipped model of feature set {feature_set!r} (shipped: {', '.join(MODEL_RELEASES)}); "
+            f"train one (`towerpipe train --feature-set {feature_set}`) and set `inference.model` "
+            "to its directory"
+        )
     return models_dir() / f"towerpipe-{feature_set}-v{MODEL_RELEASES[feature_set]}"
 
 
@@ -93,8 +107,13 @@ def code_version() -> dict[str, Any]:
         r = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=10)
         if r.returncode == 0:
             commit = r.stdout.strip()
-            s = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
-                               capture_output=True, text=True, timeout=10)
+            s = subprocess.run(
+                ["git", "status", "--porcelain", "--untracked-files=no"],
+                cwd=here,
+                capture_output=True,
+                text=True,
+                timeout=10,
+            )
             dirty = bool(s.stdout.strip()) if s.returncode == 0 else None
     except (OSError, subprocess.SubprocessError):
         pass
@@ -107,17 +126,23 @@ def validate_card(card: Mapping[str, Any], path: str | os.PathLike[str] = "model
 
     missing = [k for k in REQUIRED_KEYS if k not in card]
     if missing:
-        raise ModelError(f"{path}: model card lacks {missing}; the checkpoint is incomplete or from another "
-                         "tool, retrain with `towerpipe train`")
+        raise ModelError(
+            f"{path}: model card lacks {missing}; the checkpoint is incomplete or from another "
+            "tool, retrain with `towerpipe train`"
+        )
     if int(card["bundle_version"]) != BUNDLE_VERSION:
-        raise ModelError(f"{path}: bundle format v{card['bundle_version']} but this towerpipe reads "
-                         f"v{BUNDLE_VERSION}; retrain or use a matching towerpipe version")
+        raise ModelError(
+            f"{path}: bundle format v{card['bundle_version']} but this towerpipe reads "
+            f"v{BUNDLE_VERSION}; retrain or use a matching towerpipe version"
+        )
     fs = card["feature_set"]
     if fs not in FEATURE_SETS:
         raise ModelError(f"{path}: unknown feature set {fs!r}; expected one of {sorted(FEATURE_SETS)}")
     if list(card["features"]) != FEATURE_SETS[fs]:
-        raise ModelError(f"{path}: features {card['features']} differ from this towerpipe's {fs!r} set "
-                         f"{FEATURE_SETS[fs]}; retrain the model with this version")
+        raise ModelError(
+            f"{path}: features {card['features']} differ from this towerpipe's {fs!r} set "
+            f"{FEATURE_SETS[fs]}; retrain the model with this version"
+        )
     if "n_points" not in card["sampling"]:
         raise ModelError(f"{path}: model card sampling lacks n_points; retrain with `towerpipe train`")
 
@@ -137,8 +162,10 @@ def read_card(directory: str | os.PathLike[str]) -> dict[str, Any]:
     for name, digest in card.get("files", {}).items():
         f = Path(directory) / name
         if f.is_file() and sha256(f) != digest:
-            raise ModelError(f"{f}: checksum differs from {path.name}; the weights were modified or "
-                             "corrupted, copy the checkpoint directory again")
+            raise ModelError(
+                f"{f}: checksum differs from {path.name}; the weights were modified or "
+                "corrupted, copy the checkpoint directory again"
+            )
     return card
 
 
@@ -152,11 +179,16 @@ def _fmt(v: Any) -> str:
 
 def card_markdown(card: Mapping[str, Any]) -> str:
     """Human-readable ``MODEL_CARD.md`` for a card."""
-    lines = [f"# {card['name']} v{card['version']}", "",
-             "Power-tower classifier + segmenter (PointNet_L, Carós et al. 2022) for towerpipe.", "",
-             f"- feature set: `{card['feature_set']}` — columns {', '.join(card['features'])}",
-             f"- code: towerpipe {card['code'].get('towerpipe')} commit {card['code'].get('git_commit')}",
-             f"- config hash: `{card['config_hash']}`", ""]
+    lines = [
+        f"# {card['name']} v{card['version']}",
+        "",
+        "Power-tower classifier + segmenter (PointNet_L, Carós et al. 2022) for towerpipe.",
+        "",
+        f"- feature set: `{card['feature_set']}` — columns {', '.join(card['features'])}",
+        f"- code: towerpipe {card['code'].get('towerpipe')} commit {card['code'].get('git_commit')}",
+        f"- config hash: `{card['config_hash']}`",
+        "",
+    ]
     for section in ("normalisation", "sampling", "training_data", "metrics", "transfer"):
         if section not in card:
             continue
@@ -165,8 +197,14 @@ def card_markdown(card: Mapping[str, Any]) -> str:
             lines.append(f"| {k} | {_fmt(v)} |")
         lines.append("")
     if "config" in card:
-        lines += ["## Training configuration", "", "```json", json.dumps(card["config"], indent=2, sort_keys=True),
-                  "```", ""]
+        lines += [
+            "## Training configuration",
+            "",
+            "```json",
+            json.dumps(card["config"], indent=2, sort_keys=True),
+            "```",
+            "",
+        ]
     return "\n".join(lines)
 
 

@@ -29,9 +29,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from towerpipe.preprocess.attributes import ATTRIBUTES, valid_set
 from towerpipe.errors import ConfigError, ModelError
 from towerpipe.model.cards import MODEL_RELEASES, default_model_path, read_card
+from towerpipe.preprocess.attributes import ATTRIBUTES, valid_set
 
 AUTO = "auto"
 
@@ -42,8 +42,10 @@ def resolve_model(spec: str) -> Path:
     ``auto`` is resolved per zone by :func:`choose_model`, never here.
     """
     if spec == AUTO:
-        raise ConfigError("`auto` is chosen per zone from its blocks' attributes (towerpipe.model.choice."
-                          "choose_model); name a feature set or a model directory here")
+        raise ConfigError(
+            "`auto` is chosen per zone from its blocks' attributes (towerpipe.model.choice."
+            "choose_model); name a feature set or a model directory here"
+        )
     if spec in MODEL_RELEASES:
         return default_model_path(spec)
     return Path(spec)
@@ -68,8 +70,9 @@ def zone_attributes(block_attributes: Mapping[str, Mapping[str, Any] | None]) ->
     return set.intersection(*known) if known else set()
 
 
-def choose_model(spec: str, block_attributes: Mapping[str, Mapping[str, Any] | None], *, zone: str,
-                 key: str = "inference.model") -> dict[str, Any]:
+def choose_model(
+    spec: str, block_attributes: Mapping[str, Mapping[str, Any] | None], *, zone: str, key: str = "inference.model"
+) -> dict[str, Any]:
     """The model of a zone and the reason (see the module docstring).
 
     Parameters
@@ -100,37 +103,68 @@ def choose_model(spec: str, block_attributes: Mapping[str, Mapping[str, Any] | N
     valid = zone_attributes(block_attributes)
     lacking = sorted(set(ATTRIBUTES) - valid)
     why_not = f"valid on every block: {', '.join(sorted(valid)) or 'none'}" + (
-        f"; not: {', '.join(lacking)}" if lacking else "")
+        f"; not: {', '.join(lacking)}" if lacking else ""
+    )
     if spec == AUTO:
         candidates = []
         for fs in MODEL_RELEASES:
             path = default_model_path(fs)
             card = _card(path)
             missing = [a for a in required_attributes(fs) if a not in valid]
-            candidates.append({"feature_set": fs, "name": None if card is None else card["name"],
-                               "version": None if card is None else str(card["version"]), "path": str(path),
-                               "transfer": transfer_score(card), "usable": card is not None and not missing,
-                               "missing": missing})
+            candidates.append(
+                {
+                    "feature_set": fs,
+                    "name": None if card is None else card["name"],
+                    "version": None if card is None else str(card["version"]),
+                    "path": str(path),
+                    "transfer": transfer_score(card),
+                    "usable": card is not None and not missing,
+                    "missing": missing,
+                }
+            )
         usable = [c for c in candidates if c["usable"]]
         if not usable:
-            raise ConfigError(f"zone {zone!r}: no shipped model can be used ({why_not}; models in "
-                              f"{default_model_path('shape').parent}); set `{key}` to a model directory")
+            raise ConfigError(
+                f"zone {zone!r}: no shipped model can be used ({why_not}; models in "
+                f"{default_model_path('shape').parent}); set `{key}` to a model directory"
+            )
         order = {fs: i for i, fs in enumerate(MODEL_RELEASES)}
-        best = max(usable, key=lambda c: (c["transfer"] if c["transfer"] is not None else float("-inf"),
-                                          -order[c["feature_set"]]))
-        scores = ", ".join(f"{c['feature_set']} {c['transfer']:.3f}" if c["transfer"] is not None
-                           else f"{c['feature_set']} (not measured)" for c in usable)
-        reason = (f"auto: {why_not}; {best['name']} v{best['version']} transfers best to real tower shapes "
-                  f"among the usable models (benchmark score: {scores})")
-        chosen = {"feature_set": best["feature_set"], "path": best["path"], "name": best["name"],
-                  "version": best["version"]}
-        return {"mode": AUTO, "key": key, **chosen, "reason": reason, "valid_attributes": sorted(valid),
-                "candidates": candidates, "incompatible_blocks": {}}
+        best = max(
+            usable,
+            key=lambda c: (c["transfer"] if c["transfer"] is not None else float("-inf"), -order[c["feature_set"]]),
+        )
+        scores = ", ".join(
+            f"{c['feature_set']} {c['transfer']:.3f}"
+            if c["transfer"] is not None
+            else f"{c['feature_set']} (not measured)"
+            for c in usable
+        )
+        reason = (
+            f"auto: {why_not}; {best['name']} v{best['version']} transfers best to real tower shapes "
+            f"among the usable models (benchmark score: {scores})"
+        )
+        chosen = {
+            "feature_set": best["feature_set"],
+            "path": best["path"],
+            "name": best["name"],
+            "version": best["version"],
+        }
+        return {
+            "mode": AUTO,
+            "key": key,
+            **chosen,
+            "reason": reason,
+            "valid_attributes": sorted(valid),
+            "candidates": candidates,
+            "incompatible_blocks": {},
+        }
     path = resolve_model(spec)
     card = _card(path)
     if card is None:
-        raise ConfigError(f"`{key}: {spec}`: {path} is not a towerpipe model directory (model_card.json); use "
-                          f"`auto`, one of {sorted(MODEL_RELEASES)} or a directory written by `towerpipe train`")
+        raise ConfigError(
+            f"`{key}: {spec}`: {path} is not a towerpipe model directory (model_card.json); use "
+            f"`auto`, one of {sorted(MODEL_RELEASES)} or a directory written by `towerpipe train`"
+        )
     fs = card["feature_set"]
     if fs not in FEATURE_SETS:
         raise ConfigError(f"`{key}: {spec}`: unknown feature set {fs!r} in {path}")
@@ -140,13 +174,28 @@ def choose_model(spec: str, block_attributes: Mapping[str, Mapping[str, Any] | N
     reason = f"set by `{key}: {spec}`"
     if bad:
         reason += f"; {len(bad)} block(s) lack what it needs ({', '.join(need)})"
-    return {"mode": "explicit", "key": key, "feature_set": fs, "path": str(path), "name": card["name"],
-            "version": str(card["version"]), "reason": reason, "valid_attributes": sorted(valid),
-            "candidates": [], "incompatible_blocks": bad}
+    return {
+        "mode": "explicit",
+        "key": key,
+        "feature_set": fs,
+        "path": str(path),
+        "name": card["name"],
+        "version": str(card["version"]),
+        "reason": reason,
+        "valid_attributes": sorted(valid),
+        "candidates": [],
+        "incompatible_blocks": bad,
+    }
 
 
-def write_choice(spec: str, cache_dirs: Mapping[str, str | os.PathLike[str]], out_json: str | os.PathLike[str], *,
-                 zone: str, key: str) -> dict[str, Any]:
+def write_choice(
+    spec: str,
+    cache_dirs: Mapping[str, str | os.PathLike[str]],
+    out_json: str | os.PathLike[str],
+    *,
+    zone: str,
+    key: str,
+) -> dict[str, Any]:
     """:func:`choose_model` from the zone's block caches, written to ``out_json`` (atomically)."""
     from towerpipe.io.atomic import write_text_atomic
     from towerpipe.io.blockcache import BlockCache
@@ -170,6 +219,8 @@ def incompatibility_error(choice: Mapping[str, Any], block: str) -> str | None:
     missing = (choice.get("incompatible_blocks") or {}).get(block)
     if not missing:
         return None
-    return (f"block {block!r} has no valid {', '.join(missing)} but model {choice['name']} v{choice['version']} "
-            f"(feature set {choice['feature_set']!r}, {choice['reason'].split(';')[0]}) needs it; set "
-            f"`{choice['key']}: auto` to use a model these data support")
+    return (
+        f"block {block!r} has no valid {', '.join(missing)} but model {choice['name']} v{choice['version']} "
+        f"(feature set {choice['feature_set']!r}, {choice['reason'].split(';')[0]}) needs it; set "
+        f"`{choice['key']}: auto` to use a model these data support"
+    )

@@ -153,8 +153,10 @@ class EdgeSegmenter(nn.Module):
 def classify(model: EdgeClassifier, feats: np.ndarray, batch: int = 16) -> np.ndarray:
     """Tower probability ``(B,)`` of windows ``(B, n, C)`` (eval mode)."""
     model.eval()
-    out = [model(torch.from_numpy(np.ascontiguousarray(feats[s:s + batch], dtype=np.float32)))[0][:, 1].exp()
-           for s in range(0, len(feats), batch)]
+    out = [
+        model(torch.from_numpy(np.ascontiguousarray(feats[s : s + batch], dtype=np.float32)))[0][:, 1].exp()
+        for s in range(0, len(feats), batch)
+    ]
     return torch.cat(out).numpy() if out else np.zeros(0, np.float32)
 
 

@@ -70,16 +70,25 @@ FEATURE_SETS: dict[str, list[str]] = {
 }
 
 #: Every feature column known, in a fixed order (the union of the feature sets).
-ALL_FEATURES: list[str] = ["x", "y", "z", "intensity", "green", "blue", "ndvi", "return_ratio", "n_returns",
-                           "red"]
+ALL_FEATURES: list[str] = ["x", "y", "z", "intensity", "green", "blue", "ndvi", "return_ratio", "n_returns", "red"]
 
 #: The sensor attributes (:data:`towerpipe.preprocess.attributes.ATTRIBUTES`) each feature column reads.
-COLUMN_ATTRIBUTES: dict[str, str] = {"intensity": "intensity", "red": "rgb", "green": "rgb", "blue": "rgb",
-                                     "ndvi": "nir", "return_ratio": "returns", "n_returns": "returns"}
+COLUMN_ATTRIBUTES: dict[str, str] = {
+    "intensity": "intensity",
+    "red": "rgb",
+    "green": "rgb",
+    "blue": "rgb",
+    "ndvi": "nir",
+    "return_ratio": "returns",
+    "n_returns": "returns",
+}
 #: The sensor attributes each feature set needs to be valid.
 REQUIRED_ATTRIBUTES: dict[str, list[str]] = {
-    name: sorted({COLUMN_ATTRIBUTES[c] for c in cols if c in COLUMN_ATTRIBUTES} | ({"rgb"} if "ndvi" in cols else set()))
-    for name, cols in FEATURE_SETS.items()}
+    name: sorted(
+        {COLUMN_ATTRIBUTES[c] for c in cols if c in COLUMN_ATTRIBUTES} | ({"rgb"} if "ndvi" in cols else set())
+    )
+    for name, cols in FEATURE_SETS.items()
+}
 
 
 def _check_set(feature_set: str) -> list[str]:
@@ -158,8 +167,13 @@ def normalisation_spec() -> dict[str, Any]:
     }
 
 
-def compute_columns(arrays: Mapping[str, np.ndarray], idx: np.ndarray, center_xy: tuple[float, float],
-                    names: list[str], meta: Mapping[str, Any]) -> np.ndarray:
+def compute_columns(
+    arrays: Mapping[str, np.ndarray],
+    idx: np.ndarray,
+    center_xy: tuple[float, float],
+    names: list[str],
+    meta: Mapping[str, Any],
+) -> np.ndarray:
     """Feature columns ``names`` (any of :data:`ALL_FEATURES`) for points ``idx``.
 
     Parameters
@@ -190,7 +204,7 @@ def compute_columns(arrays: Mapping[str, np.ndarray], idx: np.ndarray, center_xy
         return cache[name]
 
     bits = int(meta.get("color_bits", 16) or 16)
-    cmax = float(2 ** bits - 1)
+    cmax = float(2**bits - 1)
     for j, name in enumerate(names):
         if name == "x":
             v = (col("x") - float(center_xy[0])) / NORM_RADIUS
@@ -245,11 +259,17 @@ def check_meta(feature_set: str, meta: Mapping[str, Any]) -> None:
         raise ModelError(
             f"feature set {feature_set!r} needs valid {', '.join(required_attributes(feature_set))} but the "
             f"tile {meta.get('tile', '?')!r} has no valid {', '.join(missing)}; set `inference: {{model: auto}}` "
-            f"(or a model the data supports) in the config")
+            f"(or a model the data supports) in the config"
+        )
 
 
-def window_features(arrays: Mapping[str, np.ndarray], idx: np.ndarray, center_xy: tuple[float, float],
-                    feature_set: str, meta: Mapping[str, Any]) -> np.ndarray:
+def window_features(
+    arrays: Mapping[str, np.ndarray],
+    idx: np.ndarray,
+    center_xy: tuple[float, float],
+    feature_set: str,
+    meta: Mapping[str, Any],
+) -> np.ndarray:
     """Model input for the points ``idx`` of one window.
 
     Parameters

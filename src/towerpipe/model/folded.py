@@ -36,8 +36,7 @@ class NetRunner:
             from towerpipe.model import edgeconv
 
             return edgeconv.classify(self.model, feats)
-        return self.folded.classify(torch.from_numpy(np.ascontiguousarray(feats, dtype=np.float32)),
-                                    self.chunk).numpy()
+        return self.folded.classify(torch.from_numpy(np.ascontiguousarray(feats, dtype=np.float32)), self.chunk).numpy()
 
     def segment(self, feats: np.ndarray) -> np.ndarray:
         """Tower probability ``(N,)`` of every point of one window ``(N, C)``."""
@@ -57,8 +56,9 @@ def _fold(layers: nn.ModuleList) -> Folded:
     for layer in layers:
         fc, bn = layer["fc"], layer["bn"]
         scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
-        out.append(((fc.weight * scale[:, None]).T.contiguous(),
-                    ((fc.bias - bn.running_mean) * scale + bn.bias).contiguous()))
+        out.append(
+            ((fc.weight * scale[:, None]).T.contiguous(), ((fc.bias - bn.running_mean) * scale + bn.bias).contiguous())
+        )
     return out
 
 
@@ -95,26 +95,34 @@ class FoldedPointNet:
     def __init__(self, model: PointNetClassifier | PointNetSegmenter):
         bb = model.backbone
         with torch.no_grad():
-            self.tin = (_fold(bb.input_tnet.conv), _fold(bb.input_tnet.fc),
-                        (bb.input_tnet.out.weight.T.contiguous(), bb.input_tnet.out.bias.clone()))
-            self.tfeat = (_fold(bb.feat_tnet.conv), _fold(bb.feat_tnet.fc),
-                          (bb.feat_tnet.out.weight.T.contiguous(), bb.feat_tnet.out.bias.clone()))
+            self.tin = (
+                _fold(bb.input_tnet.conv),
+                _fold(bb.input_tnet.fc),
+                (bb.input_tnet.out.weight.T.contiguous(), bb.input_tnet.out.bias.clone()),
+            )
+            self.tfeat = (
+                _fold(bb.feat_tnet.conv),
+                _fold(bb.feat_tnet.fc),
+                (bb.feat_tnet.out.weight.T.contiguous(), bb.feat_tnet.out.bias.clone()),
+            )
             self.mlp1, self.mlp2 = _fold(bb.mlp1), _fold(bb.mlp2)
             self.head, self.out = _fold_head(model.head)
         self.kind = model.hparams["kind"]
         self.feat_dim = bb.feat_dim
 
     @staticmethod
-    def _tnet(parts: tuple[Folded, Folded, tuple[torch.Tensor, torch.Tensor]], pooled: torch.Tensor, k: int
-              ) -> torch.Tensor:
+    def _tnet(
+        parts: tuple[Folded, Folded, tuple[torch.Tensor, torch.Tensor]], pooled: torch.Tensor, k: int
+    ) -> torch.Tensor:
         w, b = parts[2]
-        return (torch.addmm(b, _apply(parts[1], pooled[None]), w).view(k, k) + torch.eye(k, dtype=pooled.dtype))
+        return torch.addmm(b, _apply(parts[1], pooled[None]), w).view(k, k) + torch.eye(k, dtype=pooled.dtype)
 
     def _pool(self, fn, spans) -> torch.Tensor:
         return torch.stack([fn(s, e).amax(dim=0) for s, e in spans]).amax(dim=0)
 
-    def encode(self, x: torch.Tensor, chunk: int
-               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, list[tuple[int, int]]]:
+    def encode(
+        self, x: torch.Tensor, chunk: int
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, list[tuple[int, int]]]:
         """Transforms and global feature of one window ``x`` ``(N, C)``.
 
         Returns ``(t_in (2,2), t_feat (64,64), global (G,), chunk spans)``; every
@@ -124,8 +132,9 @@ class FoldedPointNet:
         n = x.shape[0]
         spans = [(s, min(s + chunk, n)) for s in range(0, n, chunk)]
         t_in = self._tnet(self.tin, self._pool(lambda s, e: _apply(self.tin[0], x[s:e, :2]), spans), 2)
-        t_feat = self._tnet(self.tfeat, self._pool(lambda s, e: _apply(self.tfeat[0], self._mlp1(x[s:e], t_in)),
-                                                   spans), self.feat_dim)
+        t_feat = self._tnet(
+            self.tfeat, self._pool(lambda s, e: _apply(self.tfeat[0], self._mlp1(x[s:e], t_in)), spans), self.feat_dim
+        )
         g = self._pool(lambda s, e: _apply(self.mlp2, self._mlp1(x[s:e], t_in) @ t_feat), spans)
         return t_in, t_feat, g, spans
 
@@ -156,7 +165,7 @@ class FoldedPointNet:
             return torch.zeros(0, dtype=torch.float32)
         t_in, t_feat, g, spans = self.encode(x, chunk)
         (w1, b1), rest = self.head[0], self.head[1:]
-        w1_point, w1_global = w1[: self.feat_dim], w1[self.feat_dim:]
+        w1_point, w1_global = w1[: self.feat_dim], w1[self.feat_dim :]
         b1 = b1 + g @ w1_global
         w, b = self.out
         out = torch.empty(n, dtype=torch.float32)
@@ -167,8 +176,9 @@ class FoldedPointNet:
 
 
 @torch.inference_mode()
-def segment_points(model: PointNetSegmenter | FoldedPointNet, feats: np.ndarray, chunk: int = DEFAULT_CHUNK
-                   ) -> np.ndarray:
+def segment_points(
+    model: PointNetSegmenter | FoldedPointNet, feats: np.ndarray, chunk: int = DEFAULT_CHUNK
+) -> np.ndarray:
     """Tower probability of every point of one window, exact for any number of points.
 
     The transforms are estimated on the whole window (the T-Nets max-pool, so they are

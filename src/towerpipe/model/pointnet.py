@@ -30,13 +30,31 @@ from towerpipe.errors import ModelError
 #: ``tnet_fc``: the T-Net point MLP and regressor; ``head``: classifier FC;
 #: ``seg_head``: segmentation per-point MLP.
 ARCHS: dict[str, dict[str, tuple[int, ...]]] = {
-    "light": {"mlp1": (64, 64), "conv": (64, 128, 512), "tnet_conv": (64, 128, 512),
-              "tnet_fc": (256, 48), "head": (256, 128), "seg_head": (256, 128, 64)},
-    "full": {"mlp1": (64, 64), "conv": (64, 128, 1024), "tnet_conv": (64, 128, 1024),
-             "tnet_fc": (512, 256), "head": (512, 256), "seg_head": (512, 256, 128)},
+    "light": {
+        "mlp1": (64, 64),
+        "conv": (64, 128, 512),
+        "tnet_conv": (64, 128, 512),
+        "tnet_fc": (256, 48),
+        "head": (256, 128),
+        "seg_head": (256, 128, 64),
+    },
+    "full": {
+        "mlp1": (64, 64),
+        "conv": (64, 128, 1024),
+        "tnet_conv": (64, 128, 1024),
+        "tnet_fc": (512, 256),
+        "head": (512, 256),
+        "seg_head": (512, 256, 128),
+    },
     # half PointNet_L's global width: a third of its cost per window on a CPU
-    "compact": {"mlp1": (64, 64), "conv": (64, 128, 256), "tnet_conv": (64, 128, 256),
-                "tnet_fc": (128, 48), "head": (128, 64), "seg_head": (128, 64, 32)},
+    "compact": {
+        "mlp1": (64, 64),
+        "conv": (64, 128, 256),
+        "tnet_conv": (64, 128, 256),
+        "tnet_fc": (128, 48),
+        "head": (128, 64),
+        "seg_head": (128, 64, 32),
+    },
 }
 
 
@@ -113,8 +131,9 @@ class PointNetBackbone(nn.Module):
         xy = torch.bmm(x[..., :2], t_in)
         return _run_mlp(self.mlp1, torch.cat([xy, x[..., 2:]], dim=-1))
 
-    def point_features(self, x: torch.Tensor, t_in: torch.Tensor, t_feat: torch.Tensor
-                       ) -> tuple[torch.Tensor, torch.Tensor]:
+    def point_features(
+        self, x: torch.Tensor, t_in: torch.Tensor, t_feat: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Per-point transformed features (B, N, 64) and pre-pool features (B, N, G)."""
         h = torch.bmm(self._mlp1(x, t_in), t_feat)
         return h, _run_mlp(self.mlp2, h)

@@ -49,8 +49,9 @@ def random_sample(m: int, n: int, rng: np.random.Generator) -> np.ndarray:
     return _pad(int(m), int(n), rng)
 
 
-def constrained_sample(hag: np.ndarray, n: int = 2048, rng: np.random.Generator | None = None,
-                       bands: tuple[float, ...] = DEFAULT_BANDS) -> np.ndarray:
+def constrained_sample(
+    hag: np.ndarray, n: int = 2048, rng: np.random.Generator | None = None, bands: tuple[float, ...] = DEFAULT_BANDS
+) -> np.ndarray:
     """Constrained sampling to exactly ``n`` points.
 
     Parameters

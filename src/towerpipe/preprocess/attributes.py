@@ -37,9 +37,12 @@ ATTRIBUTES: tuple[str, ...] = ("intensity", "returns", "rgb", "nir")
 #: An attribute with at most this many distinct values carries no information.
 MIN_DISTINCT = 8
 #: The point dimensions behind each attribute.
-DIMENSIONS: dict[str, tuple[str, ...]] = {"intensity": ("intensity",),
-                                          "returns": ("return_number", "number_of_returns"),
-                                          "rgb": ("red", "green", "blue"), "nir": ("nir",)}
+DIMENSIONS: dict[str, tuple[str, ...]] = {
+    "intensity": ("intensity",),
+    "returns": ("return_number", "number_of_returns"),
+    "rgb": ("red", "green", "blue"),
+    "nir": ("nir",),
+}
 
 
 class AttributeStats:
@@ -55,8 +58,7 @@ class AttributeStats:
     def __init__(self, dimensions: Iterable[str]):
         dims = set(dimensions)
         self.present = {a: all(d in dims for d in DIMENSIONS[a]) for a in ATTRIBUTES}
-        self._distinct: dict[str, set[int]] = {d: set() for a in ATTRIBUTES if self.present[a]
-                                                for d in DIMENSIONS[a]}
+        self._distinct: dict[str, set[int]] = {d: set() for a in ATTRIBUTES if self.present[a] for d in DIMENSIONS[a]}
         self.points = 0
 
     def update(self, chunk: Mapping[str, np.ndarray]) -> None:
@@ -64,7 +66,7 @@ class AttributeStats:
         self.points += len(next(iter(chunk.values()))) if chunk else 0
         for dim, seen in self._distinct.items():
             if len(seen) > MIN_DISTINCT or dim not in chunk:
-                continue                     # decided already: enough distinct values seen
+                continue  # decided already: enough distinct values seen
             seen.update(np.unique(np.asarray(chunk[dim])).tolist())
 
     def _distinct_count(self, attribute: str) -> int:
@@ -112,5 +114,8 @@ def valid_set(attributes: Mapping[str, Mapping[str, Any]] | None) -> set[str]:
 
 def describe(attributes: Mapping[str, Mapping[str, Any]]) -> str:
     """One line: ``intensity ok; returns: return numbers all 0; rgb ok; nir: not in the point format``."""
-    return "; ".join(f"{a} ok" if attributes[a]["valid"] else f"{a}: {attributes[a]['reason']}"
-                     for a in ATTRIBUTES if a in attributes)
+    return "; ".join(
+        f"{a} ok" if attributes[a]["valid"] else f"{a}: {attributes[a]['reason']}"
+        for a in ATTRIBUTES
+        if a in attributes
+    )

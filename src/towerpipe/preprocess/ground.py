@@ -30,8 +30,14 @@ from towerpipe.preprocess.pdal import run_pipeline
 NODATA = -9999.0
 
 
-def _write_xyz_las(path: Path, x: np.ndarray, y: np.ndarray, z: np.ndarray, origin: tuple[float, float, float],
-                   classification: np.ndarray | None = None) -> None:
+def _write_xyz_las(
+    path: Path,
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    origin: tuple[float, float, float],
+    classification: np.ndarray | None = None,
+) -> None:
     """Uncompressed LAS 1.2 point format 0 (xyz at mm precision) for PDAL to read fast."""
     header = laspy.LasHeader(point_format=0, version="1.2")
     header.scales = np.array([0.001, 0.001, 0.001])
@@ -43,25 +49,39 @@ def _write_xyz_las(path: Path, x: np.ndarray, y: np.ndarray, z: np.ndarray, orig
     las.write(path)
 
 
-def classify_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, workdir: Path, *,
-                    method: str = "smrf", what: str = "tile") -> np.ndarray:
+def classify_ground(
+    x: np.ndarray, y: np.ndarray, z: np.ndarray, workdir: Path, *, method: str = "smrf", what: str = "tile"
+) -> np.ndarray:
     """Ground mask computed by PDAL (``filters.elm`` for low noise, then SMRF or CSF)."""
     src, dst = workdir / "ground_in.las", workdir / "ground_out.las"
     origin = (float(np.floor(x.min())), float(np.floor(y.min())), float(np.floor(z.min())))
     _write_xyz_las(src, x, y, z, origin)
     ground_stage: dict[str, Any] = {"type": f"filters.{method}", "ignore": "Classification[7:7]"}
-    run_pipeline([
-        {"type": "readers.las", "filename": str(src)},
-        {"type": "filters.assign", "assignment": "Classification[:]=0"},
-        {"type": "filters.elm"},
-        ground_stage,
-        {"type": "writers.las", "filename": str(dst), "minor_version": 2, "dataformat_id": 0},
-    ], what=f"{what}: ground classification ({method})")
+    run_pipeline(
+        [
+            {"type": "readers.las", "filename": str(src)},
+            {"type": "filters.assign", "assignment": "Classification[:]=0"},
+            {"type": "filters.elm"},
+            ground_stage,
+            {"type": "writers.las", "filename": str(dst), "minor_version": 2, "dataformat_id": 0},
+        ],
+        what=f"{what}: ground classification ({method})",
+    )
     return np.asarray(laspy.read(dst).classification) == classes.GROUND
 
 
-def build_dtm(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray, box: tiling.Bounds, out_tif: Path,
-              workdir: Path, *, resolution: float, crs_wkt: str | None, what: str = "tile") -> dict[str, Any]:
+def build_dtm(
+    gx: np.ndarray,
+    gy: np.ndarray,
+    gz: np.ndarray,
+    box: tiling.Bounds,
+    out_tif: Path,
+    workdir: Path,
+    *,
+    resolution: float,
+    crs_wkt: str | None,
+    what: str = "tile",
+) -> dict[str, Any]:
     """DTM over ``box`` from ground points (PDAL ``writers.gdal``), holes filled with rasterio.
 
     Returns
@@ -78,12 +98,22 @@ def build_dtm(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray, box: tiling.Bounds
     if len(gx) >= 3:
         src = workdir / "ground.las"
         _write_xyz_las(src, gx, gy, gz, (float(np.floor(xmin)), float(np.floor(ymin)), float(np.floor(gz.min()))))
-        run_pipeline([
-            {"type": "readers.las", "filename": str(src)},
-            {"type": "writers.gdal", "filename": str(raw), "resolution": resolution,
-             "output_type": "mean", "window_size": 2, "data_type": "float32", "nodata": nodata,
-             "bounds": f"([{xmin},{xmin + width * resolution}],[{ymin},{ymin + height * resolution}])"},
-        ], what=f"{what}: DTM (writers.gdal)")
+        run_pipeline(
+            [
+                {"type": "readers.las", "filename": str(src)},
+                {
+                    "type": "writers.gdal",
+                    "filename": str(raw),
+                    "resolution": resolution,
+                    "output_type": "mean",
+                    "window_size": 2,
+                    "data_type": "float32",
+                    "nodata": nodata,
+                    "bounds": f"([{xmin},{xmin + width * resolution}],[{ymin},{ymin + height * resolution}])",
+                },
+            ],
+            what=f"{what}: DTM (writers.gdal)",
+        )
         with rasterio.open(raw) as ds:
             dtm = ds.read(1).astype(np.float32)
             transform = ds.transform
@@ -99,7 +129,9 @@ def build_dtm(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray, box: tiling.Bounds
         dtm[:] = level
         info["fallback"] = "no ground: flat DTM at the lowest height"
     elif not valid.all():
-        dtm = fillnodata(dtm, mask=valid.astype(np.uint8), max_search_distance=max(width, height), smoothing_iterations=0)
+        dtm = fillnodata(
+            dtm, mask=valid.astype(np.uint8), max_search_distance=max(width, height), smoothing_iterations=0
+        )
         still = dtm == nodata
         if still.any():  # isolated pockets fillnodata could not reach
             dtm[still] = float(np.median(dtm[~still]))
@@ -111,9 +143,17 @@ def build_dtm(gx: np.ndarray, gy: np.ndarray, gz: np.ndarray, box: tiling.Bounds
 def write_raster(path: Path, band: np.ndarray, transform: Any, crs_wkt: str | None) -> None:
     """Write a one-band float32 GeoTIFF atomically."""
     height, width = band.shape
-    profile = {"driver": "GTiff", "width": width, "height": height, "count": 1, "dtype": "float32",
-               "transform": transform, "nodata": NODATA, "compress": "deflate",
-               "tiled": width >= 256 and height >= 256}
+    profile = {
+        "driver": "GTiff",
+        "width": width,
+        "height": height,
+        "count": 1,
+        "dtype": "float32",
+        "transform": transform,
+        "nodata": NODATA,
+        "compress": "deflate",
+        "tiled": width >= 256 and height >= 256,
+    }
     if crs_wkt:
         profile["crs"] = rasterio.crs.CRS.from_wkt(crs_wkt)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -126,36 +166,49 @@ def write_raster(path: Path, band: np.ndarray, transform: Any, crs_wkt: str | No
         tmp.unlink(missing_ok=True)
 
 
-def height_above_ground(x: np.ndarray, y: np.ndarray, z: np.ndarray, dtm_tif: Path, workdir: Path, *,
-                        what: str = "tile") -> np.ndarray:
+def height_above_ground(
+    x: np.ndarray, y: np.ndarray, z: np.ndarray, dtm_tif: Path, workdir: Path, *, what: str = "tile"
+) -> np.ndarray:
     """HAG of every point from the DTM with PDAL ``filters.hag_dem`` (point order kept)."""
     src, dst = workdir / "points.las", workdir / "hag.las"
     origin = (float(np.floor(x.min())), float(np.floor(y.min())), float(np.floor(z.min())))
     _write_xyz_las(src, x, y, z, origin)
-    run_pipeline([
-        {"type": "readers.las", "filename": str(src)},
-        {"type": "filters.hag_dem", "raster": str(dtm_tif), "zero_ground": False},
-        {"type": "writers.las", "filename": str(dst), "minor_version": 2, "dataformat_id": 0,
-         "extra_dims": "HeightAboveGround=float32"},
-    ], what=f"{what}: height above ground (filters.hag_dem)")
+    run_pipeline(
+        [
+            {"type": "readers.las", "filename": str(src)},
+            {"type": "filters.hag_dem", "raster": str(dtm_tif), "zero_ground": False},
+            {
+                "type": "writers.las",
+                "filename": str(dst),
+                "minor_version": 2,
+                "dataformat_id": 0,
+                "extra_dims": "HeightAboveGround=float32",
+            },
+        ],
+        what=f"{what}: height above ground (filters.hag_dem)",
+    )
     out = laspy.read(dst)
     if len(out.points) != len(x):
         raise InputError(dst, f"PDAL returned {len(out.points)} points for {len(x)}")
     return np.asarray(out["HeightAboveGround"], dtype=np.float32)
 
 
-def statistical_outliers(x: np.ndarray, y: np.ndarray, z: np.ndarray, workdir: Path, *, mean_k: int,
-                         multiplier: float, what: str = "tile") -> np.ndarray:
+def statistical_outliers(
+    x: np.ndarray, y: np.ndarray, z: np.ndarray, workdir: Path, *, mean_k: int, multiplier: float, what: str = "tile"
+) -> np.ndarray:
     """Mask of statistical outliers (PDAL ``filters.outlier``; slow, off by default)."""
     src, dst = workdir / "outlier_in.las", workdir / "outlier_out.las"
     origin = (float(np.floor(x.min())), float(np.floor(y.min())), float(np.floor(z.min())))
     _write_xyz_las(src, x, y, z, origin)
-    run_pipeline([
-        {"type": "readers.las", "filename": str(src)},
-        {"type": "filters.assign", "assignment": "Classification[:]=0"},
-        {"type": "filters.outlier", "method": "statistical", "mean_k": mean_k, "multiplier": multiplier},
-        {"type": "writers.las", "filename": str(dst), "minor_version": 2, "dataformat_id": 0},
-    ], what=f"{what}: outlier filter")
+    run_pipeline(
+        [
+            {"type": "readers.las", "filename": str(src)},
+            {"type": "filters.assign", "assignment": "Classification[:]=0"},
+            {"type": "filters.outlier", "method": "statistical", "mean_k": mean_k, "multiplier": multiplier},
+            {"type": "writers.las", "filename": str(dst), "minor_version": 2, "dataformat_id": 0},
+        ],
+        what=f"{what}: outlier filter",
+    )
     return np.asarray(laspy.read(dst).classification) == 7
 
 
@@ -177,8 +230,12 @@ def mosaic_dtm(dtm_paths: Sequence[str | os.PathLike[str]], out: Path) -> Path |
         if not srcs:
             return None
         mosaic, transform = merge(srcs)
-        profile = srcs[0].profile | {"width": mosaic.shape[2], "height": mosaic.shape[1], "transform": transform,
-                                     "tiled": False}
+        profile = srcs[0].profile | {
+            "width": mosaic.shape[2],
+            "height": mosaic.shape[1],
+            "transform": transform,
+            "tiled": False,
+        }
         profile.pop("blockxsize", None)
         profile.pop("blockysize", None)
         with rasterio.open(out, "w", **profile) as dst:

@@ -72,8 +72,9 @@ def run_pipeline(stages: list[dict[str, Any]], *, what: str = "pipeline", timeou
     doc = json.dumps({"pipeline": stages})
     t0 = time.perf_counter()
     try:
-        proc = subprocess.run(["pdal", "pipeline", "--stdin"], input=doc, capture_output=True,
-                              text=True, timeout=timeout)
+        proc = subprocess.run(
+            ["pdal", "pipeline", "--stdin"], input=doc, capture_output=True, text=True, timeout=timeout
+        )
     except subprocess.TimeoutExpired as exc:
         raise PdalError(f"{what}: PDAL pipeline timed out after {timeout} s") from exc
     if proc.returncode != 0:

@@ -31,10 +31,18 @@ from towerpipe.progress import Progress, peak_rss_mb
 log = logging.getLogger(__name__)
 
 
-def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, block: str,
-                zone: str | None = None, crs: str | None = None, zone_crs: str | None = None,
-                settings: PreprocessConfig, record_errors: bool = False,
-                source: Mapping[str, Any] | None = None) -> dict[str, Any]:
+def split_block(
+    path: str | os.PathLike[str],
+    out_dir: str | os.PathLike[str],
+    *,
+    block: str,
+    zone: str | None = None,
+    crs: str | None = None,
+    zone_crs: str | None = None,
+    settings: PreprocessConfig,
+    record_errors: bool = False,
+    source: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
     """Decode a block once into an uncompressed column cache.
 
     With ``record_errors``, a block that cannot be read (:class:`InputError`: truncated,
@@ -82,18 +90,28 @@ def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
     src = dict(source or {})
     try:
         if src.get("clash"):
-            raise InputError(path, f"{src['clash']} is the same block in a second file; keep one of the two "
-                                   "(both are left out until then)")
-        return _split_block(path, out_dir, block=block, zone=zone, crs=crs, zone_crs=zone_crs, settings=settings,
-                            source=src)
+            raise InputError(
+                path,
+                f"{src['clash']} is the same block in a second file; keep one of the two "
+                "(both are left out until then)",
+            )
+        return _split_block(
+            path, out_dir, block=block, zone=zone, crs=crs, zone_crs=zone_crs, settings=settings, source=src
+        )
     except InputError as exc:
         if not record_errors:
             raise
         log.error("%s: %s", type(exc).__name__, exc)
-        log.error("recorded in %s: block %r fails at its next step; its neighbours go on without its points",
-                  out_dir, block)
-        meta = {"block": block, "zone": zone, "path": str(path), "source": src,
-                "error": {"type": type(exc).__name__, "path": exc.path, "cause": exc.cause}}
+        log.error(
+            "recorded in %s: block %r fails at its next step; its neighbours go on without its points", out_dir, block
+        )
+        meta = {
+            "block": block,
+            "zone": zone,
+            "path": str(path),
+            "source": src,
+            "error": {"type": type(exc).__name__, "path": exc.path, "cause": exc.cause},
+        }
         try:
             meta["header_bounds"] = list(read_header(path).bounds)
         except TowerpipeError:
@@ -103,10 +121,17 @@ def split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *
         return meta
 
 
-
-def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *, block: str,
-                 zone: str | None, crs: str | None, zone_crs: str | None,
-                 settings: PreprocessConfig, source: Mapping[str, Any]) -> dict[str, Any]:
+def _split_block(
+    path: str | os.PathLike[str],
+    out_dir: str | os.PathLike[str],
+    *,
+    block: str,
+    zone: str | None,
+    crs: str | None,
+    zone_crs: str | None,
+    settings: PreprocessConfig,
+    source: Mapping[str, Any],
+) -> dict[str, Any]:
     cfg = settings
     t0 = time.perf_counter()
     it = iter_block(path, crs=crs, zone=zone, records=True)
@@ -115,8 +140,11 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
     check_metric_crs(path, crs_wkt, zone=zone, from_config=bool(crs))
     own = own_dimensions(path)  # towerpipe output is reprocessed; a foreign dimension of that name is refused
     if zone_crs and not crs and not _same_crs(crs_wkt, zone_crs):
-        raise InputError(path, f"its CRS ({_crs_name(crs_wkt)}) differs from the rest of zone {zone!r} "
-                               f"({_crs_name(zone_crs)}); reproject it or put it in a zone of its own")
+        raise InputError(
+            path,
+            f"its CRS ({_crs_name(crs_wkt)}) differs from the rest of zone {zone!r} "
+            f"({_crs_name(zone_crs)}); reproject it or put it in a zone of its own",
+        )
     n = header.point_count
     with BlockCache.create(out_dir) as tmp:
         meta = _stream_block(it, tmp, header, n, cfg, block)
@@ -124,17 +152,31 @@ def _split_block(path: str | os.PathLike[str], out_dir: str | os.PathLike[str], 
         grid = tiling.TileGrid(tuple(bounds), cfg.tile_size)
         x, y = (tmp.column(c) for c in ("x", "y"))
         meta.update(
-            block=block, zone=zone, path=str(path), source=dict(source), points=n,
-            tiles=tiling.occupied_tiles(grid, x, y), header_bounds=list(header.bounds),
+            block=block,
+            zone=zone,
+            path=str(path),
+            source=dict(source),
+            points=n,
+            tiles=tiling.occupied_tiles(grid, x, y),
+            header_bounds=list(header.bounds),
             header_warnings=header_warnings(header, meta.pop("extent")),
-            crs_wkt=crs_wkt, crs_from="config" if crs else "file", las_version=header.version,
-            point_format=header.point_format, dimensions=header.dimensions, towerpipe_dimensions=own,
+            crs_wkt=crs_wkt,
+            crs_from="config" if crs else "file",
+            las_version=header.version,
+            point_format=header.point_format,
+            dimensions=header.dimensions,
+            towerpipe_dimensions=own,
         )
         del x, y
         ground_source = meta["ground_source"]
         if ground_source != "class2":
-            log.warning("%s: only %d class-2 points (%.1f %%); ground will be classified with PDAL %s",
-                        path, meta["ground_points"], 100 * meta["ground_fraction"], ground_source)
+            log.warning(
+                "%s: only %d class-2 points (%.1f %%); ground will be classified with PDAL %s",
+                path,
+                meta["ground_points"],
+                100 * meta["ground_fraction"],
+                ground_source,
+            )
         for w in meta["header_warnings"]:
             log.warning("%s: %s", path, w)
         if meta["degenerate_attributes"]:
@@ -157,12 +199,15 @@ def header_warnings(header: BlockHeader, extent: Mapping[str, list[float]], tole
     if off <= tolerance + max(header.scales):
         return []
     fmt = lambda v: "[" + ", ".join(f"{c:.2f}" for c in v) + "]"  # noqa: E731
-    return [f"header bounds {fmt(hmins)}-{fmt(hmaxs)} contradict the points {fmt(pmins)}-{fmt(pmaxs)} "
-            f"(off by up to {off:.1f} m); tiles follow the points"]
+    return [
+        f"header bounds {fmt(hmins)}-{fmt(hmaxs)} contradict the points {fmt(pmins)}-{fmt(pmaxs)} "
+        f"(off by up to {off:.1f} m); tiles follow the points"
+    ]
 
 
-
-def _stream_block(it, tmp: BlockCacheWriter, header: BlockHeader, n: int, cfg: PreprocessConfig, block: str) -> dict[str, Any]:
+def _stream_block(
+    it, tmp: BlockCacheWriter, header: BlockHeader, n: int, cfg: PreprocessConfig, block: str
+) -> dict[str, Any]:
     """Stream the decoded chunks of a block into the cache columns; what was measured on the way."""
     t0 = time.perf_counter()
     # streamed into .npy files (header first, then each chunk appended): the cache never

@@ -34,8 +34,14 @@ from towerpipe.io.las import BLOCK_COLUMNS
 from towerpipe.io.tiles import Tile, empty_arrays, save_tile
 from towerpipe.preprocess import tiling
 from towerpipe.preprocess.attributes import valid_set
-from towerpipe.preprocess.ground import (NODATA, build_dtm, classify_ground, height_above_ground,
-                                         statistical_outliers, write_raster)
+from towerpipe.preprocess.ground import (
+    NODATA,
+    build_dtm,
+    classify_ground,
+    height_above_ground,
+    statistical_outliers,
+    write_raster,
+)
 from towerpipe.progress import Progress, peak_rss_mb
 
 log = logging.getLogger(__name__)
@@ -65,16 +71,19 @@ def buffer_attributes(own: Mapping[str, Any], other: Mapping[str, Any]) -> tuple
         shift = 8 if own.get("color_bits") == 16 else -8
     note = None
     if lacks:
-        note = (f"buffer points of block {other.get('block')} have no valid {' or '.join(lacks)}: "
-                "used for ground and heights only, not as model input")
+        note = (
+            f"buffer points of block {other.get('block')} have no valid {' or '.join(lacks)}: "
+            "used for ground and heights only, not as model input"
+        )
     elif shift:
-        note = (f"buffer points of block {other.get('block')} have {other.get('color_bits')}-bit colour: "
-                f"rescaled to {own.get('color_bits')} bits")
+        note = (
+            f"buffer points of block {other.get('block')} have {other.get('color_bits')}-bit colour: "
+            f"rescaled to {own.get('color_bits')} bits"
+        )
     return not lacks, shift, note
 
 
-def gather_tile(zone: str, block: str, tile: str, caches: Mapping[str, BlockCache],
-                cfg: PreprocessConfig) -> Tile:
+def gather_tile(zone: str, block: str, tile: str, caches: Mapping[str, BlockCache], cfg: PreprocessConfig) -> Tile:
     """Core points of ``block`` in ``tile`` plus buffer points of every cached block.
 
     The tile grid comes from the block's points (``bounds`` measured by the split). A
@@ -118,28 +127,58 @@ def gather_tile(zone: str, block: str, tile: str, caches: Mapping[str, BlockCach
         parts.append(part)
     arrays = empty_arrays(0)
     if parts:
-        for k in ("x", "y", "z", "intensity", "red", "green", "blue", "nir", "classification",
-                  "return_number", "number_of_returns", "block_id", "point_index", "core"):
+        for k in (
+            "x",
+            "y",
+            "z",
+            "intensity",
+            "red",
+            "green",
+            "blue",
+            "nir",
+            "classification",
+            "return_number",
+            "number_of_returns",
+            "block_id",
+            "point_index",
+            "core",
+        ):
             arrays[k] = np.concatenate([p[k] for p in parts]).astype(arrays[k].dtype, copy=False)
         n = len(arrays["x"])
         arrays["hag"] = np.zeros(n, np.float32)
         arrays["model_input"] = np.zeros(n, bool)
     meta = {
-        "zone": zone, "block": block, "tile": tile, "crs_wkt": own["crs_wkt"],
-        "core_bounds": list(core_box), "buffer": cfg.buffer, "tile_size": cfg.tile_size, "blocks": names,
+        "zone": zone,
+        "block": block,
+        "tile": tile,
+        "crs_wkt": own["crs_wkt"],
+        "core_bounds": list(core_box),
+        "buffer": cfg.buffer,
+        "tile_size": cfg.tile_size,
+        "blocks": names,
         # the block's own sensor attributes: a neighbour's never fail it (buffer_attributes)
-        "has_rgb": own["has_rgb"], "has_nir": own["has_nir"],
+        "has_rgb": own["has_rgb"],
+        "has_nir": own["has_nir"],
         "valid_attributes": sorted(valid_set(own.get("attributes"))),
-        "color_bits": own["color_bits"], "ground_source": own["ground_source"],
-        "buffer_notes": notes, "geometry_only_blocks": geometry_only,
+        "color_bits": own["color_bits"],
+        "ground_source": own["ground_source"],
+        "buffer_notes": notes,
+        "geometry_only_blocks": geometry_only,
     }
     return Tile(arrays, meta)
 
 
-def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, str | os.PathLike[str]],
-                    out_path: str | os.PathLike[str], *, dtm_path: str | os.PathLike[str] | None = None,
-                    settings: PreprocessConfig,
-                    missing: Mapping[str, str | os.PathLike[str]] | None = None) -> dict[str, Any]:
+def preprocess_tile(
+    zone: str,
+    block: str,
+    tile: str,
+    cache_dirs: Mapping[str, str | os.PathLike[str]],
+    out_path: str | os.PathLike[str],
+    *,
+    dtm_path: str | os.PathLike[str] | None = None,
+    settings: PreprocessConfig,
+    missing: Mapping[str, str | os.PathLike[str]] | None = None,
+) -> dict[str, Any]:
     """Ground, DTM, HAG and noise flags for one tile; writes the tile file.
 
     Parameters
@@ -172,8 +211,11 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
     for b, d in (missing or {}).items():
         if b not in caches and BlockCache(d).exists():
             caches[b] = BlockCache.open(d, allow_failed=True)
-    warnings = [f"neighbour block {b} could not be read ({c.failed}); no buffer points from it"
-                for b, c in sorted(caches.items()) if c.failed]
+    warnings = [
+        f"neighbour block {b} could not be read ({c.failed}); no buffer points from it"
+        for b, c in sorted(caches.items())
+        if c.failed
+    ]
     caches = {b: c for b, c in caches.items() if not c.failed}
     t = gather_tile(zone, block, tile, caches, cfg)
     warnings += t.meta["buffer_notes"]
@@ -186,8 +228,14 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
     with tempfile.TemporaryDirectory(prefix="towerpipe-") as tmpd:
         work = Path(tmpd)
         if n:
-            progress = Progress(f"preprocess {what} ({n:,} points)", len(TILE_STAGES), "stages", logger=log,
-                                interval=0.0, show_rate=False)
+            progress = Progress(
+                f"preprocess {what} ({n:,} points)",
+                len(TILE_STAGES),
+                "stages",
+                logger=log,
+                interval=0.0,
+                show_rate=False,
+            )
             x, y, z, cls = t["x"], t["y"], t["z"], t["classification"]
             noise_cls = np.isin(cls, classes.NOISE)
             s = time.perf_counter()
@@ -200,8 +248,17 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
             s = time.perf_counter()
             box = tiling.expand(tuple(t.meta["core_bounds"]), cfg.buffer)
             dtm_file = Path(dtm_path) if dtm_path else work / "dtm.tif"
-            dtm_info = build_dtm(x[ground], y[ground], z[ground], box, dtm_file, work,
-                                 resolution=cfg.dtm_resolution, crs_wkt=t.meta["crs_wkt"], what=what)
+            dtm_info = build_dtm(
+                x[ground],
+                y[ground],
+                z[ground],
+                box,
+                dtm_file,
+                work,
+                resolution=cfg.dtm_resolution,
+                crs_wkt=t.meta["crs_wkt"],
+                what=what,
+            )
             timings["dtm"] = time.perf_counter() - s
             progress.update(detail=f"dtm took {timings['dtm']:.1f} s")
             s = time.perf_counter()
@@ -215,8 +272,15 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
                 cand = ~ground & ~noise_cls & ~noise_hag
                 if cand.sum() > cfg.outlier_mean_k:
                     idx = np.flatnonzero(cand)
-                    outlier[idx] = statistical_outliers(x[idx], y[idx], z[idx], work, mean_k=cfg.outlier_mean_k,
-                                                        multiplier=cfg.outlier_multiplier, what=what)
+                    outlier[idx] = statistical_outliers(
+                        x[idx],
+                        y[idx],
+                        z[idx],
+                        work,
+                        mean_k=cfg.outlier_mean_k,
+                        multiplier=cfg.outlier_multiplier,
+                        what=what,
+                    )
             model_input = ~ground & ~noise_cls & ~noise_hag & ~outlier
             if t.meta["geometry_only_blocks"]:
                 geometry_only = [t.meta["blocks"].index(b) for b in t.meta["geometry_only_blocks"]]
@@ -236,18 +300,31 @@ def preprocess_tile(zone: str, block: str, tile: str, cache_dirs: Mapping[str, s
                 model_input=int(model_input.sum()),
             )
         elif dtm_path:  # no points in this tile: an all-nodata DTM keeps the products uniform
-            write_raster(Path(dtm_path), np.full((1, 1), NODATA, np.float32),
-                         rasterio.transform.from_origin(t.meta["core_bounds"][0], t.meta["core_bounds"][3],
-                                                        cfg.tile_size, cfg.tile_size), t.meta["crs_wkt"])
+            write_raster(
+                Path(dtm_path),
+                np.full((1, 1), NODATA, np.float32),
+                rasterio.transform.from_origin(
+                    t.meta["core_bounds"][0], t.meta["core_bounds"][3], cfg.tile_size, cfg.tile_size
+                ),
+                t.meta["crs_wkt"],
+            )
     timings["total"] = time.perf_counter() - t0
-    t.meta.update(counts=counts, timings=timings, dtm=dtm_info, peak_rss_mb=peak_rss_mb(),
-                  hag_max=cfg.hag_max, hag_min=cfg.hag_min, warnings=warnings)
+    t.meta.update(
+        counts=counts,
+        timings=timings,
+        dtm=dtm_info,
+        peak_rss_mb=peak_rss_mb(),
+        hag_max=cfg.hag_max,
+        hag_min=cfg.hag_min,
+        warnings=warnings,
+    )
     save_tile(out_path, t)
     return t.meta
 
 
-def summarize_block(cache_dir: str | os.PathLike[str], tile_paths: list[str],
-                    out_json: str | os.PathLike[str]) -> dict[str, Any]:
+def summarize_block(
+    cache_dir: str | os.PathLike[str], tile_paths: list[str], out_json: str | os.PathLike[str]
+) -> dict[str, Any]:
     """Per-block preprocessing summary (counts per stage, ground source, timings) for QA.
 
     Reads only the metadata of the block cache and of each tile file.
@@ -271,22 +348,39 @@ def summarize_block(cache_dir: str | os.PathLike[str], tile_paths: list[str],
     if totals.get("core", m["points"]) != m["points"]:
         warnings.append(f"tile cores hold {totals.get('core')} points, the block {m['points']}")
     if m.get("degenerate_attributes"):
-        warnings.append("sensor attributes that carry no information: "
-                        + "; ".join(f"{a} ({m['attributes'][a]['reason']})" for a in m["degenerate_attributes"]))
+        warnings.append(
+            "sensor attributes that carry no information: "
+            + "; ".join(f"{a} ({m['attributes'][a]['reason']})" for a in m["degenerate_attributes"])
+        )
     if m["ground_source"] != "class2":
-        warnings.append(f"ground had to be classified with PDAL {m['ground_source']} "
-                        f"(only {m['ground_points']} class-2 points)")
+        warnings.append(
+            f"ground had to be classified with PDAL {m['ground_source']} (only {m['ground_points']} class-2 points)"
+        )
     # one dict: later stages and other records (e.g. sensor-attribute validity) add keys
     summary = {
-        "block": m["block"], "zone": m["zone"], "path": m["path"], "source": m.get("source", {}),
-        "points": m["points"], "header_bounds": m.get("header_bounds"),
-        "bounds": m["bounds"], "crs_wkt": m["crs_wkt"], "has_rgb": m["has_rgb"], "has_nir": m["has_nir"],
-        "attributes": m.get("attributes"), "degenerate_attributes": m.get("degenerate_attributes", []),
-        "color_bits": m["color_bits"], "ground_source": m["ground_source"],
-        "ground_fraction": m["ground_fraction"], "class_counts": m["class_counts"],
-        "counts": totals, "tiles": tiles, "warnings": warnings,
-        "timings": {"split": m["timings"]["split"],
-                    "tiles": sum(t["timings"].get("total", 0.0) for t in tiles.values())},
+        "block": m["block"],
+        "zone": m["zone"],
+        "path": m["path"],
+        "source": m.get("source", {}),
+        "points": m["points"],
+        "header_bounds": m.get("header_bounds"),
+        "bounds": m["bounds"],
+        "crs_wkt": m["crs_wkt"],
+        "has_rgb": m["has_rgb"],
+        "has_nir": m["has_nir"],
+        "attributes": m.get("attributes"),
+        "degenerate_attributes": m.get("degenerate_attributes", []),
+        "color_bits": m["color_bits"],
+        "ground_source": m["ground_source"],
+        "ground_fraction": m["ground_fraction"],
+        "class_counts": m["class_counts"],
+        "counts": totals,
+        "tiles": tiles,
+        "warnings": warnings,
+        "timings": {
+            "split": m["timings"]["split"],
+            "tiles": sum(t["timings"].get("total", 0.0) for t in tiles.values()),
+        },
     }
     write_text_atomic(out_json, json.dumps(summary, indent=1))
     return summary

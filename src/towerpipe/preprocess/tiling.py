@@ -103,8 +103,9 @@ def neighbours(block: str, all_bounds: Mapping[str, Bounds], margin: float) -> l
     return sorted(b for b, bb in all_bounds.items() if b != block and intersects(box, bb))
 
 
-def blocks_for_tile(block_bounds: Bounds, tile: str, tile_size: float, buffer: float,
-                    all_bounds: Mapping[str, Bounds]) -> list[str]:
+def blocks_for_tile(
+    block_bounds: Bounds, tile: str, tile_size: float, buffer: float, all_bounds: Mapping[str, Bounds]
+) -> list[str]:
     """Blocks that may hold points of a tile's core or buffer (sorted)."""
     box = expand(TileGrid(tuple(block_bounds), tile_size).core_box(tile), buffer)
     return sorted(b for b, bb in all_bounds.items() if intersects(box, bb))
@@ -124,7 +125,7 @@ def occupied_tiles(grid: TileGrid, x: np.ndarray, y: np.ndarray, chunk: int = 4_
     nx, _ = grid.shape
     cells: set[int] = set()
     for start in range(0, len(x), chunk):
-        ix, iy = grid.index(x[start:start + chunk], y[start:start + chunk])
+        ix, iy = grid.index(x[start : start + chunk], y[start : start + chunk])
         cells.update(np.unique(iy.astype(np.int64) * nx + ix).tolist())
     return [f"{c % nx}_{c // nx}" for c in sorted(cells)]
 
@@ -166,8 +167,14 @@ def plan_zone(blocks: Mapping[str, Mapping], tile_size: float, buffer: float) ->
     out: dict[str, dict] = {}
     for b, m in blocks.items():
         if b not in grids:
-            out[b] = {"tiles": [], "points": 0, "bounds": None, "neighbours": [], "tile_blocks": {},
-                      "missing_neighbours": []}
+            out[b] = {
+                "tiles": [],
+                "points": 0,
+                "bounds": None,
+                "neighbours": [],
+                "tile_blocks": {},
+                "missing_neighbours": [],
+            }
             continue
         tile_blocks = {}
         for t in m["tiles"]:
@@ -176,8 +183,11 @@ def plan_zone(blocks: Mapping[str, Mapping], tile_size: float, buffer: float) ->
             tile_blocks[t] = [b, *sorted(hits)]
         reach = expand(tuple(m["bounds"]), buffer)
         out[b] = {
-            "tiles": list(m["tiles"]), "points": int(m.get("points", 0)), "bounds": list(m["bounds"]),
-            "neighbours": sorted({n for v in tile_blocks.values() for n in v[1:]}), "tile_blocks": tile_blocks,
+            "tiles": list(m["tiles"]),
+            "points": int(m.get("points", 0)),
+            "bounds": list(m["bounds"]),
+            "neighbours": sorted({n for v in tile_blocks.values() for n in v[1:]}),
+            "tile_blocks": tile_blocks,
             "missing_neighbours": sorted(f for f, hb in failed.items() if hb and intersects(reach, tuple(hb))),
         }
     return {"tile_size": tile_size, "buffer": buffer, "blocks": out}

@@ -38,7 +38,7 @@ import sqlite3
 from collections.abc import Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -49,9 +49,9 @@ import pyogrio
 import shapely
 
 from towerpipe.errors import InputError
-from towerpipe.products import styles
 from towerpipe.io.fields import Field, conform
 from towerpipe.model.cards import config_hash
+from towerpipe.products import styles
 
 log = logging.getLogger(__name__)
 
@@ -65,16 +65,37 @@ GEOMETRY_NAME = "geom"
 #: GeoPackage version written (GDAL layer creation option ``VERSION``): 1.2, as GDAL 3.6.
 GPKG_VERSION = "1.2"
 
-__all__ = ["LAYER_TOWERS", "LAYER_POINTS", "LAYER_LINES", "LAYER_SPANS", "LAYER_VANISHED", "LAYER_CONDUCTORS",
-           "GPKG_VERSION", "Layer", "write_gpkg", "write_towers_gpkg", "read_towers", "read_metadata",
-           "list_layers", "merge_gpkgs", "concat_towers", "run_metadata", "default_style", "gpkg_version"]
+__all__ = [
+    "LAYER_TOWERS",
+    "LAYER_POINTS",
+    "LAYER_LINES",
+    "LAYER_SPANS",
+    "LAYER_VANISHED",
+    "LAYER_CONDUCTORS",
+    "GPKG_VERSION",
+    "Layer",
+    "write_gpkg",
+    "write_towers_gpkg",
+    "read_towers",
+    "read_metadata",
+    "list_layers",
+    "merge_gpkgs",
+    "concat_towers",
+    "run_metadata",
+    "default_style",
+    "gpkg_version",
+]
 
 
 # --------------------------------------------------------------------------- styles
 #: The default QGIS style of each styled layer (:mod:`towerpipe.products.styles`).
 _STYLES: dict[str, styles.LayerStyle] = {
-    LAYER_TOWERS: styles.TOWERS, LAYER_POINTS: styles.TOWER_POINTS, LAYER_LINES: styles.LINES,
-    LAYER_SPANS: styles.SPANS, LAYER_VANISHED: styles.VANISHED, LAYER_CONDUCTORS: styles.CONDUCTORS,
+    LAYER_TOWERS: styles.TOWERS,
+    LAYER_POINTS: styles.TOWER_POINTS,
+    LAYER_LINES: styles.LINES,
+    LAYER_SPANS: styles.SPANS,
+    LAYER_VANISHED: styles.VANISHED,
+    LAYER_CONDUCTORS: styles.CONDUCTORS,
 }
 
 
@@ -100,23 +121,38 @@ def default_style(layer: str = LAYER_TOWERS, fields: Mapping[str, Field] | None 
 
 def _styles_frame(layers: Sequence[Layer]) -> pd.DataFrame:
     """The ``layer_styles`` rows (QGIS schema) of the styled layers."""
-    now = datetime.now(timezone.utc).replace(microsecond=0).isoformat()
+    now = datetime.now(UTC).replace(microsecond=0).isoformat()
     rows = []
     for lay in layers:
         if lay.name not in _STYLES or lay.geometry_type is None:
             continue
-        rows.append({
-            "f_table_catalog": "", "f_table_schema": "", "f_table_name": lay.name,
-            "f_geometry_column": GEOMETRY_NAME, "styleName": f"towerpipe {lay.name}",
-            "styleQML": default_style(lay.name, lay.fields), "styleSLD": "", "useAsDefault": True,
-            "description": "towerpipe default style", "owner": "", "ui": "", "update_time": now,
-        })
+        rows.append(
+            {
+                "f_table_catalog": "",
+                "f_table_schema": "",
+                "f_table_name": lay.name,
+                "f_geometry_column": GEOMETRY_NAME,
+                "styleName": f"towerpipe {lay.name}",
+                "styleQML": default_style(lay.name, lay.fields),
+                "styleSLD": "",
+                "useAsDefault": True,
+                "description": "towerpipe default style",
+                "owner": "",
+                "ui": "",
+                "update_time": now,
+            }
+        )
     return pd.DataFrame(rows)
 
 
 # --------------------------------------------------------------------------- metadata
-def run_metadata(*, model_meta: Mapping[str, Any] | None = None, config: Mapping[str, Any] | None = None,
-                 run_time: str | None = None, **extra: Any) -> dict[str, str]:
+def run_metadata(
+    *,
+    model_meta: Mapping[str, Any] | None = None,
+    config: Mapping[str, Any] | None = None,
+    run_time: str | None = None,
+    **extra: Any,
+) -> dict[str, str]:
     """Run metadata for :func:`write_towers_gpkg`.
 
     Parameters
@@ -142,7 +178,7 @@ def run_metadata(*, model_meta: Mapping[str, Any] | None = None, config: Mapping
         # how the model was chosen (inference.model: auto picks per zone; towerpipe.model.choice)
         "model_choice": str((model_meta.get("choice") or {}).get("reason", "")),
         "config_hash": config_hash(config or {}),
-        "run_time": run_time or datetime.now(timezone.utc).replace(microsecond=0).isoformat(),
+        "run_time": run_time or datetime.now(UTC).replace(microsecond=0).isoformat(),
     }
     if model_meta.get("choice"):
         md["model_choice"] = json.dumps(model_meta["choice"], default=str)
@@ -192,12 +228,17 @@ def _data_columns(con: sqlite3.Connection, layers: Sequence[Layer]) -> None:
                 if enums.setdefault(cname, f.enum) != f.enum:
                     cname = f"{lay.name}_{name}_values"
                     enums[cname] = f.enum
-            con.execute("INSERT INTO gpkg_data_columns (table_name, column_name, name, title, description, "
-                        "constraint_name) VALUES (?, ?, ?, ?, ?, ?)", (lay.name, name, name, f.title, f.description,
-                                                                      cname))
+            con.execute(
+                "INSERT INTO gpkg_data_columns (table_name, column_name, name, title, description, "
+                "constraint_name) VALUES (?, ?, ?, ?, ?, ?)",
+                (lay.name, name, name, f.title, f.description, cname),
+            )
     for cname, values in enums.items():
-        con.executemany("INSERT INTO gpkg_data_column_constraints (constraint_name, constraint_type, value, "
-                        "description) VALUES (?, 'enum', ?, ?)", [(cname, v, v) for v in values])
+        con.executemany(
+            "INSERT INTO gpkg_data_column_constraints (constraint_name, constraint_type, value, "
+            "description) VALUES (?, 'enum', ?, ?)",
+            [(cname, v, v) for v in values],
+        )
 
 
 def _clean(path: Path) -> None:
@@ -206,8 +247,13 @@ def _clean(path: Path) -> None:
             leftover.unlink()
 
 
-def write_gpkg(path: str | os.PathLike[str], layers: Sequence[Layer], *, crs_wkt: Any = None,
-               metadata: Mapping[str, Any] | None = None) -> Path:
+def write_gpkg(
+    path: str | os.PathLike[str],
+    layers: Sequence[Layer],
+    *,
+    crs_wkt: Any = None,
+    metadata: Mapping[str, Any] | None = None,
+) -> Path:
     """Write layers, their styles, field descriptions and metadata to a GeoPackage, atomically.
 
     Parameters
@@ -224,8 +270,11 @@ def write_gpkg(path: str | os.PathLike[str], layers: Sequence[Layer], *, crs_wkt
     """
     path = Path(path)
     spatial = [lay for lay in layers if lay.geometry_type is not None]
-    crs = crs_wkt if crs_wkt is not None else next(
-        (lay.frame.crs for lay in spatial if getattr(lay.frame, "crs", None) is not None), None)
+    crs = (
+        crs_wkt
+        if crs_wkt is not None
+        else next((lay.frame.crs for lay in spatial if getattr(lay.frame, "crs", None) is not None), None)
+    )
     if spatial and crs is None:
         raise ValueError(f"{path}: no CRS for the tower GeoPackage; pass crs_wkt")
     md = {str(k): str(v) for k, v in (metadata or {}).items()}
@@ -238,10 +287,17 @@ def write_gpkg(path: str | os.PathLike[str], layers: Sequence[Layer], *, crs_wkt
             opts = {"IDENTIFIER": lay.identifier, "DESCRIPTION": lay.description}
             if lay.geometry_type is not None:
                 opts.update(GEOMETRY_NAME=GEOMETRY_NAME, SPATIAL_INDEX="YES")
-            pyogrio.write_dataframe(frame, tmp, layer=lay.name, driver="GPKG", geometry_type=lay.geometry_type,
-                                    dataset_options={"VERSION": GPKG_VERSION} if i == 0 else None,
-                                    dataset_metadata=(md or None) if i == 0 else None, layer_options=opts,
-                                    append=False)
+            pyogrio.write_dataframe(
+                frame,
+                tmp,
+                layer=lay.name,
+                driver="GPKG",
+                geometry_type=lay.geometry_type,
+                dataset_options={"VERSION": GPKG_VERSION} if i == 0 else None,
+                dataset_metadata=(md or None) if i == 0 else None,
+                layer_options=opts,
+                append=False,
+            )
         styles = _styles_frame(layers)
         if len(styles):
             pyogrio.write_dataframe(styles, tmp, layer="layer_styles", driver="GPKG", layer_options={"FID": "id"})
@@ -263,20 +319,42 @@ def _tower_layers(towers: gpd.GeoDataFrame | None, crs: Any) -> list[Layer]:
 
     gdf = towers if towers is not None and len(towers) else empty_frame(TOWER_FIELDS, crs)
     gdf = conform(gdf, TOWER_FIELDS, crs)
-    pts = gpd.GeoDataFrame(gdf.drop(columns="geometry"),
-                           geometry=gpd.points_from_xy(gdf["centroid_x"].to_numpy(float),
-                                                       gdf["centroid_y"].to_numpy(float), crs=crs), crs=crs)
-    return [Layer(LAYER_TOWERS, gdf, TOWER_FIELDS, "Polygon", "Towers (footprints)",
-                  "Power transmission towers found by towerpipe: xy footprint of the tower points"),
-            Layer(LAYER_POINTS, pts, TOWER_FIELDS, "Point", "Towers (centroids)",
-                  "Power transmission towers found by towerpipe: footprint centroid")]
+    pts = gpd.GeoDataFrame(
+        gdf.drop(columns="geometry"),
+        geometry=gpd.points_from_xy(gdf["centroid_x"].to_numpy(float), gdf["centroid_y"].to_numpy(float), crs=crs),
+        crs=crs,
+    )
+    return [
+        Layer(
+            LAYER_TOWERS,
+            gdf,
+            TOWER_FIELDS,
+            "Polygon",
+            "Towers (footprints)",
+            "Power transmission towers found by towerpipe: xy footprint of the tower points",
+        ),
+        Layer(
+            LAYER_POINTS,
+            pts,
+            TOWER_FIELDS,
+            "Point",
+            "Towers (centroids)",
+            "Power transmission towers found by towerpipe: footprint centroid",
+        ),
+    ]
 
 
-def write_towers_gpkg(path: str | os.PathLike[str], towers: gpd.GeoDataFrame | None, *,
-                      crs_wkt: str | None = None, metadata: Mapping[str, Any] | None = None,
-                      lines: gpd.GeoDataFrame | None = None, spans: gpd.GeoDataFrame | None = None,
-                      vanished: gpd.GeoDataFrame | None = None,
-                      conductors: gpd.GeoDataFrame | None = None) -> Path:
+def write_towers_gpkg(
+    path: str | os.PathLike[str],
+    towers: gpd.GeoDataFrame | None,
+    *,
+    crs_wkt: str | None = None,
+    metadata: Mapping[str, Any] | None = None,
+    lines: gpd.GeoDataFrame | None = None,
+    spans: gpd.GeoDataFrame | None = None,
+    vanished: gpd.GeoDataFrame | None = None,
+    conductors: gpd.GeoDataFrame | None = None,
+) -> Path:
     """Write the tower GeoPackage atomically.
 
     Parameters
@@ -312,14 +390,40 @@ def write_towers_gpkg(path: str | os.PathLike[str], towers: gpd.GeoDataFrame | N
     if crs is None:
         raise ValueError(f"{path}: no CRS for the tower GeoPackage; pass crs_wkt")
     layers = _tower_layers(towers, crs)
-    extra = [(lines, LAYER_LINES, LINE_FIELDS, "LineString", "Power lines",
-              "Towers linked into lines by the conductors between them; vertices at the towers, in line order"),
-             (spans, LAYER_SPANS, SPAN_FIELDS, "LineString", "Spans",
-              "Tower-to-tower spans: length, bearing, conductor points and clearance below them"),
-             (vanished, LAYER_VANISHED, REGISTRY_FIELDS, "Polygon", "Vanished towers",
-              "Towers of the registry the last run did not find again (last footprint seen)"),
-             (conductors, LAYER_CONDUCTORS, CONDUCTOR_FIELDS, "Point", "Conductor points",
-              "Points on overhead wires found around the block's towers (they link the towers into lines)")]
+    extra = [
+        (
+            lines,
+            LAYER_LINES,
+            LINE_FIELDS,
+            "LineString",
+            "Power lines",
+            "Towers linked into lines by the conductors between them; vertices at the towers, in line order",
+        ),
+        (
+            spans,
+            LAYER_SPANS,
+            SPAN_FIELDS,
+            "LineString",
+            "Spans",
+            "Tower-to-tower spans: length, bearing, conductor points and clearance below them",
+        ),
+        (
+            vanished,
+            LAYER_VANISHED,
+            REGISTRY_FIELDS,
+            "Polygon",
+            "Vanished towers",
+            "Towers of the registry the last run did not find again (last footprint seen)",
+        ),
+        (
+            conductors,
+            LAYER_CONDUCTORS,
+            CONDUCTOR_FIELDS,
+            "Point",
+            "Conductor points",
+            "Points on overhead wires found around the block's towers (they link the towers into lines)",
+        ),
+    ]
     for table, name, fields, gtype, ident, desc in extra:
         if table is not None:
             layers.append(Layer(name, table if len(table) else empty_frame(fields, crs), fields, gtype, ident, desc))
@@ -371,8 +475,9 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, str]:
         raise InputError(path, f"not a readable tower GeoPackage ({exc})") from exc
 
 
-def concat_towers(paths: Sequence[str | os.PathLike[str]], layer: str = LAYER_TOWERS, *,
-                  crs_wkt: Any = None) -> gpd.GeoDataFrame:
+def concat_towers(
+    paths: Sequence[str | os.PathLike[str]], layer: str = LAYER_TOWERS, *, crs_wkt: Any = None
+) -> gpd.GeoDataFrame:
     """One layer of several tower GeoPackages, concatenated (one CRS, else :class:`InputError`).
 
     A tower reported by two blocks or zones (only possible when they overlap: the
@@ -404,15 +509,24 @@ def concat_towers(paths: Sequence[str | os.PathLike[str]], layer: str = LAYER_TO
             if i < j and not later[i]:
                 later[j] = True
         if later.any():
-            log.warning("%d tower(s) reported by more than one block or zone, kept once: %s", int(later.sum()),
-                        ", ".join(merged.loc[later, "tower_id"].astype(str).tolist()[:10]))
+            log.warning(
+                "%d tower(s) reported by more than one block or zone, kept once: %s",
+                int(later.sum()),
+                ", ".join(merged.loc[later, "tower_id"].astype(str).tolist()[:10]),
+            )
             merged = merged.loc[~later]
         merged = merged.sort_values("tower_id", kind="stable")
     return merged.reset_index(drop=True)
 
 
-def merge_gpkgs(paths: Sequence[str | os.PathLike[str]], out_path: str | os.PathLike[str], *,
-                metadata: Mapping[str, Any] | None = None, crs_wkt: str | None = None, **layers: Any) -> Path:
+def merge_gpkgs(
+    paths: Sequence[str | os.PathLike[str]],
+    out_path: str | os.PathLike[str],
+    *,
+    metadata: Mapping[str, Any] | None = None,
+    crs_wkt: str | None = None,
+    **layers: Any,
+) -> Path:
     """Assemble per-block tower GeoPackages into one (zone-level) GeoPackage.
 
     Parameters
@@ -455,4 +569,3 @@ def gpkg_version(path: str | os.PathLike[str]) -> int:
         version = int(con.execute("PRAGMA user_version").fetchone()[0])
     con.close()
     return version
-

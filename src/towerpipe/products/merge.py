@@ -44,9 +44,10 @@ import copy
 import logging
 import os
 import time
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any
 
 import laspy
 import numpy as np
@@ -56,11 +57,16 @@ from laspy.vlrs.vlrlist import VLRList
 
 from towerpipe import classes
 from towerpipe.errors import InputError, TowerpipeError
-from towerpipe.io.lasformat import (OWN_DIMENSIONS, PROB_DIMENSION, TOWER_ID_DIMENSION, VerbatimExtraBytesVlr,
-                                    check_format, own_dimensions)
+from towerpipe.io.lasformat import (
+    OWN_DIMENSIONS,
+    PROB_DIMENSION,
+    TOWER_ID_DIMENSION,
+    VerbatimExtraBytesVlr,
+    check_format,
+    own_dimensions,
+)
 from towerpipe.io.predictions import load_pred
-from towerpipe.progress import Progress
-from towerpipe.progress import peak_rss_mb
+from towerpipe.progress import Progress, peak_rss_mb
 
 log = logging.getLogger(__name__)
 
@@ -138,8 +144,9 @@ def _assign_max(prob: np.ndarray, idx: np.ndarray, p: np.ndarray) -> None:
     prob[idx] = np.maximum(prob[idx], p)
 
 
-def relabel(classification: np.ndarray, prob: np.ndarray, threshold: float, *,
-            tower: np.ndarray | None = None) -> np.ndarray:
+def relabel(
+    classification: np.ndarray, prob: np.ndarray, threshold: float, *, tower: np.ndarray | None = None
+) -> np.ndarray:
     """New ASPRS classes from input classes and tower probabilities.
 
     ``prob >= threshold`` → 15 (or, when given, the points of reported towers
@@ -243,8 +250,9 @@ def _output_header(header: laspy.LasHeader, crs: Any, path: Path) -> tuple[laspy
                 same.extra_bytes_structs = [type(st).from_buffer_copy(bytes(st)) for st in v.extra_bytes_structs]
                 out.vlrs[i] = same
         return _with_crs(out, crs), missing
-    out.add_extra_dims([ExtraBytesParams(name, OWN_DIMENSIONS[name][0].name, description=OWN_DIMENSIONS[name][1])
-                        for name in missing])
+    out.add_extra_dims(
+        [ExtraBytesParams(name, OWN_DIMENSIONS[name][0].name, description=OWN_DIMENSIONS[name][1]) for name in missing]
+    )
     # laspy regenerated one Extra Bytes VLR at the end; put the original descriptors back
     # (byte for byte) and the VLR where the first input one was.
     new_eb = [v for v in out.vlrs if isinstance(v, ExtraBytesVlr)]
@@ -260,8 +268,8 @@ def _output_header(header: laspy.LasHeader, crs: Any, path: Path) -> tuple[laspy
     if described_size == extra_size:
         kept = [type(s).from_buffer_copy(bytes(s)) for s in old_structs]
     else:  # unregistered extra bytes in the input: keep laspy's description of them
-        kept = list(gen.extra_bytes_structs[:-len(missing)])
-    merged.extra_bytes_structs = kept + list(gen.extra_bytes_structs[-len(missing):])
+        kept = list(gen.extra_bytes_structs[: -len(missing)])
+    merged.extra_bytes_structs = kept + list(gen.extra_bytes_structs[-len(missing) :])
     # COPC's info VLR describes the input's octree and chunk layout: not this file's
     others = [v for v in out.vlrs if not isinstance(v, ExtraBytesVlr) and v.user_id != _COPC_USER_ID]
     pos = first_eb_pos if first_eb_pos is not None else len(others)
@@ -299,8 +307,9 @@ def _set_stats(header: laspy.LasHeader, name: str, values: np.ndarray) -> None:
                 struct._raw_max()[:1] = hi
 
 
-def _raw_chunks(reader: laspy.LasReader, records: str | os.PathLike[str] | None, n: int, in_size: int,
-                chunk_size: int) -> Iterable[np.ndarray]:
+def _raw_chunks(
+    reader: laspy.LasReader, records: str | os.PathLike[str] | None, n: int, in_size: int, chunk_size: int
+) -> Iterable[np.ndarray]:
     """``(m, record size)`` uint8 chunks of the block's point records, in file order."""
     if records is not None and not os.path.exists(records):
         log.info("%s not found: decoding the block's LAZ again", records)
@@ -315,10 +324,13 @@ def _raw_chunks(reader: laspy.LasReader, records: str | os.PathLike[str] | None,
     except (OSError, ValueError) as exc:
         raise InputError(records, f"unreadable point records ({exc}); rerun the split_block job") from exc
     if rec.dtype != np.uint8 or rec.ndim != 2 or rec.shape[0] != n or rec.shape[1] < in_size:
-        raise InputError(records, f"holds {rec.shape} {rec.dtype} records, the block {n} of {in_size} bytes; "
-                                  "the cache is stale: rerun the split_block job")
+        raise InputError(
+            records,
+            f"holds {rec.shape} {rec.dtype} records, the block {n} of {in_size} bytes; "
+            "the cache is stale: rerun the split_block job",
+        )
     for start in range(0, n, chunk_size):
-        yield rec[start:start + chunk_size]
+        yield rec[start : start + chunk_size]
 
 
 def merge_block(
@@ -412,8 +424,7 @@ def merge_block(
             n_tower = n_relab = n_in15 = n_above = 0
             out_path.parent.mkdir(parents=True, exist_ok=True)
             t_read = t_write = t_proc = 0.0
-            with laspy.open(tmp, mode="w", header=out_header, do_compress=True,
-                            laz_backend=backends or None) as writer:
+            with laspy.open(tmp, mode="w", header=out_header, do_compress=True, laz_backend=backends or None) as writer:
                 start = 0
                 progress = Progress(f"merge {block or block_path.stem}, written", n, "points", logger=log)
                 it = _raw_chunks(reader, records, n, in_size, int(chunk_size))
@@ -428,9 +439,9 @@ def merge_block(
                     out = np.empty(m, dtype=out_dtype)
                     ob = out.view(np.uint8).reshape(m, out_dtype.itemsize)
                     ob[:, :in_size] = raw_in[:, :in_size]
-                    p = prob[start:start + m]
-                    ob[:, prob_off:prob_off + 4] = p.view(np.uint8).reshape(m, 4)
-                    ob[:, id_off:id_off + 8] = tower_ids[start:start + m].view(np.uint8).reshape(m, 8)
+                    p = prob[start : start + m]
+                    ob[:, prob_off : prob_off + 4] = p.view(np.uint8).reshape(m, 4)
+                    ob[:, id_off : id_off + 8] = tower_ids[start : start + m].view(np.uint8).reshape(m, 8)
                     raw_cls = out[cls_field].copy()
                     if pf_id >= 6:
                         cls = raw_cls

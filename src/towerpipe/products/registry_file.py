@@ -91,6 +91,18 @@ def published_reviews(path: str | os.PathLike[str] | None, registry: gpd.GeoData
 
 def write_registry(path: str | os.PathLike[str], registry: gpd.GeoDataFrame, crs_wkt: str | None = None) -> Path:
     """Write the registry atomically (GeoPackage, layer ``towers``)."""
-    return write_gpkg(path, [Layer(REGISTRY_LAYER, registry, REGISTRY_FIELDS, "Polygon", "Tower registry",
-                                   "Every tower the zone has found, with its stable id")],
-                      crs_wkt=crs_wkt, metadata={"content": "towerpipe tower registry"})
+    return write_gpkg(
+        path,
+        [
+            Layer(
+                REGISTRY_LAYER,
+                registry,
+                REGISTRY_FIELDS,
+                "Polygon",
+                "Tower registry",
+                "Every tower the zone has found, with its stable id",
+            )
+        ],
+        crs_wkt=crs_wkt,
+        metadata={"content": "towerpipe tower registry"},
+    )

@@ -36,8 +36,10 @@ def zone_summary(zone: str, results_dir: str | os.PathLike[str] = RESULTS_DIR) -
     except (OSError, ValueError, KeyError):
         return f"zone {zone}: no QA index in {out}/ (the zone was not assembled)"
     look = totals.get("look", 0)
-    line = (f"zone {zone}: {totals.get('towers', 0)} towers in {totals.get('blocks', 0)} blocks, "
-            f"{totals.get('failed', 0)} failed")
+    line = (
+        f"zone {zone}: {totals.get('towers', 0)} towers in {totals.get('blocks', 0)} blocks, "
+        f"{totals.get('failed', 0)} failed"
+    )
     if look:
         line += f", {look} need{'s' if look == 1 else ''} a look"
     return f"{line}; QA index: {index}"

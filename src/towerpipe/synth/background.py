@@ -57,7 +57,7 @@ LINE_SPAN, LINE_GAP = (250.0, 380.0), (60.0, 95.0)
 EDGE_MARGIN, BUILDING_MARGIN = 15.0, 12.0
 #: A tower stands where the tile has a ground point closer than this (m).
 GROUND_GAP = 2.0
-_GROUND_BASE = 0.35   # reflectance of ground in towerpipe.synth.color (intensity reference)
+_GROUND_BASE = 0.35  # reflectance of ground in towerpipe.synth.color (intensity reference)
 
 
 def ground_fn(xyz: np.ndarray, cls: np.ndarray):
@@ -70,6 +70,7 @@ def ground_fn(xyz: np.ndarray, cls: np.ndarray):
     def z(x, y):
         _, i = tree.query(np.c_[np.asarray(x, float), np.asarray(y, float)], k=min(6, len(g)))
         return g[i, 2].mean(axis=1)
+
     return z
 
 
@@ -86,8 +87,9 @@ def _tile_files(backgrounds: str | Path, files: list[str] | None) -> list[Path]:
     return paths
 
 
-def _stations(rng: np.random.Generator, box: tuple[float, float, float, float], n_range: tuple[int, int],
-              lines: bool, clear) -> tuple[np.ndarray, np.ndarray]:
+def _stations(
+    rng: np.random.Generator, box: tuple[float, float, float, float], n_range: tuple[int, int], lines: bool, clear
+) -> tuple[np.ndarray, np.ndarray]:
     """Tower positions in a tile and the heading of the line through each.
 
     With ``lines``, parallel lines :data:`LINE_GAP` apart cross the tile at one heading and
@@ -97,7 +99,7 @@ def _stations(rng: np.random.Generator, box: tuple[float, float, float, float], 
     xmin, ymin, xmax, ymax = box
     lo = np.array([xmin + EDGE_MARGIN, ymin + EDGE_MARGIN])
     hi = np.array([xmax - EDGE_MARGIN, ymax - EDGE_MARGIN])
-    if np.any(hi <= lo):                                   # a small tile: its centre
+    if np.any(hi <= lo):  # a small tile: its centre
         c = np.array([(xmin + xmax) / 2, (ymin + ymax) / 2])
         return c[None, :], np.array([rng.uniform(0, np.pi)])
     if not lines:
@@ -116,7 +118,7 @@ def _stations(rng: np.random.Generator, box: tuple[float, float, float, float], 
     pts = []
     off = across.min() + rng.uniform(0.2, 0.8) * min(LINE_GAP[0], np.ptp(across))
     while off < across.max():
-        for _ in range(100):                              # a spot on this line inside the tile
+        for _ in range(100):  # a spot on this line inside the tile
             p = off * nrm + rng.uniform(along.min(), along.max()) * d
             if np.all((p >= lo) & (p <= hi)) and clear(p):
                 pts.append(p)
@@ -131,9 +133,9 @@ def _tile_colour(las: laspy.LasData, cls: np.ndarray, rng: np.random.Generator) 
     dims = set(las.point_format.dimension_names)
     if "red" in dims and np.asarray(las.red).max() > 0:
         rgb = np.c_[[np.asarray(las[c]).astype(np.float32) / 65535 for c in ("red", "green", "blue")]].T
-        if rgb.max() <= 255 / 65535:                      # 8-bit colour stored raw
+        if rgb.max() <= 255 / 65535:  # 8-bit colour stored raw
             rgb *= 257
-    else:                                                 # an orthophoto colour from the classes
+    else:  # an orthophoto colour from the classes
         mat = np.select([np.isin(cls, [3, 4, 5]), cls == 6], [col.TREE, col.ROOF], col.GROUND)
         rgb = col.colors(mat, np.arange(n) // 50, np.full(n, 0.5), rng)[:, :3]
     if "nir" in dims and np.asarray(las.nir).max() > 0:
@@ -144,12 +146,22 @@ def _tile_colour(las: laspy.LasData, cls: np.ndarray, rng: np.random.Generator) 
     return np.c_[rgb, nir].astype(np.float32)
 
 
-def generate_background_zone(out: Path, *, seed: int, backgrounds: str | Path, tower_source: str,
-                             real_towers: str | Path | None, params: SceneParams,
-                             tower_families: list[str] | None = None, files: list[str] | None = None,
-                             copies: int = 1, towers_per_tile: tuple[int, int] = (1, 2),
-                             tower_density: tuple[float, float] | None = None, lines: bool = False,
-                             variant: str | list[str] = "intact") -> ZoneTruth:
+def generate_background_zone(
+    out: Path,
+    *,
+    seed: int,
+    backgrounds: str | Path,
+    tower_source: str,
+    real_towers: str | Path | None,
+    params: SceneParams,
+    tower_families: list[str] | None = None,
+    files: list[str] | None = None,
+    copies: int = 1,
+    towers_per_tile: tuple[int, int] = (1, 2),
+    tower_density: tuple[float, float] | None = None,
+    lines: bool = False,
+    variant: str | list[str] = "intact",
+) -> ZoneTruth:
     """Insert towers into the real background tiles of ``backgrounds`` (see the module docstring).
 
     Parameters
@@ -197,8 +209,18 @@ def generate_background_zone(out: Path, *, seed: int, backgrounds: str | Path, t
             las = laspy.read(f)
             crs = las.header.parse_crs()
             crs_out = crs_out or crs
-            ins = _insert(las, rng, copy * COPY_SPACING, next_id, lib=lib, tower_source=tower_source, params=params,
-                          towers_per_tile=towers_per_tile, tower_density=tower_density, lines=lines)
+            ins = _insert(
+                las,
+                rng,
+                copy * COPY_SPACING,
+                next_id,
+                lib=lib,
+                tower_source=tower_source,
+                params=params,
+                towers_per_tile=towers_per_tile,
+                tower_density=tower_density,
+                lines=lines,
+            )
             next_id += len(ins["rows"])
             rows += ins["rows"]
             spans += ins["spans"]
@@ -208,24 +230,58 @@ def generate_background_zone(out: Path, *, seed: int, backgrounds: str | Path, t
             name = ins["name"]
             path = out / f"{name}.laz"
             # one CRS for the zone: tiles of one system can carry differently written WKTs
-            write_block(path, pts, crs_out if crs_out is not None else "EPSG:2154",
-                        point_format=6 if "no_colour" in variants else 8)
+            write_block(
+                path,
+                pts,
+                crs_out if crs_out is not None else "EPSG:2154",
+                point_format=6 if "no_colour" in variants else 8,
+            )
             for r in ins["rows"]:
                 r["block"] = r["blocks"] = name
-            blocks.append({"name": name, "path": str(path), "source": str(f), "copy": copy,
-                           "n_points": int(len(pts["x"])), "bounds": ins["bounds"]})
+            blocks.append(
+                {
+                    "name": name,
+                    "path": str(path),
+                    "source": str(f),
+                    "copy": copy,
+                    "n_points": int(len(pts["x"])),
+                    "bounds": ins["bounds"],
+                }
+            )
             log.info("background block %s (%s, copy %d): %d towers", name, f.name, copy, len(ins["rows"]))
     gdf = gpd.GeoDataFrame(rows, columns=TRUTH_COLUMNS, geometry="geometry", crs=crs_out)
     write_truth(out, gdf)
-    meta = {"seed": seed, "backgrounds": str(backgrounds), "files": [p.name for p in paths], "copies": copies,
-            "tower_source": tower_source, "tower_families": tower_families, "tower_density": tower_density,
-            "lines": lines, "variant": variant, "blocks": blocks, "params": params.to_dict(), "spans": spans}
+    meta = {
+        "seed": seed,
+        "backgrounds": str(backgrounds),
+        "files": [p.name for p in paths],
+        "copies": copies,
+        "tower_source": tower_source,
+        "tower_families": tower_families,
+        "tower_density": tower_density,
+        "lines": lines,
+        "variant": variant,
+        "blocks": blocks,
+        "params": params.to_dict(),
+        "spans": spans,
+    }
     (out / META_JSON).write_text(json.dumps(meta, indent=1))
     return ZoneTruth(out, blocks, gdf, np.array(spans, np.int64).reshape(-1, 2), meta)
 
 
-def _insert(las: laspy.LasData, rng: np.random.Generator, dx: float, first_id: int, *, lib, tower_source: str,
-            params: SceneParams, towers_per_tile, tower_density, lines: bool) -> dict:
+def _insert(
+    las: laspy.LasData,
+    rng: np.random.Generator,
+    dx: float,
+    first_id: int,
+    *,
+    lib,
+    tower_source: str,
+    params: SceneParams,
+    towers_per_tile,
+    tower_density,
+    lines: bool,
+) -> dict:
     """One tile (moved ``dx`` east) with its towers and conductors: points, truth rows, spans."""
     from towerpipe.synth.scene import block_name
 
@@ -245,17 +301,17 @@ def _insert(las: laspy.LasData, rng: np.random.Generator, dx: float, first_id: i
         return (btree is None or btree.query(p)[0] > BUILDING_MARGIN) and gtree.query(p)[0] < GROUND_GAP
 
     where, heading = _stations(rng, (xmin, ymin, xmax, ymax), towers_per_tile, lines, clear)
-    towers = []                               # (id, design, height, base, world points, attachments, material)
+    towers = []  # (id, design, height, base, world points, attachments, material)
     wires: list[np.ndarray] = []
-    for k, (p, head) in enumerate(zip(where, heading)):
-        rot = head - np.pi / 2                # local x across the line
+    for p, head in zip(where, heading):
+        rot = head - np.pi / 2  # local x across the line
         dens = float(rng.uniform(*tower_density)) if tower_density else tile_density
         base_z = float(gz(p[:1], p[1:])[0])
         if lib is not None and (tower_source == "real" or rng.random() < 0.5):
             name, shape = lib.draw(rng)
             h = float(np.clip(np.ptp(shape[:, 2]) * rng.uniform(0.9, 1.1), 10.0, 60.0))
             local = realise(shape, h, dens, rng, params)
-            if len(local) < 5:                    # a thin pole at a low density: nothing to see
+            if len(local) < 5:  # a thin pole at a low density: nothing to see
                 continue
             pts = to_world(local, p[0], p[1], base_z, rot)
             att = to_world(attachments(local), p[0], p[1], base_z, rot)
@@ -264,10 +320,9 @@ def _insert(las: laspy.LasData, rng: np.random.Generator, dx: float, first_id: i
             design = str(rng.choice(DESIGNS))
             h = float(np.clip(rng.uniform(*HEIGHTS[design]), 10.0, 60.0))
             t = place_tower(0, design, p[0], p[1], rot, h, gz, rng)
-            pts, _ = sample_segments(t.prim, dens, rng, beam=params.member_beam,
-                                     vertical_factor=params.vertical_factor)
+            pts, _ = sample_segments(t.prim, dens, rng, beam=params.member_beam, vertical_factor=params.vertical_factor)
             zrel = np.clip((pts[:, 2] - t.base_z) / h, 0, 1)
-            vis = params.tower_visibility_min + (1 - params.tower_visibility_min) * zrel ** 0.6
+            vis = params.tower_visibility_min + (1 - params.tower_visibility_min) * zrel**0.6
             pts = pts[rng.random(len(pts)) < vis]
             att = t.attach
             material = col.WOOD if design in WOODEN else col.STEEL
@@ -283,19 +338,36 @@ def _insert(las: laspy.LasData, rng: np.random.Generator, dx: float, first_id: i
         parts.append((pts, classes.TOWER, tid, material, own_share, factor))
         fp = shapely.convex_hull(shapely.MultiPoint(pts[:, :2])).buffer(0.25, quad_segs=2)
         base = pts[pts[:, 2] < base_z + 0.1 * h]
-        rows.append({"tower_id": tid, "design": design, "height": round(h, 3), "base_z": round(base_z, 3),
-                     "base_width": round(float(np.ptp(base[:, 0])) if len(base) else 1.0, 3),
-                     "x": float(np.median(base[:, 0])) if len(base) else float(pts[:, 0].mean()),
-                     "y": float(np.median(base[:, 1])) if len(base) else float(pts[:, 1].mean()),
-                     "centroid_x": fp.centroid.x, "centroid_y": fp.centroid.y, "n_points": int(len(pts)),
-                     "block": None, "blocks": None, "line_id": tid if lines else 0, "geometry": fp})
+        rows.append(
+            {
+                "tower_id": tid,
+                "design": design,
+                "height": round(h, 3),
+                "base_z": round(base_z, 3),
+                "base_width": round(float(np.ptp(base[:, 0])) if len(base) else 1.0, 3),
+                "x": float(np.median(base[:, 0])) if len(base) else float(pts[:, 0].mean()),
+                "y": float(np.median(base[:, 1])) if len(base) else float(pts[:, 1].mean()),
+                "centroid_x": fp.centroid.x,
+                "centroid_y": fp.centroid.y,
+                "n_points": int(len(pts)),
+                "block": None,
+                "blocks": None,
+                "line_id": tid if lines else 0,
+                "geometry": fp,
+            }
+        )
     if wires:
         w = np.concatenate(wires)
         w = w[(w[:, 0] >= xmin) & (w[:, 0] <= xmax) & (w[:, 1] >= ymin) & (w[:, 1] <= ymax)]
         parts.append((w, 14, 0, col.WIRE, 0.3, 1.0))
     points = _points(las, xyz, cls, parts, rng)
-    return {"points": points, "rows": rows, "name": block_name(np.floor(xmin), np.floor(ymin)),
-            "bounds": [float(xmin), float(ymin), float(xmax), float(ymax)], "spans": []}
+    return {
+        "points": points,
+        "rows": rows,
+        "name": block_name(np.floor(xmin), np.floor(ymin)),
+        "bounds": [float(xmin), float(ymin), float(xmax), float(ymax)],
+        "spans": [],
+    }
 
 
 def _three(att: np.ndarray, heading: float) -> np.ndarray:
@@ -304,8 +376,9 @@ def _three(att: np.ndarray, heading: float) -> np.ndarray:
     return att[[int(np.argmin(across)), int(np.argmax(across)), int(np.argmax(att[:, 2]))]]
 
 
-def _conductors(att: np.ndarray, heading: float, span: float, gz, density: float,
-                rng: np.random.Generator) -> np.ndarray:
+def _conductors(
+    att: np.ndarray, heading: float, span: float, gz, density: float, rng: np.random.Generator
+) -> np.ndarray:
     """Wire points of one tower's line: catenaries to the next tower on each side, one span away."""
     d = np.array([np.cos(heading), np.sin(heading), 0.0])
     chain = []
@@ -347,8 +420,9 @@ def _points(las: laspy.LasData, xyz: np.ndarray, cls: np.ndarray, parts, rng: np
         _, near = tree.query(pts[:, :2])
         own = rng.random(m) < own_share
         c = colour[near].copy()
-        c[own] = col.colors(np.full(int(own.sum()), material), np.zeros(int(own.sum()), int),
-                            np.zeros(int(own.sum())), rng)
+        c[own] = col.colors(
+            np.full(int(own.sum()), material), np.zeros(int(own.sum()), int), np.zeros(int(own.sum())), rng
+        )
         nr = (1 + (rng.random(m) < 0.6)).astype(np.uint8)
         rn = np.where((nr == 2) & (rng.random(m) < 0.25), 2, 1).astype(np.uint8)
         rel = col.intensity(np.full(m, material), rn, nr, rng).astype(np.float64) / (40000.0 * _GROUND_BASE)
@@ -378,7 +452,9 @@ def _points(las: laspy.LasData, xyz: np.ndarray, cls: np.ndarray, parts, rng: np
         "return_number": join(get("return_number", np.ones(n0)), cat["rn"], np.uint8),
         "number_of_returns": join(get("number_of_returns", np.ones(n0)), cat["nr"], np.uint8),
         "intensity": join(inten, cat["int"], np.uint16),
-        "red": col.to16(rgbn[:, 0]), "green": col.to16(rgbn[:, 1]), "blue": col.to16(rgbn[:, 2]),
+        "red": col.to16(rgbn[:, 0]),
+        "green": col.to16(rgbn[:, 1]),
+        "blue": col.to16(rgbn[:, 2]),
         "nir": col.to16(rgbn[:, 3]),
         "point_source_id": join(psid, cat["psid"], np.uint16),
         "scan_angle": join(sa, cat["sa"], np.float32),

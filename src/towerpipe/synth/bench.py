@@ -14,6 +14,7 @@ from pathlib import Path
 def run_bench(size: float = 1000.0, density: float = 10.0, seed: int = 0, parallel: bool = False) -> dict:
     """Generate and write one block; return seconds, points and points/s."""
     from towerpipe.synth.zone import generate_zone
+
     with tempfile.TemporaryDirectory() as d:
         t0 = time.perf_counter()
         truth = generate_zone(Path(d), seed=seed, blocks=1, size=size, density=density, parallel=parallel)
@@ -31,8 +32,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--parallel", action="store_true")
     a = ap.parse_args(argv)
     r = run_bench(a.size, a.density, a.seed, a.parallel)
-    print(f"synth bench: {a.size:.0f} m block at {a.density} pts/m²: {r['points']} points in "
-          f"{r['seconds']:.2f} s = {r['points_per_s']:.0f} points/s ({r['laz_mb']:.1f} MB LAZ, {r['towers']} towers)")
+    print(
+        f"synth bench: {a.size:.0f} m block at {a.density} pts/m²: {r['points']} points in "
+        f"{r['seconds']:.2f} s = {r['points_per_s']:.0f} points/s ({r['laz_mb']:.1f} MB LAZ, {r['towers']} towers)"
+    )
     return 0
 
 

@@ -43,10 +43,11 @@ class Buildings:
     base_z: np.ndarray
     roof: np.ndarray
 
-    def subset(self, m) -> "Buildings":
+    def subset(self, m) -> Buildings:
         """Buildings selected by a mask / index."""
-        return Buildings(*(getattr(self, k)[m] for k in
-                           ("x", "y", "length", "width", "rot", "h", "ridge", "base_z", "roof")))
+        return Buildings(
+            *(getattr(self, k)[m] for k in ("x", "y", "length", "width", "rot", "h", "ridge", "base_z", "roof"))
+        )
 
     def __len__(self) -> int:
         return len(self.x)
@@ -56,8 +57,10 @@ class Buildings:
         c, s = np.cos(self.rot), np.sin(self.rot)
         a = np.array([1, -1, -1, 1])[None, :] * (self.length / 2)[:, None]
         b = np.array([1, 1, -1, -1])[None, :] * (self.width / 2)[:, None]
-        return np.stack([self.x[:, None] + a * c[:, None] - b * s[:, None],
-                         self.y[:, None] + a * s[:, None] + b * c[:, None]], axis=2)
+        return np.stack(
+            [self.x[:, None] + a * c[:, None] - b * s[:, None], self.y[:, None] + a * s[:, None] + b * c[:, None]],
+            axis=2,
+        )
 
 
 def make_roads(seed: int, bounds, params: SceneParams) -> list[tuple[np.ndarray, float]]:
@@ -121,7 +124,7 @@ def make_buildings(seed: int, bounds, params: SceneParams, terrain_z, avoid) -> 
         d = np.hypot(x[idx, None] - x[None, idx], y[idx, None] - y[None, idx])
         clash = np.triu(d < 0.8 * (rad[idx, None] + rad[None, idx]), 1)
         bad = np.zeros(len(idx), bool)
-        for i in range(len(idx)):          # loop over buildings (few hundred), not points
+        for i in range(len(idx)):  # loop over buildings (few hundred), not points
             if not bad[i]:
                 bad |= clash[i] & ~bad
         keep[idx[bad]] = False
@@ -131,15 +134,14 @@ def make_buildings(seed: int, bounds, params: SceneParams, terrain_z, avoid) -> 
     return b
 
 
-def rasterize_roofs(b: Buildings, x0: float, y0: float, res: float, nx: int, ny: int
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def rasterize_roofs(b: Buildings, x0: float, y0: float, res: float, nx: int, ny: int) -> tuple[np.ndarray, np.ndarray]:
     """Roof elevation (NaN where no roof) and building index per cell (flat arrays)."""
     roof = np.full(nx * ny, np.nan, np.float64)
     bid = np.full(nx * ny, -1, np.int32)
     if not len(b):
         return roof, bid
     corners = b.corners()
-    for i in range(len(b)):                # loop over buildings, vectorised over cells
+    for i in range(len(b)):  # loop over buildings, vectorised over cells
         cx0, cy0 = corners[i].min(axis=0)
         cx1, cy1 = corners[i].max(axis=0)
         ix = np.arange(max(0, int((cx0 - x0) / res)), min(nx, int((cx1 - x0) / res) + 1))
@@ -160,15 +162,16 @@ def rasterize_roofs(b: Buildings, x0: float, y0: float, res: float, nx: int, ny:
     return roof, bid
 
 
-def sample_walls(b: Buildings, density: float, vertical_factor: float, rng: np.random.Generator
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def sample_walls(
+    b: Buildings, density: float, vertical_factor: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
     """Returns on building walls (few: airborne view), with their building index."""
     if not len(b):
         return np.zeros((0, 3)), np.zeros(0, np.int64)
     c = b.corners()
     a = c
     bb = np.roll(c, -1, axis=1)
-    wl = np.hypot(*(bb - a).transpose(2, 0, 1))                       # (n, 4)
+    wl = np.hypot(*(bb - a).transpose(2, 0, 1))  # (n, 4)
     lam = density * vertical_factor * 0.5 * wl * b.h[:, None]
     n = rng.poisson(lam).ravel()
     wi = np.repeat(np.arange(n.size), n)

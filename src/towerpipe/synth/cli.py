@@ -10,11 +10,22 @@ log = logging.getLogger(__name__)
 
 def _synth(args: argparse.Namespace) -> int:
     from towerpipe.synth.zone import generate_zone
-    truth = generate_zone(args.out, seed=args.seed, blocks=args.blocks, size=args.size,
-                          density=args.density, crs=args.crs, origin=(args.x0, args.y0),
-                          preset=args.preset, edge_tower=args.edge_tower,
-                          tower_source=args.tower_source, real_towers=args.real_towers,
-                          real_backgrounds=args.real_backgrounds, parallel=args.parallel)
+
+    truth = generate_zone(
+        args.out,
+        seed=args.seed,
+        blocks=args.blocks,
+        size=args.size,
+        density=args.density,
+        crs=args.crs,
+        origin=(args.x0, args.y0),
+        preset=args.preset,
+        edge_tower=args.edge_tower,
+        tower_source=args.tower_source,
+        real_towers=args.real_towers,
+        real_backgrounds=args.real_backgrounds,
+        parallel=args.parallel,
+    )
     n = sum(b["n_points"] for b in truth.blocks)
     print(f"wrote {len(truth.blocks)} blocks ({n} points) and {len(truth.towers)} towers to {truth.out_dir}")
     return 0
@@ -22,6 +33,7 @@ def _synth(args: argparse.Namespace) -> int:
 
 def _report(args: argparse.Namespace) -> int:
     from towerpipe.synth.report import realism_report
+
     path = realism_report(args.zone, args.out, real_towers=args.real_towers, density=args.density)
     print(f"wrote {path}")
     return 0

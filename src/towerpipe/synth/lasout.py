@@ -12,9 +12,14 @@ import pyproj
 TOWER_ID_DIM = "TowerId"
 
 
-def write_block(path: str | Path, pts: dict[str, np.ndarray], crs: str | pyproj.CRS,
-                bounds: tuple[float, float, float, float] | None = None, parallel: bool = False,
-                point_format: int = 8) -> None:
+def write_block(
+    path: str | Path,
+    pts: dict[str, np.ndarray],
+    crs: str | pyproj.CRS,
+    bounds: tuple[float, float, float, float] | None = None,
+    parallel: bool = False,
+    point_format: int = 8,
+) -> None:
     """Write one block as LAZ (or LAS by suffix).
 
     Parameters
@@ -35,8 +40,9 @@ def write_block(path: str | Path, pts: dict[str, np.ndarray], crs: str | pyproj.
     if point_format not in (6, 8):
         raise ValueError(f"point_format must be 6 or 8, got {point_format}")
     header = laspy.LasHeader(version="1.4", point_format=point_format)
-    header.add_extra_dim(laspy.ExtraBytesParams(name=TOWER_ID_DIM, type=np.uint32,
-                                                description="tower instance id, 0 = none"))
+    header.add_extra_dim(
+        laspy.ExtraBytesParams(name=TOWER_ID_DIM, type=np.uint32, description="tower instance id, 0 = none")
+    )
     header.scales = np.array([0.01, 0.01, 0.01])
     x0 = bounds[0] if bounds else float(np.floor(pts["x"].min())) if len(pts["x"]) else 0.0
     y0 = bounds[1] if bounds else float(np.floor(pts["y"].min())) if len(pts["y"]) else 0.0

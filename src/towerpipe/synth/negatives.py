@@ -45,18 +45,26 @@ def _crane(h: float, rng) -> Primitives:
     chords += [[[0, 0, h], [0, 0, h + 6]], [[0, 0, h + 6], [jib * 0.7, 0, h + 1.4]], [[0, 0, h + 6], [-cj, 0, h + 1.4]]]
     hook_x = rng.uniform(5, jib)
     hook = [[[hook_x, 0, h], [hook_x, 0, h - rng.uniform(5, h - 3)]]]
-    return Primitives.concat([segments(mast, 0.12), segments(np.array(chords), 0.12), segments(np.array(hook), 0.05),
-                              patch(-cj + 2.5, 0, h + 0.5, 2.0, 1.0)])
+    return Primitives.concat(
+        [
+            segments(mast, 0.12),
+            segments(np.array(chords), 0.12),
+            segments(np.array(hook), 0.05),
+            patch(-cj + 2.5, 0, h + 0.5, 2.0, 1.0),
+        ]
+    )
 
 
 def _mast(h: float, rng) -> Primitives:
     z, w = panel_levels(0, h, rng.uniform(0.8, 1.4), 0.5)
     body = np.concatenate(lattice_body(z, w, rng, 0.08))
     parts = [segments(body, 0.08)]
-    for k in range(int(rng.integers(2, 6))):          # antennas and dishes near the top
+    for _ in range(int(rng.integers(2, 6))):  # antennas and dishes near the top
         za = h - rng.uniform(0.5, 6)
         a = rng.uniform(0, 2 * np.pi)
-        parts.append(segment([0.6 * np.cos(a), 0.6 * np.sin(a), za - 1.2], [0.6 * np.cos(a), 0.6 * np.sin(a), za + 1.2], 0.3))
+        parts.append(
+            segment([0.6 * np.cos(a), 0.6 * np.sin(a), za - 1.2], [0.6 * np.cos(a), 0.6 * np.sin(a), za + 1.2], 0.3)
+        )
         parts.append(patch(1.0 * np.cos(a), 1.0 * np.sin(a), za, 0.5, 0.15, a))
     return Primitives.concat(parts)
 
@@ -68,7 +76,7 @@ def _turbine(h: float, rng) -> Primitives:
     parts = [Primitives(tube, d, np.ones(8, bool), np.zeros((0, 6))), patch(1.5, 0, h + 1.8, 5.0, 1.6)]
     blade = rng.uniform(35, 55)
     a0 = rng.uniform(0, 2 * np.pi)
-    for k in range(3):                                 # blades in the vertical rotor plane x = -3
+    for k in range(3):  # blades in the vertical rotor plane x = -3
         a = a0 + k * 2 * np.pi / 3
         parts.append(segment([-3.5, 0, h + 1.5], [-3.5, blade * np.cos(a), h + 1.5 + blade * np.sin(a)], 2.0))
     return Primitives.concat(parts)
@@ -76,16 +84,25 @@ def _turbine(h: float, rng) -> Primitives:
 
 def _chimney(h: float, rng) -> Primitives:
     d = rng.uniform(2.0, 5.0)
-    return Primitives.concat([Primitives(np.array([[[0, 0, 0], [0, 0, h]]], float), np.array([d]), np.array([True]),
-                                         np.zeros((0, 6))), patch(0, 0, h, d / 2.3, d / 2.3)])
+    return Primitives.concat(
+        [
+            Primitives(np.array([[[0, 0, 0], [0, 0, h]]], float), np.array([d]), np.array([True]), np.zeros((0, 6))),
+            patch(0, 0, h, d / 2.3, d / 2.3),
+        ]
+    )
 
 
-_BUILDERS = {"crane": (_crane, (20.0, 55.0)), "telecom_mast": (_mast, (18.0, 50.0)),
-             "wind_turbine": (_turbine, (60.0, 100.0)), "chimney": (_chimney, (20.0, 60.0))}
+_BUILDERS = {
+    "crane": (_crane, (20.0, 55.0)),
+    "telecom_mast": (_mast, (18.0, 50.0)),
+    "wind_turbine": (_turbine, (60.0, 100.0)),
+    "chimney": (_chimney, (20.0, 60.0)),
+}
 
 
-def make_negatives(seed: int, bounds, params: SceneParams, terrain_z, roads, avoid
-                   ) -> tuple[list[Negative], Primitives]:
+def make_negatives(
+    seed: int, bounds, params: SceneParams, terrain_z, roads, avoid
+) -> tuple[list[Negative], Primitives]:
     """Draw the hard negatives of a zone.
 
     Returns
@@ -96,8 +113,12 @@ def make_negatives(seed: int, bounds, params: SceneParams, terrain_z, roads, avo
     xmin, ymin, xmax, ymax = bounds
     area = (xmax - xmin) * (ymax - ymin) / 1e6
     out: list[Negative] = []
-    rates = {"crane": params.cranes, "telecom_mast": params.telecom_masts,
-             "wind_turbine": params.wind_turbines, "chimney": params.chimneys}
+    rates = {
+        "crane": params.cranes,
+        "telecom_mast": params.telecom_masts,
+        "wind_turbine": params.wind_turbines,
+        "chimney": params.chimneys,
+    }
     for kind, rate in rates.items():
         rng = derive(seed, "neg", kind)
         build, (lo, hi) = _BUILDERS[kind]
@@ -131,20 +152,29 @@ def make_negatives(seed: int, bounds, params: SceneParams, terrain_z, roads, avo
         z = terrain_z(p[:, 0], p[:, 1])
         h = rng.uniform(8.0, 12.0, len(p))
         tops = []
-        for k in range(len(p)):        # loop over poles (tens)
+        for k in range(len(p)):  # loop over poles (tens)
             if wooden:
-                pr = Primitives.concat([segment([0, 0, 0], [0, 0, h[k]], 0.3, tube=True),
-                                        segment([-0.9, 0, h[k] - 0.4], [0.9, 0, h[k] - 0.4], 0.12)])
+                pr = Primitives.concat(
+                    [
+                        segment([0, 0, 0], [0, 0, h[k]], 0.3, tube=True),
+                        segment([-0.9, 0, h[k] - 0.4], [0.9, 0, h[k] - 0.4], 0.12),
+                    ]
+                )
                 tops.append([[-0.8, 0, h[k] - 0.3], [0.8, 0, h[k] - 0.3]])
                 name = "wooden_pole"
             else:
-                pr = Primitives.concat([segment([0, 0, 0], [0, 0, h[k]], 0.2, tube=True),
-                                        segment([0, 0, h[k]], [-1.6, 0, h[k] + 0.2], 0.12, tube=True),
-                                        patch(-1.6, 0, h[k] + 0.1, 0.35, 0.15)])
+                pr = Primitives.concat(
+                    [
+                        segment([0, 0, 0], [0, 0, h[k]], 0.2, tube=True),
+                        segment([0, 0, h[k]], [-1.6, 0, h[k] + 0.2], 0.12, tube=True),
+                        patch(-1.6, 0, h[k] + 0.1, 0.35, 0.15),
+                    ]
+                )
                 name = "street_light"
             rot = np.arctan2(nrm[k, 1], nrm[k, 0])
-            out.append(Negative(name, float(p[k, 0]), float(p[k, 1]), float(h[k]),
-                                pr.transformed(p[k, 0], p[k, 1], z[k], rot)))
+            out.append(
+                Negative(name, float(p[k, 0]), float(p[k, 1]), float(h[k]), pr.transformed(p[k, 0], p[k, 1], z[k], rot))
+            )
             if wooden:
                 c, s_ = np.cos(rot), np.sin(rot)
                 tops[-1] = [[p[k, 0] + c * a - s_ * b, p[k, 1] + s_ * a + c * b, z[k] + cz] for a, b, cz in tops[-1]]

@@ -36,19 +36,23 @@ class Primitives:
     patch: np.ndarray
 
     @classmethod
-    def empty(cls) -> "Primitives":
+    def empty(cls) -> Primitives:
         """No primitive."""
         return cls(np.zeros((0, 2, 3)), np.zeros(0), np.zeros(0, bool), np.zeros((0, 6)))
 
     @classmethod
-    def concat(cls, items: list["Primitives"]) -> "Primitives":
+    def concat(cls, items: list[Primitives]) -> Primitives:
         """Concatenate several bags."""
         if not items:
             return cls.empty()
-        return cls(np.concatenate([p.seg for p in items]), np.concatenate([p.width for p in items]),
-                   np.concatenate([p.tube for p in items]), np.concatenate([p.patch for p in items]))
+        return cls(
+            np.concatenate([p.seg for p in items]),
+            np.concatenate([p.width for p in items]),
+            np.concatenate([p.tube for p in items]),
+            np.concatenate([p.patch for p in items]),
+        )
 
-    def transformed(self, x: float, y: float, z: float, rot: float) -> "Primitives":
+    def transformed(self, x: float, y: float, z: float, rot: float) -> Primitives:
         """Rotate about z by ``rot`` (radians) and translate by (x, y, z)."""
         c, s = np.cos(rot), np.sin(rot)
         seg = self.seg.copy()
@@ -71,8 +75,9 @@ class Primitives:
             p = self.patch
             for a, b in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
                 c, s = np.cos(p[:, 5]), np.sin(p[:, 5])
-                pts.append(np.c_[p[:, 0] + a * p[:, 3] * c - b * p[:, 4] * s,
-                                 p[:, 1] + a * p[:, 3] * s + b * p[:, 4] * c])
+                pts.append(
+                    np.c_[p[:, 0] + a * p[:, 3] * c - b * p[:, 4] * s, p[:, 1] + a * p[:, 3] * s + b * p[:, 4] * c]
+                )
         return np.concatenate(pts)
 
 
@@ -84,19 +89,25 @@ def segment(p0, p1, width: float, tube: bool = False) -> Primitives:
 def segments(seg: np.ndarray, width: float | np.ndarray, tube: bool = False) -> Primitives:
     """Many segments (K, 2, 3) of one width."""
     seg = np.asarray(seg, float).reshape(-1, 2, 3)
-    return Primitives(seg, np.broadcast_to(np.asarray(width, float), (len(seg),)).copy(),
-                      np.full(len(seg), tube), np.zeros((0, 6)))
+    return Primitives(
+        seg, np.broadcast_to(np.asarray(width, float), (len(seg),)).copy(), np.full(len(seg), tube), np.zeros((0, 6))
+    )
 
 
 def patch(cx: float, cy: float, z: float, hl: float, hw: float, rot: float = 0.0) -> Primitives:
     """One horizontal rectangle."""
-    return Primitives(np.zeros((0, 2, 3)), np.zeros(0), np.zeros(0, bool),
-                      np.array([[cx, cy, z, hl, hw, rot]], float))
+    return Primitives(np.zeros((0, 2, 3)), np.zeros(0), np.zeros(0, bool), np.array([[cx, cy, z, hl, hw, rot]], float))
 
 
-def sample_segments(prim: Primitives, density: np.ndarray | float, rng: np.random.Generator, *,
-                    beam: float, vertical_factor: float, patch_density: np.ndarray | float | None = None
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def sample_segments(
+    prim: Primitives,
+    density: np.ndarray | float,
+    rng: np.random.Generator,
+    *,
+    beam: float,
+    vertical_factor: float,
+    patch_density: np.ndarray | float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Draw airborne returns on primitives.
 
     Parameters
@@ -127,7 +138,7 @@ def sample_segments(prim: Primitives, density: np.ndarray | float, rng: np.rando
     horiz = np.hypot(d[:, 0], d[:, 1])
     with np.errstate(invalid="ignore", divide="ignore"):
         cos_e = np.where(length > 0, horiz / length, 0.0)
-    sin_e = np.sqrt(np.clip(1 - cos_e ** 2, 0, 1))
+    sin_e = np.sqrt(np.clip(1 - cos_e**2, 0, 1))
     weff = prim.width + beam
     lam = np.asarray(density, float) * length * weff * (cos_e + vertical_factor * sin_e)
     n = rng.poisson(np.broadcast_to(lam, (m,)))
@@ -143,8 +154,11 @@ def sample_segments(prim: Primitives, density: np.ndarray | float, rng: np.rando
     pts += r * rad[:, None]
     if len(prim.patch):
         p = prim.patch
-        pd = (patch_density if patch_density is not None else
-              (density if np.ndim(density) == 0 else float(np.mean(density)) if m else 10.0))
+        pd = (
+            patch_density
+            if patch_density is not None
+            else (density if np.ndim(density) == 0 else float(np.mean(density)) if m else 10.0)
+        )
         area = 4 * p[:, 3] * p[:, 4]
         k = rng.poisson(np.asarray(pd, float) * area)
         po = np.repeat(np.arange(len(p)), k)

@@ -47,7 +47,7 @@ def _normalise(xyz: np.ndarray) -> np.ndarray:
     out = np.c_[xyz[:, :2] - c, xyz[:, 2] - z0]
     cov = np.cov(out[:, :2].T)
     w, v = np.linalg.eigh(cov)
-    a = np.arctan2(v[1, 1], v[0, 1])                    # major axis angle
+    a = np.arctan2(v[1, 1], v[0, 1])  # major axis angle
     ca, sa = np.cos(-a), np.sin(-a)
     return np.c_[ca * out[:, 0] - sa * out[:, 1], sa * out[:, 0] + ca * out[:, 1], out[:, 2]]
 
@@ -73,8 +73,9 @@ def load_real_towers(root: str | Path) -> list[tuple[str, np.ndarray]]:
         las = laspy.read(f)
         xyz = np.c_[las.x, las.y, las.z]
         crs = las.header.parse_crs()
-        feet = (crs is not None and "foot" in crs.axis_info[0].unit_name.lower()) or \
-            (crs is None and np.ptp(xyz[:, 2]) > 100)
+        feet = (crs is not None and "foot" in crs.axis_info[0].unit_name.lower()) or (
+            crs is None and np.ptp(xyz[:, 2]) > 100
+        )
         if feet:
             xyz = xyz * US_FOOT
         lab = clusters(xyz, radius=2.0, voxel=0.6)
@@ -88,8 +89,15 @@ def load_real_towers(root: str | Path) -> list[tuple[str, np.ndarray]]:
     return out
 
 
-def airborne_resample(xyz: np.ndarray, density: float, rng: np.random.Generator, *,
-                      vertical_factor: float = 0.25, vis_min: float = 0.3, voxel: float = 0.15) -> np.ndarray:
+def airborne_resample(
+    xyz: np.ndarray,
+    density: float,
+    rng: np.random.Generator,
+    *,
+    vertical_factor: float = 0.25,
+    vis_min: float = 0.3,
+    voxel: float = 0.15,
+) -> np.ndarray:
     """Thin a dense tower point set to what an airborne scanner at ``density`` sees.
 
     Voxel thinning removes the UAV over-sampling; the expected count is
@@ -104,7 +112,7 @@ def airborne_resample(xyz: np.ndarray, density: float, rng: np.random.Generator,
     area = len(cells) * 0.04 * 0.5
     n_target = density * area * (1 + vertical_factor)
     zrel = np.clip(v[:, 2] / max(np.ptp(v[:, 2]), 1e-6), 0, 1)
-    w = vis_min + (1 - vis_min) * zrel ** 0.6
+    w = vis_min + (1 - vis_min) * zrel**0.6
     p = np.clip(n_target * w / w.sum(), 0, 1)
     return v[rng.random(len(v)) < p]
 
@@ -135,8 +143,7 @@ class RealTowerLibrary:
         unknown = sorted(set(families or ()) - set(FAMILIES))
         if unknown:
             raise InputError(root, f"unknown real tower families {unknown}; known: {list(FAMILIES)}")
-        self.items = [it for it in load_real_towers(self.root)
-                      if families is None or it[0].split(":")[0] in families]
+        self.items = [it for it in load_real_towers(self.root) if families is None or it[0].split(":")[0] in families]
         if not self.items:
             raise InputError(root, f"no real tower of the families {families}")
         # One family per source (uav, ts40k, utility), drawn with equal chance: the 99
@@ -153,6 +160,7 @@ class RealTowerLibrary:
 
     def factory(self, density: float, params: SceneParams, share: float = 1.0):
         """A ``(tower, rng) -> tower`` callable for :func:`towerpipe.synth.scene.build_zone`."""
+
         def make(t: Tower, rng: np.random.Generator) -> Tower:
             if rng.random() >= share:
                 return t
@@ -162,13 +170,27 @@ class RealTowerLibrary:
             world = to_world(pts, t.x, t.y, t.base_z, t.rot)
             base = pts[pts[:, 2] < 0.1 * h]
             bw = float(np.ptp(base[:, 0])) if len(base) else 1.0
-            return Tower(t.tower_id, f"real:{name}", t.x, t.y, t.base_z, h, t.rot, Primitives.empty(),
-                         t.attach, bw, points=world, line_id=t.line_id)
+            return Tower(
+                t.tower_id,
+                f"real:{name}",
+                t.x,
+                t.y,
+                t.base_z,
+                h,
+                t.rot,
+                Primitives.empty(),
+                t.attach,
+                bw,
+                points=world,
+                line_id=t.line_id,
+            )
+
         return make
 
 
-def realise(shape: np.ndarray, height: float, density: float, rng: np.random.Generator,
-            params: SceneParams) -> np.ndarray:
+def realise(
+    shape: np.ndarray, height: float, density: float, rng: np.random.Generator, params: SceneParams
+) -> np.ndarray:
     """A real shape as one airborne flight sees it, in its local frame (base centre at 0).
 
     Scaled to ``height``, mirrored with chance 1/2, its plan stretched by
@@ -177,17 +199,17 @@ def realise(shape: np.ndarray, height: float, density: float, rng: np.random.Gen
     s = shape * (height / max(np.ptp(shape[:, 2]), 1e-6))
     if rng.random() < 0.5:
         s[:, 0] = -s[:, 0]
-    if params.real_tower_jitter > 0:          # another tower of the same type: proportions vary
+    if params.real_tower_jitter > 0:  # another tower of the same type: proportions vary
         s[:, :2] *= rng.uniform(1 - params.real_tower_jitter, 1 + params.real_tower_jitter, 2)
-    return airborne_resample(s, density, rng, vertical_factor=params.vertical_factor,
-                             vis_min=params.tower_visibility_min)
+    return airborne_resample(
+        s, density, rng, vertical_factor=params.vertical_factor, vis_min=params.tower_visibility_min
+    )
 
 
 def to_world(local: np.ndarray, x: float, y: float, base_z: float, rot: float) -> np.ndarray:
     """Local tower coordinates (x across the line) turned by ``rot`` and moved to the base."""
     c, si = np.cos(rot), np.sin(rot)
-    return np.c_[x + c * local[:, 0] - si * local[:, 1], y + si * local[:, 0] + c * local[:, 1],
-                 base_z + local[:, 2]]
+    return np.c_[x + c * local[:, 0] - si * local[:, 1], y + si * local[:, 0] + c * local[:, 1], base_z + local[:, 2]]
 
 
 def attachments(local: np.ndarray) -> np.ndarray:

@@ -23,7 +23,7 @@ from towerpipe.synth.terrain import Terrain  # noqa: E402
 
 def _cdf(ax, v, label):
     v = np.asarray(v)
-    if len(v) > 200_000:       # an evenly spaced subsample draws the same curve
+    if len(v) > 200_000:  # an evenly spaced subsample draws the same curve
         v = np.sort(v)[np.linspace(0, len(v) - 1, 200_000).astype(np.int64)]
     v = np.sort(v)
     if len(v):
@@ -45,8 +45,9 @@ def zone_stats(zone: str | Path) -> dict:
         cls = np.asarray(las.classification)
         if terrain is not None:
             g = terrain.z(x, y)
-        else:       # real backgrounds: interpolate from ground points
+        else:  # real backgrounds: interpolate from ground points
             from towerpipe.synth.background import ground_fn
+
             g = ground_fn(np.c_[x, y, z], cls)(x, y)
         hag = z - g
         ok = ~np.isin(cls, classes.NOISE)
@@ -62,13 +63,19 @@ def zone_stats(zone: str | Path) -> dict:
     np.maximum.at(maxima, inv, hag_t)
     counts = np.bincount(inv, minlength=len(ids))
     ng = ~np.isin(cls_all, [2, 11])
-    return {"hag_all": hag_all, "hag_nonground": hag_all[ng], "hag_tower": hag_t, "tower_max": maxima,
-            "tower_counts": counts}
+    return {
+        "hag_all": hag_all,
+        "hag_nonground": hag_all[ng],
+        "hag_tower": hag_t,
+        "tower_max": maxima,
+        "tower_counts": counts,
+    }
 
 
 def real_tower_stats(root: str | Path, density: float, seed: int = 0) -> dict:
     """Per-tower maxima and point counts of the real tower sets after airborne resampling."""
     from towerpipe.synth.real import airborne_resample, load_real_towers
+
     rng = np.random.default_rng(seed)
     items = load_real_towers(root)
     hs, ns, hag = [], [], []
@@ -78,12 +85,16 @@ def real_tower_stats(root: str | Path, density: float, seed: int = 0) -> dict:
             hs.append(p[:, 2].max())
             ns.append(len(p))
             hag.append(p[:, 2])
-    return {"tower_max": np.array(hs), "tower_counts": np.array(ns),
-            "hag_tower": np.concatenate(hag) if hag else np.zeros(0)}
+    return {
+        "tower_max": np.array(hs),
+        "tower_counts": np.array(ns),
+        "hag_tower": np.concatenate(hag) if hag else np.zeros(0),
+    }
 
 
-def realism_report(zone: str | Path, out: str | Path, real_towers: str | Path | None = None,
-                   density: float = 10.0) -> Path:
+def realism_report(
+    zone: str | Path, out: str | Path, real_towers: str | Path | None = None, density: float = 10.0
+) -> Path:
     """Write ``hag_cdf.png``, ``points_per_tower.png`` and ``report.md`` into ``out``."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -124,25 +135,41 @@ def realism_report(zone: str | Path, out: str | Path, real_towers: str | Path | 
     share_all = float(np.mean((s["hag_all"] >= 3) & (s["hag_all"] < 8)))
     share_t = float(np.mean((s["hag_tower"] >= 3) & (s["hag_tower"] < 8))) if len(s["hag_tower"]) else float("nan")
     c = s["tower_counts"]
-    lines = ["# Synthetic zone realism report", "", f"zone: `{zone}`", "",
-             "| figure | value | paper |", "|---|---|---|",
-             f"| share of non-ground points with 3 ≤ HAG < 8 m | {share:.1%} | 40–75 % (Fig. 3a) |",
-             f"| share of all points with 3 ≤ HAG < 8 m | {share_all:.1%} | |",
-             f"| share of tower points with 3 ≤ HAG < 8 m | {share_t:.1%} | about half of (a) (Fig. 3b) |",
-             f"| towers | {len(c)} | |",
-             f"| points per tower: min / median / max | {c.min() if len(c) else 0} / "
-             f"{np.median(c) if len(c) else 0:.0f} / {c.max() if len(c) else 0} | 1–2434 (Fig. 5) |",
-             f"| max HAG per tower: min / median / max (m) | {s['tower_max'].min() if len(c) else 0:.1f} / "
-             f"{np.median(s['tower_max']) if len(c) else 0:.1f} / {s['tower_max'].max() if len(c) else 0:.1f} | ≥ 10 |"]
+    lines = [
+        "# Synthetic zone realism report",
+        "",
+        f"zone: `{zone}`",
+        "",
+        "| figure | value | paper |",
+        "|---|---|---|",
+        f"| share of non-ground points with 3 ≤ HAG < 8 m | {share:.1%} | 40–75 % (Fig. 3a) |",
+        f"| share of all points with 3 ≤ HAG < 8 m | {share_all:.1%} | |",
+        f"| share of tower points with 3 ≤ HAG < 8 m | {share_t:.1%} | about half of (a) (Fig. 3b) |",
+        f"| towers | {len(c)} | |",
+        f"| points per tower: min / median / max | {c.min() if len(c) else 0} / "
+        f"{np.median(c) if len(c) else 0:.0f} / {c.max() if len(c) else 0} | 1–2434 (Fig. 5) |",
+        f"| max HAG per tower: min / median / max (m) | {s['tower_max'].min() if len(c) else 0:.1f} / "
+        f"{np.median(s['tower_max']) if len(c) else 0:.1f} / {s['tower_max'].max() if len(c) else 0:.1f} | ≥ 10 |",
+    ]
     if r is not None and len(r["tower_counts"]):
         rc = r["tower_counts"]
-        lines += [f"| real towers at {density:g} pts/m²: n / median points / median max HAG | {len(rc)} / "
-                  f"{np.median(rc):.0f} / {np.median(r['tower_max']):.1f} m | |"]
+        lines += [
+            f"| real towers at {density:g} pts/m²: n / median points / median max HAG | {len(rc)} / "
+            f"{np.median(rc):.0f} / {np.median(r['tower_max']):.1f} m | |"
+        ]
     lines += ["", "![HAG CDFs](hag_cdf.png)", "", "![points per tower](points_per_tower.png)", ""]
     path = out / "report.md"
     path.write_text("\n".join(lines))
-    (out / "report.json").write_text(json.dumps({"share_nonground_3_8": share, "share_all_3_8": share_all,
-                                                 "share_tower_3_8": share_t,
-                                                 "median_points_per_tower": float(np.median(c)) if len(c) else 0.0,
-                                                 "n_towers": int(len(c))}, indent=1))
+    (out / "report.json").write_text(
+        json.dumps(
+            {
+                "share_nonground_3_8": share,
+                "share_all_3_8": share_all,
+                "share_tower_3_8": share_t,
+                "median_points_per_tower": float(np.median(c)) if len(c) else 0.0,
+                "n_towers": int(len(c)),
+            },
+            indent=1,
+        )
+    )
     return path

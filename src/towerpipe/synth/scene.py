@@ -14,9 +14,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from towerpipe.classes import BUILDING, GROUND, HIGH_NOISE, LOW_NOISE, OTHER, ROAD, TOWER
+from towerpipe.classes import HIGH_VEGETATION as HIGH_VEG
+from towerpipe.classes import LOW_VEGETATION as LOW_VEG
+from towerpipe.classes import MEDIUM_VEGETATION as MED_VEG
+from towerpipe.classes import WIRE_CONDUCTOR as WIRE
 from towerpipe.synth import color as col
-from towerpipe.synth.buildings import (Buildings, make_buildings, make_roads, rasterize_roads,
-                                       rasterize_roofs, sample_walls)
+from towerpipe.synth.buildings import (
+    Buildings,
+    make_buildings,
+    make_roads,
+    rasterize_roads,
+    rasterize_roofs,
+    sample_walls,
+)
 from towerpipe.synth.negatives import Negative, make_negatives
 from towerpipe.synth.params import SceneParams
 from towerpipe.synth.primitives import Primitives, sample_segments
@@ -27,12 +38,14 @@ from towerpipe.synth.towers import WOODEN, Tower
 from towerpipe.synth.vegetation import Trees, make_trees, noise_field, rasterize
 from towerpipe.synth.wires import PowerLines, distance_to_polylines, make_power_lines
 
-from towerpipe.classes import (BUILDING, GROUND, HIGH_NOISE, LOW_NOISE, OTHER, ROAD, TOWER,
-                               HIGH_VEGETATION as HIGH_VEG, LOW_VEGETATION as LOW_VEG,
-                               MEDIUM_VEGETATION as MED_VEG, WIRE_CONDUCTOR as WIRE)
-
-_NEG_MATERIAL = {"crane": col.STEEL, "telecom_mast": col.STEEL, "wind_turbine": col.CONCRETE,
-                 "chimney": col.CONCRETE, "street_light": col.STEEL, "wooden_pole": col.WOOD}
+_NEG_MATERIAL = {
+    "crane": col.STEEL,
+    "telecom_mast": col.STEEL,
+    "wind_turbine": col.CONCRETE,
+    "chimney": col.CONCRETE,
+    "street_light": col.STEEL,
+    "wooden_pole": col.WOOD,
+}
 
 #: raster resolution of canopy / roofs / roads (m)
 RASTER_RES = 0.5
@@ -78,9 +91,16 @@ class Zone:
         return self.lines.towers + self.extra_towers
 
 
-def build_zone(seed: int, *, blocks: int = 4, size: float = 250.0, density: float = 10.0,
-               origin: tuple[float, float] = (400000.0, 4600000.0), params: SceneParams | None = None,
-               tower_factory=None) -> Zone:
+def build_zone(
+    seed: int,
+    *,
+    blocks: int = 4,
+    size: float = 250.0,
+    density: float = 10.0,
+    origin: tuple[float, float] = (400000.0, 4600000.0),
+    params: SceneParams | None = None,
+    tower_factory=None,
+) -> Zone:
     """Draw the content of a zone.
 
     Parameters
@@ -99,8 +119,9 @@ def build_zone(seed: int, *, blocks: int = 4, size: float = 250.0, density: floa
     params = params or SceneParams()
     nc, nr = block_grid(int(blocks))
     x0, y0 = origin
-    bl = [(x0 + i * size, y0 + j * size, x0 + (i + 1) * size, y0 + (j + 1) * size)
-          for j in range(nr) for i in range(nc)]
+    bl = [
+        (x0 + i * size, y0 + j * size, x0 + (i + 1) * size, y0 + (j + 1) * size) for j in range(nr) for i in range(nc)
+    ]
     bounds = (x0, y0, x0 + nc * size, y0 + nr * size)
     terrain = make_terrain(seed, bounds, params)
     plan = make_flight_plan(seed, bounds, params, density)
@@ -136,8 +157,22 @@ def build_zone(seed: int, *, blocks: int = 4, size: float = 250.0, density: floa
         trees.r = np.where(cut, np.minimum(trees.r, 1.5), trees.r)
         trees.h = np.where(cut, newh, trees.h)
     greenness = noise_field(seed, "greenness", 120.0)
-    return Zone(seed, bounds, bl, density, params, terrain, plan, lines, roads, buildings, trees,
-                negatives, pole_wires, greenness)
+    return Zone(
+        seed,
+        bounds,
+        bl,
+        density,
+        params,
+        terrain,
+        plan,
+        lines,
+        roads,
+        buildings,
+        trees,
+        negatives,
+        pole_wires,
+        greenness,
+    )
 
 
 def _in(b, x, y) -> np.ndarray:
@@ -148,8 +183,12 @@ def _prim_bbox_hit(prim: Primitives, b, margin: float = 2.0) -> bool:
     if not len(prim.seg) and not len(prim.patch):
         return False
     xy = prim.xy_points()
-    return bool((xy[:, 0].max() >= b[0] - margin) & (xy[:, 0].min() < b[2] + margin)
-                & (xy[:, 1].max() >= b[1] - margin) & (xy[:, 1].min() < b[3] + margin))
+    return bool(
+        (xy[:, 0].max() >= b[0] - margin)
+        & (xy[:, 0].min() < b[2] + margin)
+        & (xy[:, 1].max() >= b[1] - margin)
+        & (xy[:, 1].min() < b[3] + margin)
+    )
 
 
 def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
@@ -177,8 +216,7 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
     trees = tr.subset(m)
     can = rasterize(trees, b, RASTER_RES, rng)
     bu = zone.buildings
-    bm = ((bu.x + bu.length >= b[0]) & (bu.x - bu.length < b[2]) & (bu.y + bu.length >= b[1])
-          & (bu.y - bu.length < b[3]))
+    bm = (bu.x + bu.length >= b[0]) & (bu.x - bu.length < b[2]) & (bu.y + bu.length >= b[1]) & (bu.y - bu.length < b[3])
     bsub = bu.subset(bm)
     roof, bid = rasterize_roofs(bsub, can.x0, can.y0, RASTER_RES, can.nx, can.ny)
     road = rasterize_roads(zone.roads, can.x0, can.y0, RASTER_RES, can.nx, can.ny)
@@ -213,7 +251,9 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
     z1 = top - np.abs(rng.normal(0, 0.25, n)) - rng.exponential(0.35, n) * (top > 3)
     z1 = np.clip(z1, np.minimum(base, top * 0.5), top)
     incrown = rng.random(n) < 0.7
-    z2 = np.where(incrown, base + (top - base) * rng.random(n) ** 0.8, rng.uniform(0.15, 1.0, n) * np.maximum(base, 0.3))
+    z2 = np.where(
+        incrown, base + (top - base) * rng.random(n) ** 0.8, rng.uniform(0.15, 1.0, n) * np.maximum(base, 0.3)
+    )
     z2 = np.minimum(z2, np.where(hit1, z1 - 0.6, top))
     z2 = np.maximum(z2, 0.05)
     # candidates (n, 4): canopy 1, canopy 2, ground, roof — already in decreasing height order
@@ -231,13 +271,20 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
     top_var = np.where(isroof, bsub.roof[np.maximum(bid[cell], 0)] if len(bsub) else 0, can.tree[cell])
     mat_surface = top_mat[pi_]
     pts = {
-        "x": pu["x"][pi_], "y": pu["y"][pi_], "z": z, "classification": cls,
+        "x": pu["x"][pi_],
+        "y": pu["y"][pi_],
+        "z": z,
+        "classification": cls,
         "tower_id": np.zeros(len(pi_), np.uint32),
-        "return_number": rnum[pi_, ci].astype(np.uint8), "number_of_returns": nret[pi_].astype(np.uint8),
-        "strip": pu["strip"][pi_], "scan_angle": pu["scan_angle"][pi_],
+        "return_number": rnum[pi_, ci].astype(np.uint8),
+        "number_of_returns": nret[pi_].astype(np.uint8),
+        "strip": pu["strip"][pi_],
+        "scan_angle": pu["scan_angle"][pi_],
         "gps_time": pu["gps_time"][pi_] + ci * 1e-8,
         "material": np.where(ci == 2, np.where(veg[pi_], col.GROUND, mat_surface), mat_surface),
-        "color_material": mat_surface, "color_variant": top_var[pi_], "intensity_factor": np.ones(len(pi_)),
+        "color_material": mat_surface,
+        "color_variant": top_var[pi_],
+        "intensity_factor": np.ones(len(pi_)),
     }
     # ground returns under canopy keep the canopy colour; intensity uses their own material
 
@@ -247,8 +294,9 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
 
     def lookup_surface(x, y):
         c = can.cell(x, y)
-        mat = np.where(hasroof[c], col.ROOF, np.where(can.top[c] > 0.05, col.TREE,
-                                                      np.where(road[c], col.ROAD, col.GROUND)))
+        mat = np.where(
+            hasroof[c], col.ROOF, np.where(can.top[c] > 0.05, col.TREE, np.where(road[c], col.ROAD, col.GROUND))
+        )
         var = np.where(hasroof[c], bsub.roof[np.maximum(bid[c], 0)] if len(bsub) else 0, can.tree[c])
         return mat, var, can.top[c]
 
@@ -263,14 +311,24 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
         strip, ang, t = zone.plan.attributes(xyz[:, 0], xyz[:, 1], rng)
         nr = np.ones(k, np.uint8) if single else (1 + (rng.random(k) < 0.6)).astype(np.uint8)
         rn = np.where((nr == 2) & (rng.random(k) < 0.25), 2, 1).astype(np.uint8)
-        parts.append({
-            "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "classification": np.full(k, klass, np.uint8),
-            "tower_id": (np.zeros(k, np.uint32) if tid is None else np.asarray(tid, np.uint32)[keep]),
-            "return_number": rn, "number_of_returns": nr, "strip": strip,
-            "scan_angle": ang.astype(np.float32), "gps_time": t,
-            "material": np.full(k, material), "color_material": np.where(own, material, smat),
-            "color_variant": np.where(own, 0, svar), "intensity_factor": np.full(k, intensity_factor),
-        })
+        parts.append(
+            {
+                "x": xyz[:, 0],
+                "y": xyz[:, 1],
+                "z": xyz[:, 2],
+                "classification": np.full(k, klass, np.uint8),
+                "tower_id": (np.zeros(k, np.uint32) if tid is None else np.asarray(tid, np.uint32)[keep]),
+                "return_number": rn,
+                "number_of_returns": nr,
+                "strip": strip,
+                "scan_angle": ang.astype(np.float32),
+                "gps_time": t,
+                "material": np.full(k, material),
+                "color_material": np.where(own, material, smat),
+                "color_variant": np.where(own, 0, svar),
+                "intensity_factor": np.full(k, intensity_factor),
+            }
+        )
 
     def local_density(prim: Primitives) -> np.ndarray:
         mid = prim.seg.mean(axis=1) if len(prim.seg) else np.zeros((0, 3))
@@ -285,18 +343,29 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
                 continue
         else:
             r = derive(zone.seed, "tower-points", t.tower_id, ix, iy)
-            xyz, _ = sample_segments(t.prim, local_density(t.prim), r, beam=p.member_beam,
-                                     vertical_factor=p.vertical_factor,
-                                     patch_density=strip_density * float(zone.plan.coverage([t.x], [t.y])[0]))
+            xyz, _ = sample_segments(
+                t.prim,
+                local_density(t.prim),
+                r,
+                beam=p.member_beam,
+                vertical_factor=p.vertical_factor,
+                patch_density=strip_density * float(zone.plan.coverage([t.x], [t.y])[0]),
+            )
             zrel = np.clip((xyz[:, 2] - t.base_z) / t.height, 0, 1)
-            vis = p.tower_visibility_min + (1 - p.tower_visibility_min) * zrel ** 0.6
+            vis = p.tower_visibility_min + (1 - p.tower_visibility_min) * zrel**0.6
             _, _, ctop = lookup_surface(xyz[:, 0], xyz[:, 1])
             under = (xyz[:, 2] - zone.terrain.z(xyz[:, 0], xyz[:, 1])) < ctop
             vis = vis * np.where(under, p.canopy_transmission, 1.0)
             xyz = xyz[r.random(len(xyz)) < vis]
         own, factor = _tower_look(zone, t)
-        add(xyz, TOWER, col.WOOD if t.design in WOODEN else col.STEEL, own, tid=np.full(len(xyz), t.tower_id),
-            intensity_factor=factor)
+        add(
+            xyz,
+            TOWER,
+            col.WOOD if t.design in WOODEN else col.STEEL,
+            own,
+            tid=np.full(len(xyz), t.tower_id),
+            intensity_factor=factor,
+        )
     for wires, share in ((zone.lines.wires, 0.3), (zone.pole_wires, 0.3)):
         if not len(wires.seg):
             continue
@@ -309,14 +378,23 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
     for neg in zone.negatives:
         if not _prim_bbox_hit(neg.prim, b):
             continue
-        xyz, _ = sample_segments(neg.prim, local_density(neg.prim), rng, beam=p.member_beam,
-                                 vertical_factor=p.vertical_factor, patch_density=strip_density)
+        xyz, _ = sample_segments(
+            neg.prim,
+            local_density(neg.prim),
+            rng,
+            beam=p.member_beam,
+            vertical_factor=p.vertical_factor,
+            patch_density=strip_density,
+        )
         add(xyz, OTHER, _NEG_MATERIAL[neg.kind], 0.7)
     if len(bsub):
         xyz, wb = sample_walls(bsub, strip_density, p.vertical_factor, rng)
         add(xyz, BUILDING, col.ROOF, 0.0)
     # ---- noise -------------------------------------------------------------------------
-    for klass, rate, lo, hi in ((LOW_NOISE, p.noise_low, -25.0, -0.8), (HIGH_NOISE, p.noise_high, 20.0, p.noise_high_max)):
+    for klass, rate, lo, hi in (
+        (LOW_NOISE, p.noise_low, -25.0, -0.8),
+        (HIGH_NOISE, p.noise_high, 20.0, p.noise_high_max),
+    ):
         k = int(rng.poisson(rate * target / 1e6))
         x = rng.uniform(b[0], b[2], k)
         y = rng.uniform(b[1], b[3], k)

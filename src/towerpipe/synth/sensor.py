@@ -72,8 +72,9 @@ class FlightPlan:
         d = np.abs(v[:, None] - self.strip_v[None, :])
         return (d <= self.half_swath).sum(axis=1)
 
-    def attributes(self, x: np.ndarray, y: np.ndarray, rng: np.random.Generator
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def attributes(
+        self, x: np.ndarray, y: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Strip index, scan angle (degrees) and GPS time of returns at (x, y).
 
         Where strips overlap, one of the covering strips is drawn at random.
@@ -83,7 +84,7 @@ class FlightPlan:
         u, v = self.to_uv(x, y)
         d = v[:, None] - self.strip_v[None, :]
         cover = np.abs(d) <= self.half_swath
-        score = rng.random(cover.shape) + cover          # covering strips score > 1
+        score = rng.random(cover.shape) + cover  # covering strips score > 1
         j = np.argmax(score, axis=1)
         dv = d[np.arange(len(x)), j]
         ang = np.degrees(np.arctan2(dv, self.height))
@@ -91,19 +92,20 @@ class FlightPlan:
         return j.astype(np.int64), ang, t
 
 
-def make_flight_plan(seed: int, bounds: tuple[float, float, float, float],
-                     params: SceneParams, density: float) -> FlightPlan:
+def make_flight_plan(
+    seed: int, bounds: tuple[float, float, float, float], params: SceneParams, density: float
+) -> FlightPlan:
     """Lay strips over a zone so that single coverage gives ``density`` pulses/m²."""
     rng = derive(seed, "flight")
     xmin, ymin, xmax, ymax = bounds
     cx, cy = (xmin + xmax) / 2, (ymin + ymax) / 2
-    heading = (np.radians(params.heading_deg) if params.heading_deg is not None
-               else rng.uniform(0, np.pi))
+    heading = np.radians(params.heading_deg) if params.heading_deg is not None else rng.uniform(0, np.pi)
     half_fov = np.radians(params.half_fov_deg)
     hs = params.flight_height * np.tan(half_fov)
     spacing = 2 * hs * (1 - params.strip_overlap)
-    plan = FlightPlan(cx, cy, heading, np.zeros(0), params.flight_height, half_fov,
-                      params.aircraft_speed, params.scan_rate_hz, 0.0)
+    plan = FlightPlan(
+        cx, cy, heading, np.zeros(0), params.flight_height, half_fov, params.aircraft_speed, params.scan_rate_hz, 0.0
+    )
     cu, cv = plan.to_uv(np.array([xmin, xmax, xmax, xmin]), np.array([ymin, ymin, ymax, ymax]))
     vmin, vmax = cv.min(), cv.max()
     start = vmin - rng.uniform(0, spacing)
@@ -115,8 +117,13 @@ def make_flight_plan(seed: int, bounds: tuple[float, float, float, float],
     return plan
 
 
-def pulses(plan: FlightPlan, bounds: tuple[float, float, float, float],
-           rng: np.random.Generator, jitter: float = 0.05, thin: float = 1.0) -> dict[str, np.ndarray]:
+def pulses(
+    plan: FlightPlan,
+    bounds: tuple[float, float, float, float],
+    rng: np.random.Generator,
+    jitter: float = 0.05,
+    thin: float = 1.0,
+) -> dict[str, np.ndarray]:
     """Footprints of all pulses of all strips that land inside ``bounds``.
 
     ``thin`` < 1 keeps only that share of pulses at random (lower effective pulse rate).
@@ -130,7 +137,7 @@ def pulses(plan: FlightPlan, bounds: tuple[float, float, float, float],
     xmin, ymin, xmax, ymax = bounds
     cu, cv = plan.to_uv(np.array([xmin, xmax, xmax, xmin]), np.array([ymin, ymin, ymax, ymax]))
     umin, umax, vmin, vmax = cu.min() - 1, cu.max() + 1, cv.min() - 1, cv.max() + 1
-    per_sweep = plan.prf / (2 * plan.scan_rate)            # pulses in one mirror sweep
+    per_sweep = plan.prf / (2 * plan.scan_rate)  # pulses in one mirror sweep
     dtheta = 2 * plan.half_fov / per_sweep
     sweep_dt = 1.0 / (2 * plan.scan_rate)
     out: dict[str, list[np.ndarray]] = {k: [] for k in ("x", "y", "strip", "scan_angle", "gps_time")}
@@ -147,7 +154,7 @@ def pulses(plan: FlightPlan, bounds: tuple[float, float, float, float],
         i = np.arange(i0, i1 + 1)
         # sweep m runs left->right when even, right->left when odd
         odd = (m % 2 == 1)[:, None]
-        ii = np.where(odd, i[::-1][None, :], i[None, :])        # pulses in firing order
+        ii = np.where(odd, i[::-1][None, :], i[None, :])  # pulses in firing order
         pos = np.where(odd, per_sweep - ii, ii)
         t = m[:, None] * sweep_dt + pos / plan.prf
         theta = (-plan.half_fov + ii * dtheta).ravel()

@@ -62,14 +62,15 @@ class Terrain:
         np.savez_compressed(path, x0=self.x0, y0=self.y0, res=self.res, grid=self.grid.astype(np.float32))
 
     @classmethod
-    def load(cls, path: str | Path) -> "Terrain":
+    def load(cls, path: str | Path) -> Terrain:
         """Read a grid written by :meth:`save`."""
         d = np.load(path)
         return cls(float(d["x0"]), float(d["y0"]), float(d["res"]), d["grid"].astype(np.float64))
 
 
-def make_terrain(seed: int, bounds: tuple[float, float, float, float], params: SceneParams,
-                 margin: float = 150.0) -> Terrain:
+def make_terrain(
+    seed: int, bounds: tuple[float, float, float, float], params: SceneParams, margin: float = 150.0
+) -> Terrain:
     """Build a random terrain covering ``bounds`` (+ margin).
 
     A sum of 48 cosine modes with a red (1/k²) spectrum between the wavelengths of
@@ -89,14 +90,14 @@ def make_terrain(seed: int, bounds: tuple[float, float, float, float], params: S
     ang = rng.uniform(0, 2 * np.pi, n)
     kx = np.cos(ang) * 2 * np.pi / lam
     ky = np.sin(ang) * 2 * np.pi / lam
-    amp = lam ** 1.0 * rng.rayleigh(1.0, n)         # slope spectrum ~ flat-ish per mode
+    amp = lam**1.0 * rng.rayleigh(1.0, n)  # slope spectrum ~ flat-ish per mode
     ph = rng.uniform(0, 2 * np.pi, n)
     # separable evaluation: cos(kx x + ky y + ph) = Re(e^{i kx x} e^{i ky y} e^{i ph})
     xs = np.arange(nx) * res + (x0 - xmin)
     ys = np.arange(ny) * res + (y0 - ymin)
-    ex = np.exp(1j * np.outer(kx, xs))                # (n, nx)
-    ey = np.exp(1j * np.outer(ky, ys))                # (n, ny)
-    grid = np.real((ey * (amp * np.exp(1j * ph))[:, None]).T @ ex)   # (ny, nx)
+    ex = np.exp(1j * np.outer(kx, xs))  # (n, nx)
+    ey = np.exp(1j * np.outer(ky, ys))  # (n, ny)
+    grid = np.real((ey * (amp * np.exp(1j * ph))[:, None]).T @ ex)  # (ny, nx)
     t = Terrain(x0, y0, res, grid)
     s = np.tan(np.radians(t.slope_deg()))
     target = np.tan(np.radians(params.max_slope_deg * rng.uniform(0.75, 1.0)))

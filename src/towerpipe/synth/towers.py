@@ -29,10 +29,18 @@ EUROPEAN = ("donau", "einebenen", "tonne", "delta", "portal", "wooden_hframe")
 DESIGNS = CLASSIC + EUROPEAN
 
 #: height range (m) per design, all within 10-60 m
-HEIGHTS = {"lattice_waist": (22.0, 40.0), "double_circuit": (30.0, 50.0),
-           "small_lattice": (10.0, 20.0), "monopole": (15.0, 36.0),
-           "donau": (28.0, 55.0), "einebenen": (22.0, 45.0), "tonne": (35.0, 60.0),
-           "delta": (20.0, 40.0), "portal": (12.0, 28.0), "wooden_hframe": (10.0, 20.0)}
+HEIGHTS = {
+    "lattice_waist": (22.0, 40.0),
+    "double_circuit": (30.0, 50.0),
+    "small_lattice": (10.0, 20.0),
+    "monopole": (15.0, 36.0),
+    "donau": (28.0, 55.0),
+    "einebenen": (22.0, 45.0),
+    "tonne": (35.0, 60.0),
+    "delta": (20.0, 40.0),
+    "portal": (12.0, 28.0),
+    "wooden_hframe": (10.0, 20.0),
+}
 #: designs of wood (coloured and reflecting as wood, not steel)
 WOODEN = ("wooden_hframe",)
 
@@ -89,14 +97,14 @@ class Tower:
 
 def lattice_body(levels: np.ndarray, half: np.ndarray, rng: np.random.Generator, member: float) -> list[np.ndarray]:
     """Square lattice body: legs, horizontals and X-bracing between ``levels``."""
-    c = _CORNERS[None, :, :] * half[:, None, None]                          # (L, 4, 2)
+    c = _CORNERS[None, :, :] * half[:, None, None]  # (L, 4, 2)
     p = np.concatenate([c, np.broadcast_to(levels[:, None, None], (len(levels), 4, 1))], axis=2)
     segs = []
-    segs.append(np.stack([p[:-1], p[1:]], axis=2).reshape(-1, 2, 3))        # legs
+    segs.append(np.stack([p[:-1], p[1:]], axis=2).reshape(-1, 2, 3))  # legs
     nxt = np.roll(p, -1, axis=1)
-    segs.append(np.stack([p, nxt], axis=2).reshape(-1, 2, 3))              # horizontals
-    segs.append(np.stack([p[:-1], nxt[1:]], axis=2).reshape(-1, 2, 3))     # diagonals /
-    segs.append(np.stack([nxt[:-1], p[1:]], axis=2).reshape(-1, 2, 3))     # diagonals \
+    segs.append(np.stack([p, nxt], axis=2).reshape(-1, 2, 3))  # horizontals
+    segs.append(np.stack([p[:-1], nxt[1:]], axis=2).reshape(-1, 2, 3))  # diagonals /
+    segs.append(np.stack([nxt[:-1], p[1:]], axis=2).reshape(-1, 2, 3))  # diagonals \
     return segs
 
 
@@ -120,8 +128,7 @@ def _arm(z: float, hw: float, length: float, side: int, depth: float) -> np.ndar
     return np.array(segs, float)
 
 
-def build_design(design: str, height: float, rng: np.random.Generator
-                 ) -> tuple[Primitives, np.ndarray, float]:
+def build_design(design: str, height: float, rng: np.random.Generator) -> tuple[Primitives, np.ndarray, float]:
     """Members, wire attachments (local) and base width of one tower.
 
     Parameters
@@ -165,8 +172,7 @@ def build_design(design: str, height: float, rng: np.random.Generator
         cz = zb - 2.8
         ins = np.array([[[xv, 0, zb], [xv, 0, cz]] for xv in (-arm + 0.5, 0.0, arm - 0.5)])
         prim = Primitives.concat([segments(np.concatenate(segs), member), segments(ins, 0.25)])
-        attach = np.array([[-arm + 0.5, 0, cz], [0, 0, cz], [arm - 0.5, 0, cz],
-                           [-arm * 0.5, 0, h], [arm * 0.5, 0, h]])
+        attach = np.array([[-arm + 0.5, 0, cz], [0, 0, cz], [arm - 0.5, 0, cz], [-arm * 0.5, 0, h], [arm * 0.5, 0, h]])
         return prim, attach, base
     if design == "double_circuit":
         base = rng.uniform(0.17, 0.3) * h
@@ -214,7 +220,7 @@ def build_design(design: str, height: float, rng: np.random.Generator
         arms = []
         levels = [h - 2.0, h - 5.0, h - 8.0] if h > 22 else [h - 2.0, h - 4.5]
         for k, za in enumerate(levels):
-            for s in ((-1, 1) if h > 22 or k == 0 else (1,)):
+            for s in (-1, 1) if h > 22 or k == 0 else (1,):
                 arms.append([[0, 0, za], [s * arm, 0, za]])
                 arms.append([[0, 0, za - 0.8], [s * arm, 0, za]])
                 attach.append([s * arm, 0, za - 1.8])
@@ -228,8 +234,12 @@ def build_design(design: str, height: float, rng: np.random.Generator
     raise ValueError(f"unknown tower design {design!r}")
 
 
-def _lattice_with_arms(h: float, rng: np.random.Generator, arms: list[tuple[float, float, int]],
-                       base_ratio: tuple[float, float] = (0.16, 0.26)) -> tuple[Primitives, np.ndarray, float]:
+def _lattice_with_arms(
+    h: float,
+    rng: np.random.Generator,
+    arms: list[tuple[float, float, int]],
+    base_ratio: tuple[float, float] = (0.16, 0.26),
+) -> tuple[Primitives, np.ndarray, float]:
     """A square lattice body to ``h - 2`` with a peak, and truss arms at given levels.
 
     ``arms``: ``(height fraction, arm length, conductors per side)``; conductors hang on
@@ -265,8 +275,9 @@ def _european(design: str, h: float, rng: np.random.Generator) -> tuple[Primitiv
         return _lattice_with_arms(h, rng, [(0.8, rng.uniform(0.28, 0.36) * h, 3)], base_ratio=(0.18, 0.28))
     if design == "tonne":
         arm = rng.uniform(0.09, 0.12) * h
-        return _lattice_with_arms(h, rng, [(0.88, arm, 1), (0.76, arm * rng.uniform(1.25, 1.45), 1),
-                                           (0.64, arm, 1)], base_ratio=(0.14, 0.2))
+        return _lattice_with_arms(
+            h, rng, [(0.88, arm, 1), (0.76, arm * rng.uniform(1.25, 1.45), 1), (0.64, arm, 1)], base_ratio=(0.14, 0.2)
+        )
     if design == "delta":
         base = rng.uniform(0.18, 0.26) * h
         zb = rng.uniform(0.62, 0.7) * h
@@ -281,8 +292,10 @@ def _european(design: str, h: float, rng: np.random.Generator) -> tuple[Primitiv
             # the delta: two chords from the beam ends to the apex, with diagonals to the beam
             apex = [0.0, yy, h]
             beam += [[[-half, yy, zb], apex], [[half, yy, zb], apex]]
-            beam += [[[xv, yy, zb], [xv * 0.5, yy, zb + (h - zb) * (1 - abs(xv) / half) * 0.5 + (h - zb) * 0.25]]
-                     for xv in xs[1:-1:2]]
+            beam += [
+                [[xv, yy, zb], [xv * 0.5, yy, zb + (h - zb) * (1 - abs(xv) / half) * 0.5 + (h - zb) * 0.25]]
+                for xv in xs[1:-1:2]
+            ]
         beam += [[[xv, -top, zb], [xv, top, zb]] for xv in xs[::2]]
         segs.append(np.array(beam))
         string = rng.uniform(2.4, 3.4)
@@ -294,7 +307,7 @@ def _european(design: str, h: float, rng: np.random.Generator) -> tuple[Primitiv
         return prim, np.array(attach, float), base
     if design == "portal":
         gap = rng.uniform(7.0, 13.0)
-        col = rng.uniform(0.5, 0.8)                        # column half width
+        col = rng.uniform(0.5, 0.8)  # column half width
         zb = h - 1.6
         segs = []
         for cx in (-gap / 2, gap / 2):
@@ -331,14 +344,24 @@ def _european(design: str, h: float, rng: np.random.Generator) -> tuple[Primitiv
         tips = [-half + 0.3, 0.0, half - 0.3]
         ins = np.array([[[x, 0, zc], [x, 0, zc - string]] for x in tips])
         attach = [[x, 0, zc - string] for x in tips] + [[0, 0, h]]
-        prim = Primitives.concat([segments(poles, d, tube=True), segments(beam, 0.25, tube=True),
-                                  segments(brace, 0.15), segments(ins, 0.2)])
+        prim = Primitives.concat(
+            [segments(poles, d, tube=True), segments(beam, 0.25, tube=True), segments(brace, 0.15), segments(ins, 0.2)]
+        )
         return prim, np.array(attach, float), gap + d
     raise ValueError(f"unknown tower design {design!r}")
 
 
-def place_tower(tower_id: int, design: str, x: float, y: float, rot: float, height: float,
-                terrain_z, rng: np.random.Generator, line_id: int = 0) -> Tower:
+def place_tower(
+    tower_id: int,
+    design: str,
+    x: float,
+    y: float,
+    rot: float,
+    height: float,
+    terrain_z,
+    rng: np.random.Generator,
+    line_id: int = 0,
+) -> Tower:
     """Build a design and place it at (x, y) on the terrain (legs reach the ground)."""
     prim, attach, base = build_design(design, height, rng)
     base_z = float(terrain_z(np.array([x]), np.array([y]))[0])
@@ -348,7 +371,7 @@ def place_tower(tower_id: int, design: str, x: float, y: float, rot: float, heig
     if foot.any():
         w.seg[..., 2][foot] = terrain_z(w.seg[..., 0][foot], w.seg[..., 1][foot])
     c, s = np.cos(rot), np.sin(rot)
-    aw = np.c_[x + c * attach[:, 0] - s * attach[:, 1], y + s * attach[:, 0] + c * attach[:, 1],
-               base_z + attach[:, 2]]
-    return Tower(tower_id, design, float(x), float(y), base_z, float(height), float(rot), w, aw,
-                 float(base), line_id=line_id)
+    aw = np.c_[x + c * attach[:, 0] - s * attach[:, 1], y + s * attach[:, 0] + c * attach[:, 1], base_z + attach[:, 2]]
+    return Tower(
+        tower_id, design, float(x), float(y), base_z, float(height), float(rot), w, aw, float(base), line_id=line_id
+    )

@@ -12,8 +12,22 @@ TRUTH_GPKG = "towers_truth.gpkg"
 TRUTH_GEOJSON = "towers_truth.geojson"
 META_JSON = "synth_meta.json"
 #: Columns of the truth table, in order.
-TRUTH_COLUMNS = ["tower_id", "design", "height", "base_z", "base_width", "x", "y", "centroid_x", "centroid_y",
-                 "n_points", "block", "blocks", "line_id", "geometry"]
+TRUTH_COLUMNS = [
+    "tower_id",
+    "design",
+    "height",
+    "base_z",
+    "base_width",
+    "x",
+    "y",
+    "centroid_x",
+    "centroid_y",
+    "n_points",
+    "block",
+    "blocks",
+    "line_id",
+    "geometry",
+]
 
 
 @dataclass

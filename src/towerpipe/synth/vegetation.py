@@ -38,7 +38,7 @@ class Trees:
     base: np.ndarray
     kind: np.ndarray
 
-    def subset(self, m: np.ndarray) -> "Trees":
+    def subset(self, m: np.ndarray) -> Trees:
         """Trees selected by a mask / index."""
         return Trees(*(getattr(self, k)[m] for k in ("x", "y", "h", "r", "base", "kind")))
 
@@ -62,6 +62,7 @@ def noise_field(seed: int, key: str, scale: float, n: int = 24):
         for i in range(n):
             out += np.cos(kx[i] * x + ky[i] * y + ph[i])
         return out * amp
+
     return f
 
 
@@ -94,8 +95,7 @@ def make_trees(seed: int, bounds, params: SceneParams) -> Trees:
     x, y = x[keep], y[keep]
     k = len(x)
     h = r.uniform(*params.shrub_height, k)
-    parts.append((x, y, h, np.clip(h * r.uniform(0.35, 0.7, k), 0.3, 1.8), h * r.uniform(0.0, 0.2, k),
-                  np.full(k, 2)))
+    parts.append((x, y, h, np.clip(h * r.uniform(0.35, 0.7, k), 0.3, 1.8), h * r.uniform(0.0, 0.2, k), np.full(k, 2)))
     # scattered trees in open land
     r = derive(seed, "trees", "scattered")
     n = r.poisson(params.scattered_trees * area / 1e6)
@@ -174,7 +174,7 @@ def rasterize(trees: Trees, bounds, res: float, rng: np.random.Generator) -> Can
         h = trees.h[sel, None]
         b = trees.base[sel, None]
         cone = trees.kind[sel, None] == 1
-        prof = np.where(cone, 1 - d, np.sqrt(np.clip(1 - d ** 2, 0, 1)))
+        prof = np.where(cone, 1 - d, np.sqrt(np.clip(1 - d**2, 0, 1)))
         z = b + (h - b) * prof
         ti = np.broadcast_to(sel[:, None], d.shape)
         cells.append((gy * nx + gx)[ok])
@@ -185,7 +185,7 @@ def rasterize(trees: Trees, bounds, res: float, rng: np.random.Generator) -> Can
         c = np.concatenate(cells)
         v = np.concatenate(vals).astype(np.float32)
         v += rng.normal(0, 0.15, v.size).astype(np.float32) * (v > 1)
-        o = np.argsort(v, kind="stable")                   # ascending: the tallest is written last
+        o = np.argsort(v, kind="stable")  # ascending: the tallest is written last
         top[c[o]] = v[o]
         base[c[o]] = np.concatenate(bases)[o]
         tree[c[o]] = np.concatenate(ids)[o]

@@ -61,8 +61,7 @@ def _route(rng: np.random.Generator, bounds, params: SceneParams, through=None, 
     xmin, ymin, xmax, ymax = bounds
     diag = np.hypot(xmax - xmin, ymax - ymin)
     ext = diag / 2 + params.span[1] * 1.5
-    p = np.array(through if through is not None else
-                 [rng.uniform(xmin, xmax), rng.uniform(ymin, ymax)], float)
+    p = np.array(through if through is not None else [rng.uniform(xmin, xmax), rng.uniform(ymin, ymax)], float)
     ang = rng.uniform(0, np.pi) if angle is None else angle
     nd = int(rng.integers(params.deflections[0], params.deflections[1] + 1))
     # vertices: start, deflections, end, total length 2*ext, passing near p
@@ -89,7 +88,7 @@ def _stations(rng: np.random.Generator, verts: np.ndarray, params: SceneParams, 
     """Arc lengths of towers: every vertex plus evenly split 200-400 m spans."""
     seg = np.diff(verts, axis=0)
     cum = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
-    if anchor_s is not None:   # a forced tower: equal spans outward from it on a straight route
+    if anchor_s is not None:  # a forced tower: equal spans outward from it on a straight route
         sp = rng.uniform(*params.span)
         k = np.arange(-int(anchor_s // sp), int((cum[-1] - anchor_s) // sp) + 1)
         return anchor_s + k * sp
@@ -109,8 +108,14 @@ def _heading(verts: np.ndarray, s: np.ndarray) -> np.ndarray:
     return np.arctan2(d[:, 1], d[:, 0])
 
 
-def make_power_lines(seed: int, bounds, params: SceneParams, terrain_z, *,
-                     block_edges: list[tuple[float, float, float, float]] | None = None) -> PowerLines:
+def make_power_lines(
+    seed: int,
+    bounds,
+    params: SceneParams,
+    terrain_z,
+    *,
+    block_edges: list[tuple[float, float, float, float]] | None = None,
+) -> PowerLines:
     """Lay out lines, towers and wires over the zone.
 
     Parameters
@@ -132,7 +137,7 @@ def make_power_lines(seed: int, bounds, params: SceneParams, terrain_z, *,
     area = (xmax - xmin) * (ymax - ymin) / 1e6
     n_lines = max(params.min_lines, int(rng.poisson(params.lines_per_km2 * area)))
     w = np.asarray(params.design_weights, float)
-    routes = []   # (verts, design, anchor_s, offset_of)
+    routes = []  # (verts, design, anchor_s, offset_of)
     for li in range(n_lines):
         r = derive(seed, "line", li)
         verts = _route(r, bounds, params)
@@ -174,19 +179,28 @@ def make_power_lines(seed: int, bounds, params: SceneParams, terrain_z, *,
         line_towers: list[Tower | None] = []
         for k in range(len(s)):
             hgt = float(np.clip(hbase * r.uniform(0.88, 1.12), max(10.0, lo), min(60.0, hi)))
-            t = place_tower(0, design, pts[k, 0], pts[k, 1], head[k] - np.pi / 2, hgt, terrain_z,
-                            derive(seed, "tower", li, k), line_id=li)
+            t = place_tower(
+                0,
+                design,
+                pts[k, 0],
+                pts[k, 1],
+                head[k] - np.pi / 2,
+                hgt,
+                terrain_z,
+                derive(seed, "tower", li, k),
+                line_id=li,
+            )
             hull = t.prim.xy_points()
-            inside = ((hull[:, 0] >= xmin) & (hull[:, 0] < xmax) & (hull[:, 1] >= ymin) & (hull[:, 1] < ymax))
+            inside = (hull[:, 0] >= xmin) & (hull[:, 0] < xmax) & (hull[:, 1] >= ymin) & (hull[:, 1] < ymax)
             if inside.all():
                 t.tower_id = next_id
                 next_id += 1
                 line_towers.append(t)
                 towers.append(t)
             elif inside.any():
-                line_towers.append(None)        # would be cut by the zone edge: leave it out
+                line_towers.append(None)  # would be cut by the zone edge: leave it out
             else:
-                line_towers.append(t)           # outside: no points, but its wires enter the zone
+                line_towers.append(t)  # outside: no points, but its wires enter the zone
         cat_a = r.uniform(*params.catenary_a)
         prev = None
         for t in line_towers:

@@ -13,7 +13,8 @@ import shapely
 
 from towerpipe.errors import ConfigError
 from towerpipe.synth.lasout import write_block
-from towerpipe.synth.params import SceneParams, preset as get_preset, with_overrides
+from towerpipe.synth.params import SceneParams, with_overrides
+from towerpipe.synth.params import preset as get_preset
 from towerpipe.synth.scene import Zone, block_name, block_points, build_zone
 from towerpipe.synth.truth import META_JSON, TRUTH_COLUMNS, ZoneTruth, write_truth
 
@@ -23,15 +24,31 @@ TERRAIN_NPZ = "terrain.npz"
 TOWER_SOURCES = ("synthetic", "real", "mixed")
 
 
-def generate_zone(out_dir: str | Path, *, seed: int, blocks: int = 4, size: float = 250.0,
-                  density: float = 10.0, crs: str = "EPSG:25831",
-                  origin: tuple[float, float] = (400000.0, 4600000.0), preset: str = "catalonia",
-                  params: SceneParams | None = None, edge_tower: bool = False,
-                  tower_source: str = "synthetic", real_towers: str | Path | None = None,
-                  real_backgrounds: str | Path | None = None, parallel: bool = False,
-                  tower_families: list[str] | None = None, background_files: list[str] | None = None,
-                  copies: int = 1, tower_density: tuple[float, float] | None = None, lines: bool = False,
-                  variant: str = "intact", tower_variety: bool = False, **overrides) -> ZoneTruth:
+def generate_zone(
+    out_dir: str | Path,
+    *,
+    seed: int,
+    blocks: int = 4,
+    size: float = 250.0,
+    density: float = 10.0,
+    crs: str = "EPSG:25831",
+    origin: tuple[float, float] = (400000.0, 4600000.0),
+    preset: str = "catalonia",
+    params: SceneParams | None = None,
+    edge_tower: bool = False,
+    tower_source: str = "synthetic",
+    real_towers: str | Path | None = None,
+    real_backgrounds: str | Path | None = None,
+    parallel: bool = False,
+    tower_families: list[str] | None = None,
+    background_files: list[str] | None = None,
+    copies: int = 1,
+    tower_density: tuple[float, float] | None = None,
+    lines: bool = False,
+    variant: str = "intact",
+    tower_variety: bool = False,
+    **overrides,
+) -> ZoneTruth:
     """Generate a synthetic airborne zone of adjoining LAZ blocks with truth.
 
     Parameters
@@ -82,11 +99,21 @@ def generate_zone(out_dir: str | Path, *, seed: int, blocks: int = 4, size: floa
         raise ConfigError("synth: blocks, size and density must be positive")
     if real_backgrounds is not None:
         from towerpipe.synth.background import generate_background_zone
+
         return generate_background_zone(
-            out, seed=seed, backgrounds=real_backgrounds, tower_source=tower_source, real_towers=real_towers,
-            params=params or get_preset(preset, **overrides), tower_families=tower_families,
-            files=background_files, copies=copies, lines=lines, variant=variant,
-            tower_density=tuple(tower_density) if tower_density else None)
+            out,
+            seed=seed,
+            backgrounds=real_backgrounds,
+            tower_source=tower_source,
+            real_towers=real_towers,
+            params=params or get_preset(preset, **overrides),
+            tower_families=tower_families,
+            files=background_files,
+            copies=copies,
+            lines=lines,
+            variant=variant,
+            tower_density=tuple(tower_density) if tower_density else None,
+        )
     p = params if params is not None else get_preset(preset)
     p = with_overrides(p, **overrides)
     if edge_tower:
@@ -94,13 +121,14 @@ def generate_zone(out_dir: str | Path, *, seed: int, blocks: int = 4, size: floa
     factory = None
     if tower_source != "synthetic":
         from towerpipe.synth.real import RealTowerLibrary
+
         lib = RealTowerLibrary(real_towers, tower_families)
         factory = lib.factory(density, p, share=1.0 if tower_source == "real" else 0.5)
     t0 = time.perf_counter()
-    zone = build_zone(seed, blocks=blocks, size=size, density=density, origin=origin, params=p,
-                      tower_factory=factory)
+    zone = build_zone(seed, blocks=blocks, size=size, density=density, origin=origin, params=p, tower_factory=factory)
     if factory is not None:
         from towerpipe.synth.real import finalize_real_towers
+
         finalize_real_towers(zone)
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -114,17 +142,33 @@ def generate_zone(out_dir: str | Path, *, seed: int, blocks: int = 4, size: floa
         for a, c in zip(ids.tolist(), cnt.tolist()):
             n_tower[a] = n_tower.get(a, 0) + c
         cls, cc = np.unique(pts["classification"], return_counts=True)
-        written.append({"name": name, "path": str(path), "bounds": list(b), "n_points": int(len(pts["x"])),
-                        "counts": {int(k): int(v) for k, v in zip(cls, cc)}})
+        written.append(
+            {
+                "name": name,
+                "path": str(path),
+                "bounds": list(b),
+                "n_points": int(len(pts["x"])),
+                "counts": {int(k): int(v) for k, v in zip(cls, cc)},
+            }
+        )
         log.info("synth block %s: %d points", name, len(pts["x"]))
     towers = truth_table(zone, n_tower, crs)
     write_truth(out, towers)
     zone.terrain.save(out / TERRAIN_NPZ)
-    meta = {"seed": seed, "density": density, "size": size, "crs": crs, "origin": list(origin),
-            "bounds": list(zone.bounds), "blocks": written, "params": p.to_dict(),
-            "tower_source": tower_source, "spans": zone.lines.spans.tolist(),
-            "negatives": [{"kind": n.kind, "x": n.x, "y": n.y, "height": n.height} for n in zone.negatives],
-            "seconds": round(time.perf_counter() - t0, 3)}
+    meta = {
+        "seed": seed,
+        "density": density,
+        "size": size,
+        "crs": crs,
+        "origin": list(origin),
+        "bounds": list(zone.bounds),
+        "blocks": written,
+        "params": p.to_dict(),
+        "tower_source": tower_source,
+        "spans": zone.lines.spans.tolist(),
+        "negatives": [{"kind": n.kind, "x": n.x, "y": n.y, "height": n.height} for n in zone.negatives],
+        "seconds": round(time.perf_counter() - t0, 3),
+    }
     (out / META_JSON).write_text(json.dumps(meta, indent=1))
     return ZoneTruth(out, written, towers, zone.lines.spans, meta)
 
@@ -134,13 +178,25 @@ def truth_table(zone: Zone, n_points: dict[int, int], crs) -> gpd.GeoDataFrame:
     rows = []
     for t in zone.towers:
         fp = t.outline()
-        blocks = [block_name(b[0], b[1]) for b in zone.blocks
-                  if fp.intersects(shapely.box(*b))]
+        blocks = [block_name(b[0], b[1]) for b in zone.blocks if fp.intersects(shapely.box(*b))]
         home = next(block_name(b[0], b[1]) for b in zone.blocks if b[0] <= t.x < b[2] and b[1] <= t.y < b[3])
         c = fp.centroid
-        rows.append({"tower_id": t.tower_id, "design": t.design, "height": round(t.height, 3),
-                     "base_z": round(t.base_z, 3), "base_width": round(t.base_width, 3),
-                     "x": t.x, "y": t.y, "centroid_x": c.x, "centroid_y": c.y,
-                     "n_points": int(n_points.get(t.tower_id, 0)), "block": home,
-                     "blocks": ",".join(blocks), "line_id": t.line_id, "geometry": fp})
+        rows.append(
+            {
+                "tower_id": t.tower_id,
+                "design": t.design,
+                "height": round(t.height, 3),
+                "base_z": round(t.base_z, 3),
+                "base_width": round(t.base_width, 3),
+                "x": t.x,
+                "y": t.y,
+                "centroid_x": c.x,
+                "centroid_y": c.y,
+                "n_points": int(n_points.get(t.tower_id, 0)),
+                "block": home,
+                "blocks": ",".join(blocks),
+                "line_id": t.line_id,
+                "geometry": fp,
+            }
+        )
     return gpd.GeoDataFrame(rows, columns=TRUTH_COLUMNS, geometry="geometry", crs=crs)

@@ -71,8 +71,16 @@ def gather_points(preds: Sequence[Any], threshold: float) -> dict[str, np.ndarra
         parts["block"].append(np.asarray(names, dtype=object)[bid] if bid.size else np.empty(0, dtype=object))
         for k in cols:
             parts[k].append(np.asarray(arrays[k])[sel])
-    dtypes = {"x": "f8", "y": "f8", "z": "f8", "hag": "f4", "prob": "f4", "prob_single": "f4", "point_index": "i8",
-              "block": object}
+    dtypes = {
+        "x": "f8",
+        "y": "f8",
+        "z": "f8",
+        "hag": "f4",
+        "prob": "f4",
+        "prob_single": "f4",
+        "point_index": "i8",
+        "block": object,
+    }
     out = {k: (np.concatenate(v).astype(dtypes[k]) if v else np.empty(0, dtype=dtypes[k])) for k, v in parts.items()}
     if len(out["x"]):
         # deterministic order and de-duplication: sort by (block, point_index)
@@ -102,8 +110,15 @@ def _link(xyz: np.ndarray, linkage: float) -> np.ndarray:
     return _components(len(xyz), pairs)
 
 
-def _split_wide(xyz: np.ndarray, hag: np.ndarray, linkage: float, reach: float = 10.0, cell: float = 1.5,
-                min_column: float = 3.0, min_count: int = 4) -> np.ndarray:
+def _split_wide(
+    xyz: np.ndarray,
+    hag: np.ndarray,
+    linkage: float,
+    reach: float = 10.0,
+    cell: float = 1.5,
+    min_column: float = 3.0,
+    min_count: int = 4,
+) -> np.ndarray:
     """Split a too-wide component into towers; return labels (-1 = dropped).
 
     Towers are vertical structures; falsely predicted wires are thin and nearly
@@ -131,8 +146,9 @@ def _split_wide(xyz: np.ndarray, hag: np.ndarray, linkage: float, reach: float =
     pairs = cKDTree(xyz).query_pairs(linkage, output_type="ndarray")
     w = np.linalg.norm(xyz[pairs[:, 0]] - xyz[pairs[:, 1]], axis=1) + 1e-9
     graph = coo_matrix((w, (pairs[:, 0], pairs[:, 1])), shape=(len(xyz), len(xyz))).tocsr()
-    dist, _, source = dijkstra(graph, directed=False, indices=col_idx, min_only=True, limit=reach,
-                               return_predecessors=True)
+    dist, _, source = dijkstra(
+        graph, directed=False, indices=col_idx, min_only=True, limit=reach, return_predecessors=True
+    )
     ok = np.isfinite(dist) & (source >= 0)
     labels[ok] = labels[source[ok]]
     return labels
@@ -147,9 +163,17 @@ def _footprint(xy: np.ndarray, min_width: float) -> shapely.Polygon:
     return geom
 
 
-def cluster_towers(xyz: np.ndarray, hag: np.ndarray, *, linkage: float, merge_gap: float = 1.0,
-                   max_extent: float = 25.0, reach: float = 10.0, min_points: int,
-                   min_height: float) -> np.ndarray:
+def cluster_towers(
+    xyz: np.ndarray,
+    hag: np.ndarray,
+    *,
+    linkage: float,
+    merge_gap: float = 1.0,
+    max_extent: float = 25.0,
+    reach: float = 10.0,
+    min_points: int,
+    min_height: float,
+) -> np.ndarray:
     """Label points by tower.
 
     Parameters
@@ -233,4 +257,3 @@ def cluster_towers(xyz: np.ndarray, hag: np.ndarray, *, linkage: float, merge_ga
     uniq, inv = np.unique(labels[valid], return_inverse=True)
     labels[valid] = rank[inv]
     return labels
-

@@ -41,7 +41,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from typing import Any
 
 import geopandas as gpd
@@ -57,50 +57,81 @@ from towerpipe.towers.registry import REVIEW_STATUSES, assign_ids
 #: Fields of a tower record (besides the footprint geometry), in order: the GeoPackage
 #: layers ``towers`` and ``tower_points`` use exactly these.
 TOWER_FIELDS: dict[str, Field] = {
-    "tower_id": Field("int64", "Tower id",
-                      "Stable id (docs/products.md): the first-seen footprint centroid on a 1 m grid, "
-                      "(x mod 9e7) * 1e8 + (y mod 1e8); kept from run to run by the zone's registry. The "
-                      "TowerpipeTowerId of the tower's points in the classified blocks"),
+    "tower_id": Field(
+        "int64",
+        "Tower id",
+        "Stable id (docs/products.md): the first-seen footprint centroid on a 1 m grid, "
+        "(x mod 9e7) * 1e8 + (y mod 1e8); kept from run to run by the zone's registry. The "
+        "TowerpipeTowerId of the tower's points in the classified blocks",
+    ),
     "zone": Field("str", "Zone", "Zone name"),
     "block": Field("str", "Owning block", "Block holding the footprint centroid: the block that reports the tower"),
     "blocks": Field("str", "Blocks touched", "Blocks the tower's points come from, ';'-separated"),
     "centroid_x": Field("float64", "Centroid X (m)", "Footprint centroid, CRS units (m)", 2),
     "centroid_y": Field("float64", "Centroid Y (m)", "Footprint centroid, CRS units (m)", 2),
     "height_m": Field("float64", "Height (m)", "Height of the tower: top_z - base_z (m)", 2),
-    "base_z": Field("float64", "Base elevation (m)",
-                    "Ground elevation at the tower: median of z - HAG over its points (m)", 2),
+    "base_z": Field(
+        "float64", "Base elevation (m)", "Ground elevation at the tower: median of z - HAG over its points (m)", 2
+    ),
     "top_z": Field("float64", "Top elevation (m)", "Elevation of the tower's highest point (m)", 2),
     "footprint_area_m2": Field("float64", "Footprint area (m²)", "Area of the xy footprint (m²)", 2),
-    "footprint_width_m": Field("float64", "Footprint width (m)", "Short side of the footprint's minimum "
-                                                                  "rotated rectangle (m)", 2),
-    "footprint_length_m": Field("float64", "Footprint length (m)", "Long side of the footprint's minimum "
-                                                                    "rotated rectangle (m)", 2),
-    "edge_distance_m": Field("float64", "Distance to block edge (m)",
-                             "Distance from the centroid to the nearest edge of the owning block (m)", 2),
+    "footprint_width_m": Field(
+        "float64", "Footprint width (m)", "Short side of the footprint's minimum rotated rectangle (m)", 2
+    ),
+    "footprint_length_m": Field(
+        "float64", "Footprint length (m)", "Long side of the footprint's minimum rotated rectangle (m)", 2
+    ),
+    "edge_distance_m": Field(
+        "float64",
+        "Distance to block edge (m)",
+        "Distance from the centroid to the nearest edge of the owning block (m)",
+        2,
+    ),
     "n_points": Field("int64", "Points", "Points of the tower: those classified 15 in the classified blocks"),
-    "prob_mean": Field("float64", "Mean probability",
-                       "Mean single-view tower probability (0-1) of the points of its cluster", 3),
-    "prob_max": Field("float64", "Max probability",
-                      "Highest single-view tower probability (0-1) of the points of its cluster", 3),
-    "wire_support": Field("float64", "Conductor support (0-1)",
-                          "Share (0-1) of the 80-160 m ring around the base reached by a conductor pointing at "
-                          "it; NULL when unknown (no data around)", 3),
-    "line_id": Field("Int64", "Line id", "Line of the tower (layer lines): the smallest tower_id on the line; "
-                                         "NULL when the tower is linked to no other (set in the zone's file)"),
+    "prob_mean": Field(
+        "float64", "Mean probability", "Mean single-view tower probability (0-1) of the points of its cluster", 3
+    ),
+    "prob_max": Field(
+        "float64", "Max probability", "Highest single-view tower probability (0-1) of the points of its cluster", 3
+    ),
+    "wire_support": Field(
+        "float64",
+        "Conductor support (0-1)",
+        "Share (0-1) of the 80-160 m ring around the base reached by a conductor pointing at "
+        "it; NULL when unknown (no data around)",
+        3,
+    ),
+    "line_id": Field(
+        "Int64",
+        "Line id",
+        "Line of the tower (layer lines): the smallest tower_id on the line; "
+        "NULL when the tower is linked to no other (set in the zone's file)",
+    ),
     "line_seq": Field("Int64", "Position on the line", "1, 2, … along the line (layer lines); NULL off a line"),
-    "line_chainage_m": Field("float64", "Chainage (m)",
-                             "Distance along the line from its first tower, through the towers (m)", 2),
-    "bearing_deg": Field("float64", "Line bearing (°)",
-                         "Azimuth of the line at the tower, degrees clockwise from grid north, toward increasing "
-                         "line_seq (at an angle tower the bisector of its two spans); the crossarm is "
-                         "perpendicular. For a tower on no line, the axis of its conductors (0-180); NULL "
-                         "when no conductor was found", 1),
-    "deflection_deg": Field("float64", "Line deflection (°)",
-                            "Angle the line turns at the tower (0 = straight through; angle towers); NULL at the "
-                            "ends of a line", 1),
-    "review_status": Field("str", "Review status", "Analyst review: unreviewed (default), confirmed or "
-                                                   "rejected; kept from run to run by the registry",
-                           enum=REVIEW_STATUSES),
+    "line_chainage_m": Field(
+        "float64", "Chainage (m)", "Distance along the line from its first tower, through the towers (m)", 2
+    ),
+    "bearing_deg": Field(
+        "float64",
+        "Line bearing (°)",
+        "Azimuth of the line at the tower, degrees clockwise from grid north, toward increasing "
+        "line_seq (at an angle tower the bisector of its two spans); the crossarm is "
+        "perpendicular. For a tower on no line, the axis of its conductors (0-180); NULL "
+        "when no conductor was found",
+        1,
+    ),
+    "deflection_deg": Field(
+        "float64",
+        "Line deflection (°)",
+        "Angle the line turns at the tower (0 = straight through; angle towers); NULL at the ends of a line",
+        1,
+    ),
+    "review_status": Field(
+        "str",
+        "Review status",
+        "Analyst review: unreviewed (default), confirmed or rejected; kept from run to run by the registry",
+        enum=REVIEW_STATUSES,
+    ),
     "first_seen": Field(DATETIME, "First seen (UTC)", "When the tower was first found (when its id was made)"),
     "source_files": Field("str", "Source files", "Absolute paths of the input files of its blocks, ';'-separated"),
     "model_name": Field("str", "Model", "Model that predicted the tower points"),
@@ -235,13 +266,20 @@ def extract_towers(
     if model_meta is None:
         model_meta = next((m["model"] for m in metas if m.get("model")), {})
     if processed_at is None:
-        processed_at = datetime.now(timezone.utc).replace(microsecond=0).isoformat()
+        processed_at = datetime.now(UTC).replace(microsecond=0).isoformat()
     members: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     neighbours: list[dict[str, Any]] = []
     pts = gather_points(preds, rules.threshold)
     xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
-    labels = cluster_towers(xyz, pts["hag"], linkage=rules.linkage, merge_gap=merge_gap, max_extent=max_extent,
-                            min_points=rules.min_points, min_height=rules.min_height)
+    labels = cluster_towers(
+        xyz,
+        pts["hag"],
+        linkage=rules.linkage,
+        merge_gap=merge_gap,
+        max_extent=max_extent,
+        min_points=rules.min_points,
+        min_height=rules.min_height,
+    )
     if not (labels >= 0).any():
         return ExtractedTowers(empty_towers(crs), members, neighbours)
     sources = dict(source_files or {})
@@ -286,8 +324,9 @@ def extract_towers(
     ids, first_seen, review = assign_ids([a[2] for a in accepted], registry)
     stamp = pd.Timestamp(processed_at)
     stamp = stamp.tz_localize("UTC") if stamp.tzinfo is None else stamp.tz_convert("UTC")
-    for (g, g_pts, foot, touched, owned, support, hag, prob), tid, first, rev in zip(accepted, ids.tolist(),
-                                                                                    first_seen, review):
+    for (g, g_pts, foot, touched, owned, support, hag, prob), tid, first, rev in zip(
+        accepted, ids.tolist(), first_seen, review
+    ):
         members[tid] = (pts["block"][g_pts], pts["point_index"][g_pts])
         if not owned:
             # reported by the neighbour that holds its centroid (the same rules on the same
@@ -301,33 +340,38 @@ def extract_towers(
         # top and base to the cm, and the height their difference: height_m = top_z - base_z exactly
         top = round(float(xyz[g, 2].max()), 2)
         base = round(float(np.median(xyz[g, 2] - hag)), 2)
-        rows.append({
-            "tower_id": tid,
-            "zone": str(zone),
-            "block": str(block_name),
-            "blocks": join_values(touched),
-            "centroid_x": float(c.x),
-            "centroid_y": float(c.y),
-            "height_m": round(top - base, 2),
-            "base_z": base,
-            "top_z": top,
-            "footprint_area_m2": float(foot.area),
-            "footprint_width_m": float(np.min(sides)),
-            "footprint_length_m": float(np.max(sides)),
-            "edge_distance_m": float(min(c.x - xmin, xmax - c.x, c.y - ymin, ymax - c.y)),
-            "n_points": int(len(g_pts)),
-            "prob_mean": float(prob.mean()),
-            "prob_max": float(prob.max()),
-            "wire_support": support,
-            "line_id": None, "line_seq": None, "line_chainage_m": np.nan, "bearing_deg": np.nan,
-            "deflection_deg": np.nan,
-            "review_status": rev,
-            "first_seen": first if first is not None and pd.notna(first) else stamp,
-            "source_files": join_values(os.path.abspath(sources[b]) for b in touched if b in sources),
-            "model_name": str(model_meta.get("name", "")),
-            "model_version": str(model_meta.get("version", "")),
-            "processed_at": stamp,
-        })
+        rows.append(
+            {
+                "tower_id": tid,
+                "zone": str(zone),
+                "block": str(block_name),
+                "blocks": join_values(touched),
+                "centroid_x": float(c.x),
+                "centroid_y": float(c.y),
+                "height_m": round(top - base, 2),
+                "base_z": base,
+                "top_z": top,
+                "footprint_area_m2": float(foot.area),
+                "footprint_width_m": float(np.min(sides)),
+                "footprint_length_m": float(np.max(sides)),
+                "edge_distance_m": float(min(c.x - xmin, xmax - c.x, c.y - ymin, ymax - c.y)),
+                "n_points": int(len(g_pts)),
+                "prob_mean": float(prob.mean()),
+                "prob_max": float(prob.max()),
+                "wire_support": support,
+                "line_id": None,
+                "line_seq": None,
+                "line_chainage_m": np.nan,
+                "bearing_deg": np.nan,
+                "deflection_deg": np.nan,
+                "review_status": rev,
+                "first_seen": first if first is not None and pd.notna(first) else stamp,
+                "source_files": join_values(os.path.abspath(sources[b]) for b in touched if b in sources),
+                "model_name": str(model_meta.get("name", "")),
+                "model_version": str(model_meta.get("version", "")),
+                "processed_at": stamp,
+            }
+        )
         geoms.append(foot)
     if not rows:
         return ExtractedTowers(empty_towers(crs), members, neighbours)

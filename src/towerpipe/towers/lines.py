@@ -67,19 +67,34 @@ SPAN_FIELDS: dict[str, Field] = {
     "from_tower": Field("int64", "From tower", "tower_id at the start (lower line_seq)"),
     "to_tower": Field("int64", "To tower", "tower_id at the end"),
     "length_m": Field("float64", "Length (m)", "Distance between the tower centroids, in plan (m)", 2),
-    "bearing_deg": Field("float64", "Bearing (°)", "Azimuth from from_tower to to_tower, degrees clockwise "
-                                                    "from grid north", 1),
-    "conductor_points": Field("int64", "Conductor points", "Conductor points in the span's corridor, running "
-                                                            "along it"),
-    "conductor_coverage": Field("float64", "Conductor coverage (0-1)",
-                                "Share of the span's 10 m bins (inside the data) holding a conductor point", 3),
-    "lowest_conductor_m": Field("float64", "Lowest conductor (m)",
-                                "Lowest conductor point above ground in the span, away from the towers (m)", 2),
-    "clearance_m": Field("float64", "Clearance to vegetation (m)",
-                         "Smallest vertical distance from a conductor point of the span down to the vegetation "
-                         "(classes 3-5) within 2 m in plan below it; NULL when no vegetation lies below (m)", 2),
-    "mutual": Field("bool", "Seen from both towers", "Conductors were found leaving both towers toward each "
-                                                      "other (else from one of them only)"),
+    "bearing_deg": Field(
+        "float64", "Bearing (°)", "Azimuth from from_tower to to_tower, degrees clockwise from grid north", 1
+    ),
+    "conductor_points": Field("int64", "Conductor points", "Conductor points in the span's corridor, running along it"),
+    "conductor_coverage": Field(
+        "float64",
+        "Conductor coverage (0-1)",
+        "Share of the span's 10 m bins (inside the data) holding a conductor point",
+        3,
+    ),
+    "lowest_conductor_m": Field(
+        "float64",
+        "Lowest conductor (m)",
+        "Lowest conductor point above ground in the span, away from the towers (m)",
+        2,
+    ),
+    "clearance_m": Field(
+        "float64",
+        "Clearance to vegetation (m)",
+        "Smallest vertical distance from a conductor point of the span down to the vegetation "
+        "(classes 3-5) within 2 m in plan below it; NULL when no vegetation lies below (m)",
+        2,
+    ),
+    "mutual": Field(
+        "bool",
+        "Seen from both towers",
+        "Conductors were found leaving both towers toward each other (else from one of them only)",
+    ),
 }
 
 #: Tower columns :func:`build_lines` fills.
@@ -90,21 +105,21 @@ LINE_TOWER_COLUMNS = ("line_id", "line_seq", "line_chainage_m", "bearing_deg", "
 class LineParams:
     """Parameters of :func:`build_lines` (metres and degrees)."""
 
-    r_min: float = 20.0          # conductor points closer to a tower are its body and crossarms
-    max_offset: float = 12.0     # a wire aims at a tower when its line passes this close
-    ray_gap: float = 6.0         # directions further apart than this start a new ray
-    min_ray_points: int = 10     # points a ray needs
+    r_min: float = 20.0  # conductor points closer to a tower are its body and crossarms
+    max_offset: float = 12.0  # a wire aims at a tower when its line passes this close
+    ray_gap: float = 6.0  # directions further apart than this start a new ray
+    min_ray_points: int = 10  # points a ray needs
     min_span: float = 30.0
     max_span: float = 700.0
-    lateral: float = 5.0         # + lateral_share * distance: how far off a ray the next tower may be
+    lateral: float = 5.0  # + lateral_share * distance: how far off a ray the next tower may be
     lateral_share: float = 0.015
-    back_angle: float = 20.0     # a ray of the far tower within this of the way back must find the near one
+    back_angle: float = 20.0  # a ray of the far tower within this of the way back must find the near one
     attached_offset: float = 4.0  # median offset of a ray's wires from a tower they hang on
-    corridor: float = 15.0       # half-width of a span's corridor
-    parallel: float = 10.0       # conductor direction vs span bearing
+    corridor: float = 15.0  # half-width of a span's corridor
+    parallel: float = 10.0  # conductor direction vs span bearing
     bin: float = 10.0
     min_coverage: float = 0.5
-    min_bins: int = 3            # bins in the data a span needs to be judged
+    min_bins: int = 3  # bins in the data a span needs to be judged
 
 
 def _unit(az_deg: np.ndarray | float) -> np.ndarray:
@@ -121,8 +136,9 @@ def _angle_diff(a: np.ndarray | float, b: np.ndarray | float) -> np.ndarray:
     return np.abs((np.asarray(a) - np.asarray(b) + 180.0) % 360.0 - 180.0)
 
 
-def conductor_rays(tree: cKDTree, xy: np.ndarray, direction_deg: np.ndarray, cx: float, cy: float,
-                   p: LineParams = LineParams()) -> list[dict[str, float]]:
+def conductor_rays(
+    tree: cKDTree, xy: np.ndarray, direction_deg: np.ndarray, cx: float, cy: float, p: LineParams = LineParams()
+) -> list[dict[str, float]]:
     """The conductor rays leaving a tower at ``(cx, cy)``.
 
     Parameters
@@ -170,13 +186,26 @@ def conductor_rays(tree: cKDTree, xy: np.ndarray, direction_deg: np.ndarray, cx:
         if len(members) < p.min_ray_points:
             continue
         v = u[members].mean(axis=0)
-        rays.append({"bearing_deg": float(_azimuth(v[0], v[1])), "n_points": int(len(members)),
-                     "reach_m": float(r[members].max()), "median_offset_m": float(np.median(side[members]))})
+        rays.append(
+            {
+                "bearing_deg": float(_azimuth(v[0], v[1])),
+                "n_points": int(len(members)),
+                "reach_m": float(r[members].max()),
+                "median_offset_m": float(np.median(side[members])),
+            }
+        )
     return sorted(rays, key=lambda ray: ray["bearing_deg"])
 
 
-def _corridor(tree: cKDTree, xy: np.ndarray, cond: Mapping[str, np.ndarray], a: np.ndarray, b: np.ndarray,
-              p: LineParams, extent: Any) -> dict[str, Any]:
+def _corridor(
+    tree: cKDTree,
+    xy: np.ndarray,
+    cond: Mapping[str, np.ndarray],
+    a: np.ndarray,
+    b: np.ndarray,
+    p: LineParams,
+    extent: Any,
+) -> dict[str, Any]:
     """Conductor evidence of the span ``a`` → ``b``."""
     v = b - a
     length = float(np.hypot(*v))
@@ -187,16 +216,16 @@ def _corridor(tree: cKDTree, xy: np.ndarray, cond: Mapping[str, np.ndarray], a: 
     t = d @ unit
     lat = np.abs(d[:, 0] * unit[1] - d[:, 1] * unit[0])
     span_az = float(_azimuth(unit[0], unit[1]))
-    axis_dev = np.minimum(_angle_diff(cond["direction_deg"][idx], span_az),
-                          _angle_diff(cond["direction_deg"][idx] + 180.0, span_az))
+    axis_dev = np.minimum(
+        _angle_diff(cond["direction_deg"][idx], span_az), _angle_diff(cond["direction_deg"][idx] + 180.0, span_az)
+    )
     end = min(p.r_min, length / 4.0)  # the towers' own points near each end (less on a short span)
     inner = (t >= end) & (t <= length - end)
     sel = (t >= 0) & (t <= length) & (lat <= p.corridor) & (axis_dev <= p.parallel)
     nbins = max(int(np.ceil((length - 2 * end) / p.bin)), 0)
     if nbins:
         centres = a + unit * (end + p.bin * (np.arange(nbins) + 0.5))[:, None]
-        in_data = np.ones(nbins, bool) if extent is None else shapely.contains_xy(extent, centres[:, 0],
-                                                                                  centres[:, 1])
+        in_data = np.ones(nbins, bool) if extent is None else shapely.contains_xy(extent, centres[:, 0], centres[:, 1])
         hit = np.zeros(nbins, bool)
         k = np.floor((t[sel & inner] - end) / p.bin).astype(np.int64)
         hit[np.clip(k, 0, nbins - 1)] = True
@@ -208,10 +237,15 @@ def _corridor(tree: cKDTree, xy: np.ndarray, cond: Mapping[str, np.ndarray], a: 
     hag = cond["hag"][mid_sel]
     clear = cond["clearance_m"][mid_sel]
     clear = clear[np.isfinite(clear)]
-    return {"length_m": length, "bearing_deg": span_az, "conductor_points": int(sel.sum()),
-            "conductor_coverage": coverage, "judged_bins": judged,
-            "lowest_conductor_m": float(hag.min()) if len(hag) else float("nan"),
-            "clearance_m": float(clear.min()) if len(clear) else float("nan")}
+    return {
+        "length_m": length,
+        "bearing_deg": span_az,
+        "conductor_points": int(sel.sum()),
+        "conductor_coverage": coverage,
+        "judged_bins": judged,
+        "lowest_conductor_m": float(hag.min()) if len(hag) else float("nan"),
+        "clearance_m": float(clear.min()) if len(clear) else float("nan"),
+    }
 
 
 def _next_tower(i: int, ray: Mapping[str, float], txy: np.ndarray, p: LineParams) -> int | None:
@@ -224,8 +258,15 @@ def _next_tower(i: int, ray: Mapping[str, float], txy: np.ndarray, p: LineParams
     return int(cand[np.argmin(s[cand])]) if len(cand) else None
 
 
-def _spans(txy: np.ndarray, rays: list[list[dict[str, float]]], tree: cKDTree, xy: np.ndarray,
-           cond: Mapping[str, np.ndarray], p: LineParams, extent: Any) -> dict[tuple[int, int], dict]:
+def _spans(
+    txy: np.ndarray,
+    rays: list[list[dict[str, float]]],
+    tree: cKDTree,
+    xy: np.ndarray,
+    cond: Mapping[str, np.ndarray],
+    p: LineParams,
+    extent: Any,
+) -> dict[tuple[int, int], dict]:
     """Spans ``(i, j)`` (tower row indices, i < j) with their evidence.
 
     A span is proposed by a ray of a tower whose next tower is the other; proposed by
@@ -313,8 +354,13 @@ def _paths(n: int, keys: list[tuple[int, int]], txy: np.ndarray, tids: np.ndarra
     return out
 
 
-def build_lines(towers: gpd.GeoDataFrame, conductors: Mapping[str, np.ndarray], *, extent: Any = None,
-                params: LineParams = LineParams()) -> tuple[gpd.GeoDataFrame, gpd.GeoDataFrame, gpd.GeoDataFrame]:
+def build_lines(
+    towers: gpd.GeoDataFrame,
+    conductors: Mapping[str, np.ndarray],
+    *,
+    extent: Any = None,
+    params: LineParams = LineParams(),
+) -> tuple[gpd.GeoDataFrame, gpd.GeoDataFrame, gpd.GeoDataFrame]:
     """Link a zone's towers into lines.
 
     Parameters
@@ -348,8 +394,10 @@ def build_lines(towers: gpd.GeoDataFrame, conductors: Mapping[str, np.ndarray], 
         return out, empty_frame(LINE_FIELDS, crs), empty_frame(SPAN_FIELDS, crs)
     tids = out["tower_id"].to_numpy(np.int64)
     txy = np.c_[out["centroid_x"].to_numpy(float), out["centroid_y"].to_numpy(float)]
-    cond = {k: np.asarray(conductors.get(k, []), dtype=np.float64) for k in
-            ("x", "y", "hag", "direction_deg", "clearance_m")}
+    cond = {
+        k: np.asarray(conductors.get(k, []), dtype=np.float64)
+        for k in ("x", "y", "hag", "direction_deg", "clearance_m")
+    }
     xy = np.c_[cond["x"], cond["y"]]
     tree = cKDTree(xy) if len(xy) else None
     rays = [conductor_rays(tree, xy, cond["direction_deg"], *txy[i], p) if tree is not None else [] for i in range(n)]
@@ -360,7 +408,7 @@ def build_lines(towers: gpd.GeoDataFrame, conductors: Mapping[str, np.ndarray], 
     # line ids: the smallest id of the towers a line holds (a junction tower is held by its through line)
     owner = np.full(n, -1)
     for k, path in enumerate(paths):
-        for v in (path[1:-1] if len(path) > 2 else []):
+        for v in path[1:-1] if len(path) > 2 else []:
             owner[v] = k
     for k, path in enumerate(paths):
         for v in (path[0], path[-1]):
@@ -383,30 +431,51 @@ def build_lines(towers: gpd.GeoDataFrame, conductors: Mapping[str, np.ndarray], 
                 continue
             prev_ = pts[seq - 1] if seq > 0 else None
             next_ = pts[seq + 1] if seq + 1 < len(path) else None
-            dirs = [w for w in ((pts[seq] - prev_) if prev_ is not None else None,
-                                (next_ - pts[seq]) if next_ is not None else None) if w is not None]
+            dirs = [
+                w
+                for w in (
+                    (pts[seq] - prev_) if prev_ is not None else None,
+                    (next_ - pts[seq]) if next_ is not None else None,
+                )
+                if w is not None
+            ]
             units = [w / np.hypot(*w) for w in dirs]
             mean = np.sum(units, axis=0)
             out.at[v, "line_id"] = line_ids[k]
             out.at[v, "line_seq"] = seq + 1
             out.at[v, "line_chainage_m"] = float(chain[seq])
-            out.at[v, "bearing_deg"] = float(_azimuth(*mean)) if np.hypot(*mean) > 1e-9 else float(
-                _azimuth(*units[0]))
-            out.at[v, "deflection_deg"] = float(_angle_diff(_azimuth(*units[0]), _azimuth(*units[1]))) \
-                if len(units) == 2 else np.nan
-        line_rows.append({"line_id": line_ids[k], "tower_count": len(set(path)), "span_count": len(path) - 1,
-                          "length_m": float(chain[-1]), "first_tower": int(tids[path[0]]),
-                          "last_tower": int(tids[path[-1]])})
+            out.at[v, "bearing_deg"] = float(_azimuth(*mean)) if np.hypot(*mean) > 1e-9 else float(_azimuth(*units[0]))
+            out.at[v, "deflection_deg"] = (
+                float(_angle_diff(_azimuth(*units[0]), _azimuth(*units[1]))) if len(units) == 2 else np.nan
+            )
+        line_rows.append(
+            {
+                "line_id": line_ids[k],
+                "tower_count": len(set(path)),
+                "span_count": len(path) - 1,
+                "length_m": float(chain[-1]),
+                "first_tower": int(tids[path[0]]),
+                "last_tower": int(tids[path[-1]]),
+            }
+        )
         line_geoms.append(shapely.LineString(pts))
         for s, (a, b) in enumerate(zip(path[:-1], path[1:])):
             ev = spans[(min(a, b), max(a, b))]
-            span_rows.append({"line_id": line_ids[k], "span_seq": s + 1, "from_tower": int(tids[a]),
-                              "to_tower": int(tids[b]), "length_m": ev["length_m"],
-                              "bearing_deg": float(_azimuth(*(txy[b] - txy[a]))),
-                              "conductor_points": ev["conductor_points"],
-                              "conductor_coverage": ev["conductor_coverage"],
-                              "lowest_conductor_m": ev["lowest_conductor_m"], "clearance_m": ev["clearance_m"],
-                              "mutual": bool(ev["mutual"])})
+            span_rows.append(
+                {
+                    "line_id": line_ids[k],
+                    "span_seq": s + 1,
+                    "from_tower": int(tids[a]),
+                    "to_tower": int(tids[b]),
+                    "length_m": ev["length_m"],
+                    "bearing_deg": float(_azimuth(*(txy[b] - txy[a]))),
+                    "conductor_points": ev["conductor_points"],
+                    "conductor_coverage": ev["conductor_coverage"],
+                    "lowest_conductor_m": ev["lowest_conductor_m"],
+                    "clearance_m": ev["clearance_m"],
+                    "mutual": bool(ev["mutual"]),
+                }
+            )
             span_geoms.append(shapely.LineString([txy[a], txy[b]]))
     # towers on no line: the axis of the conductors hanging on them (rays centred on the tower)
     for v in range(n):

@@ -13,9 +13,19 @@ import shapely
 from towerpipe.towers.cluster import _footprint, cluster_towers
 
 
-def towers_from_labels(x: np.ndarray, y: np.ndarray, z: np.ndarray, hag: np.ndarray | None, is_tower: np.ndarray,
-                       *, linkage: float = 2.5, min_points: int = 1, min_height: float = 0.0,
-                       min_width: float = 1.0, crs: Any = None) -> gpd.GeoDataFrame:
+def towers_from_labels(
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    hag: np.ndarray | None,
+    is_tower: np.ndarray,
+    *,
+    linkage: float = 2.5,
+    min_points: int = 1,
+    min_height: float = 0.0,
+    min_width: float = 1.0,
+    crs: Any = None,
+) -> gpd.GeoDataFrame:
     """Truth towers from point labels (e.g. input Classification == 15).
 
     Clusters the labelled points as :func:`towerpipe.towers.cluster.cluster_towers` does (no size filter by
@@ -27,8 +37,9 @@ def towers_from_labels(x: np.ndarray, y: np.ndarray, z: np.ndarray, hag: np.ndar
     h = np.asarray(hag)[sel].astype(np.float64) if hag is not None else None
     if h is None:
         h = xyz[:, 2] - (xyz[:, 2].min() if len(xyz) else 0.0)
-    labels = cluster_towers(xyz, h, linkage=linkage, merge_gap=1.0, max_extent=np.inf,
-                            min_points=min_points, min_height=min_height)
+    labels = cluster_towers(
+        xyz, h, linkage=linkage, merge_gap=1.0, max_extent=np.inf, min_points=min_points, min_height=min_height
+    )
     rows, geoms = [], []
     for k in range(labels.max() + 1 if len(labels) else 0):
         g = np.flatnonzero(labels == k)
@@ -37,8 +48,9 @@ def towers_from_labels(x: np.ndarray, y: np.ndarray, z: np.ndarray, hag: np.ndar
         rows.append({"tower_id": f"truth_{k}", "n_points": int(len(g)), "height_m": float(h[g].max())})
         geoms.append(_footprint(xyz[g, :2], min_width))
     if not rows:
-        return gpd.GeoDataFrame({"tower_id": [], "n_points": [], "height_m": []},
-                                geometry=gpd.GeoSeries([], crs=crs), crs=crs)
+        return gpd.GeoDataFrame(
+            {"tower_id": [], "n_points": [], "height_m": []}, geometry=gpd.GeoSeries([], crs=crs), crs=crs
+        )
     return gpd.GeoDataFrame(rows, geometry=geoms, crs=crs)
 
 
@@ -102,7 +114,12 @@ def match_towers(pred: gpd.GeoDataFrame, truth: gpd.GeoDataFrame, max_dist: floa
     mp = {m["pred"] for m in matches}
     mt = {m["truth"] for m in matches}
     return {
-        "precision": precision, "recall": recall, "f1": f1_score(precision, recall), "tp": tp, "fp": fp, "fn": fn,
+        "precision": precision,
+        "recall": recall,
+        "f1": f1_score(precision, recall),
+        "tp": tp,
+        "fp": fp,
+        "fn": fn,
         "matches": matches,
         "unmatched_pred": [i for i in pid if i not in mp],
         "unmatched_truth": [i for i in tid if i not in mt],

@@ -64,18 +64,27 @@ _Y_MOD = 100_000_000
 #: ``vanished_towers`` layer; geometry: the last footprint seen.
 REGISTRY_FIELDS: dict[str, Field] = {
     "tower_id": Field("int64", "Tower id", "Stable tower id (see docs/products.md): first-seen centroid on a 1 m grid"),
-    "status": Field("str", "Status", "active: found by the last run; vanished: registered but not found since "
-                                     "vanished_since", enum=(ACTIVE, VANISHED)),
+    "status": Field(
+        "str",
+        "Status",
+        "active: found by the last run; vanished: registered but not found since vanished_since",
+        enum=(ACTIVE, VANISHED),
+    ),
     "block": Field("str", "Block", "Block that held the tower when it was last seen"),
     "centroid_x": Field("float64", "Centroid X (m)", "Footprint centroid when last seen, CRS units (m)", 2),
     "centroid_y": Field("float64", "Centroid Y (m)", "Footprint centroid when last seen, CRS units (m)", 2),
     "height_m": Field("float64", "Height (m)", "Height when last seen: top_z - base_z (m)", 2),
     "first_seen": Field(DATETIME, "First seen (UTC)", "When the tower was first found (its id was made)"),
     "last_seen": Field(DATETIME, "Last seen (UTC)", "When a run last found the tower"),
-    "vanished_since": Field(DATETIME, "Vanished since (UTC)", "First run that did not find the tower again; "
-                                                                "NULL while it is found"),
-    "review_status": Field("str", "Review status", "Analyst review: unreviewed, confirmed or rejected "
-                                                   "(kept from run to run)", enum=REVIEW_STATUSES),
+    "vanished_since": Field(
+        DATETIME, "Vanished since (UTC)", "First run that did not find the tower again; NULL while it is found"
+    ),
+    "review_status": Field(
+        "str",
+        "Review status",
+        "Analyst review: unreviewed, confirmed or rejected (kept from run to run)",
+        enum=REVIEW_STATUSES,
+    ),
 }
 
 
@@ -94,8 +103,9 @@ def _free_id(x: float, y: float, taken: set[int]) -> int:
     raise RuntimeError("no free tower id")  # pragma: no cover - 1e8 ids taken at one x
 
 
-def assign_ids(footprints: Sequence[Any], registry: gpd.GeoDataFrame | None,
-               max_dist: float = MATCH_DISTANCE) -> tuple[np.ndarray, list[Any], list[str]]:
+def assign_ids(
+    footprints: Sequence[Any], registry: gpd.GeoDataFrame | None, max_dist: float = MATCH_DISTANCE
+) -> tuple[np.ndarray, list[Any], list[str]]:
     """Ids of towers: a registered tower's where they match it, else a new location id.
 
     Parameters
@@ -167,9 +177,15 @@ def unique_ids(towers: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
         for i in group.index[np.argsort(dist.to_numpy(), kind="stable")][1:]:
             new = _free_id(out.at[i, "centroid_x"], out.at[i, "centroid_y"], taken)
             taken.add(new)
-            log.warning("tower id %d given to two towers (blocks %s and %s): the one at (%.1f, %.1f) becomes %d",
-                        tid, group["block"].iloc[0], out.at[i, "block"], out.at[i, "centroid_x"],
-                        out.at[i, "centroid_y"], new)
+            log.warning(
+                "tower id %d given to two towers (blocks %s and %s): the one at (%.1f, %.1f) becomes %d",
+                tid,
+                group["block"].iloc[0],
+                out.at[i, "block"],
+                out.at[i, "centroid_x"],
+                out.at[i, "centroid_y"],
+                new,
+            )
             out.at[i, "tower_id"] = new
     return out.sort_values("tower_id", kind="stable").reset_index(drop=True)
 
@@ -179,8 +195,14 @@ def empty_registry(crs: Any = None) -> gpd.GeoDataFrame:
     return empty_frame(REGISTRY_FIELDS, crs)
 
 
-def update_registry(registry: gpd.GeoDataFrame, towers: gpd.GeoDataFrame, *, run_time: Any,
-                    keep_blocks: Iterable[str] = (), reviews: Mapping[int, str] | None = None) -> gpd.GeoDataFrame:
+def update_registry(
+    registry: gpd.GeoDataFrame,
+    towers: gpd.GeoDataFrame,
+    *,
+    run_time: Any,
+    keep_blocks: Iterable[str] = (),
+    reviews: Mapping[int, str] | None = None,
+) -> gpd.GeoDataFrame:
     """The registry after an assembly.
 
     Parameters
@@ -206,8 +228,9 @@ def update_registry(registry: gpd.GeoDataFrame, towers: gpd.GeoDataFrame, *, run
     geopandas.GeoDataFrame
         :data:`REGISTRY_FIELDS`, sorted by ``tower_id``.
     """
-    run_time = pd.Timestamp(run_time).tz_convert("UTC") if pd.Timestamp(run_time).tzinfo else \
-        pd.Timestamp(run_time, tz="UTC")
+    run_time = (
+        pd.Timestamp(run_time).tz_convert("UTC") if pd.Timestamp(run_time).tzinfo else pd.Timestamp(run_time, tz="UTC")
+    )
     crs = towers.crs if towers.crs is not None else registry.crs
     reg = registry.set_index("tower_id", drop=False) if len(registry) else None
     rows, geoms = [], []
@@ -217,14 +240,28 @@ def update_registry(registry: gpd.GeoDataFrame, towers: gpd.GeoDataFrame, *, run
         found.add(tid)
         old = reg.loc[tid] if reg is not None and tid in reg.index else None
         review = getattr(t, "review_status", None) or (old["review_status"] if old is not None else REVIEW_DEFAULT)
-        first = old["first_seen"] if old is not None and pd.notna(old["first_seen"]) else \
-            (getattr(t, "first_seen", None) if pd.notna(getattr(t, "first_seen", None)) else run_time)
-        rows.append({"tower_id": tid, "status": ACTIVE, "block": t.block, "centroid_x": t.centroid_x,
-                     "centroid_y": t.centroid_y, "height_m": t.height_m, "first_seen": first,
-                     "last_seen": run_time, "vanished_since": pd.NaT, "review_status": review})
+        first = (
+            old["first_seen"]
+            if old is not None and pd.notna(old["first_seen"])
+            else (getattr(t, "first_seen", None) if pd.notna(getattr(t, "first_seen", None)) else run_time)
+        )
+        rows.append(
+            {
+                "tower_id": tid,
+                "status": ACTIVE,
+                "block": t.block,
+                "centroid_x": t.centroid_x,
+                "centroid_y": t.centroid_y,
+                "height_m": t.height_m,
+                "first_seen": first,
+                "last_seen": run_time,
+                "vanished_since": pd.NaT,
+                "review_status": review,
+            }
+        )
         geoms.append(t.geometry)
     keep = set(keep_blocks)
-    for r in (registry.itertuples(index=False) if len(registry) else ()):
+    for r in registry.itertuples(index=False) if len(registry) else ():
         tid = int(r.tower_id)
         if tid in found:
             continue

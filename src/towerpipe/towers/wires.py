@@ -56,11 +56,20 @@ CONDUCTOR_FIELDS: dict[str, Field] = {
     "block": Field("str", "Block", "Block of the point"),
     "z": Field("float64", "Elevation (m)", "Elevation of the point (m)", 2),
     "hag": Field("float64", "Height above ground (m)", "Height of the point above the ground (m)", 2),
-    "direction_deg": Field("float64", "Wire direction (°)", "Axis of the wire through the point, degrees "
-                                                             "clockwise from grid north (0-180)", 1),
-    "clearance_m": Field("float64", "Clearance (m)", "Vertical distance down to the highest vegetation point "
-                                                     "(classes 3-5) within 2 m in plan below it; NULL when "
-                                                     "there is none", 2),
+    "direction_deg": Field(
+        "float64",
+        "Wire direction (°)",
+        "Axis of the wire through the point, degrees clockwise from grid north (0-180)",
+        1,
+    ),
+    "clearance_m": Field(
+        "float64",
+        "Clearance (m)",
+        "Vertical distance down to the highest vegetation point "
+        "(classes 3-5) within 2 m in plan below it; NULL when "
+        "there is none",
+        2,
+    ),
 }
 
 
@@ -82,8 +91,15 @@ class Coverage:
         must lie in it for a support to be judged (see :func:`wire_support`).
     """
 
-    def __init__(self, x: np.ndarray, y: np.ndarray, cell: float = 10.0, grow: int = 1,
-                 survey: Sequence[Sequence[float]] = (), min_ring_share: float = 0.0):
+    def __init__(
+        self,
+        x: np.ndarray,
+        y: np.ndarray,
+        cell: float = 10.0,
+        grow: int = 1,
+        survey: Sequence[Sequence[float]] = (),
+        min_ring_share: float = 0.0,
+    ):
         x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
         self.cell = float(cell)
         self.survey = [tuple(map(float, b)) for b in survey]
@@ -122,9 +138,18 @@ class Coverage:
         return np.any([(x >= b[0]) & (x <= b[2]) & (y >= b[1]) & (y <= b[3]) for b in self.survey], axis=0)
 
 
-def wire_points(x: np.ndarray, y: np.ndarray, z: np.ndarray, *, radius: float = 1.0, max_neighbours: int = 20,
-                max_dz: float = 1.0, min_gap: float = 2.5, line_radius: float = 2.5, min_linearity: float = 0.9
-                ) -> tuple[np.ndarray, np.ndarray]:
+def wire_points(
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    *,
+    radius: float = 1.0,
+    max_neighbours: int = 20,
+    max_dz: float = 1.0,
+    min_gap: float = 2.5,
+    line_radius: float = 2.5,
+    min_linearity: float = 0.9,
+) -> tuple[np.ndarray, np.ndarray]:
     """Which points look like overhead wire, and the plan direction of their wire.
 
     Parameters
@@ -193,10 +218,24 @@ def wire_points(x: np.ndarray, y: np.ndarray, z: np.ndarray, *, radius: float = 
     return mask, direction
 
 
-def wire_support(x: np.ndarray, y: np.ndarray, z: np.ndarray, hag: np.ndarray, cx: float, cy: float, *,
-                 extent: Sequence[float] | Coverage | None = None, r_min: float = 80.0, r_max: float = 160.0,
-                 step: float = 10.0, sector: float = 20.0, max_offset: float = 12.0, min_hag: float = 5.0,
-                 min_bins: int = 4, min_ring_coverage: float = 0.0) -> float:
+def wire_support(
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    hag: np.ndarray,
+    cx: float,
+    cy: float,
+    *,
+    extent: Sequence[float] | Coverage | None = None,
+    r_min: float = 80.0,
+    r_max: float = 160.0,
+    step: float = 10.0,
+    sector: float = 20.0,
+    max_offset: float = 12.0,
+    min_hag: float = 5.0,
+    min_bins: int = 4,
+    min_ring_coverage: float = 0.0,
+) -> float:
     """Share of the ring ``[r_min, r_max)`` m around ``(cx, cy)`` reached by a conductor.
 
     Parameters
@@ -295,8 +334,9 @@ class TileContext:
 
     _COLUMNS = ["x", "y", "z", "hag", "model_input"]
 
-    def __init__(self, tile_paths: Sequence[str], *, survey: Sequence[Sequence[float]] = (),
-                 min_ring_share: float = 0.0):
+    def __init__(
+        self, tile_paths: Sequence[str], *, survey: Sequence[Sequence[float]] = (), min_ring_share: float = 0.0
+    ):
         from towerpipe.io.columns import read_meta
 
         self._survey, self._min_ring_share = [b for b in survey if b], min_ring_share
@@ -316,15 +356,18 @@ class TileContext:
                 if self._cached is None or self._cached[0] != path:
                     arrays = load_tile(path, columns=self._COLUMNS).arrays
                     keep = np.asarray(arrays.pop("model_input"), dtype=bool)
-                    self._cached = (path, {k: v[keep] for k, v in arrays.items()},
-                                    Coverage(arrays["x"], arrays["y"], survey=self._survey,
-                                             min_ring_share=self._min_ring_share))
+                    self._cached = (
+                        path,
+                        {k: v[keep] for k, v in arrays.items()},
+                        Coverage(arrays["x"], arrays["y"], survey=self._survey, min_ring_share=self._min_ring_share),
+                    )
                 return self._cached[1], self._cached[2]
         return None
 
 
-def _clearance(x: np.ndarray, y: np.ndarray, z: np.ndarray, vx: np.ndarray, vy: np.ndarray, vz: np.ndarray,
-               radius: float) -> np.ndarray:
+def _clearance(
+    x: np.ndarray, y: np.ndarray, z: np.ndarray, vx: np.ndarray, vy: np.ndarray, vz: np.ndarray, radius: float
+) -> np.ndarray:
     """Per point, ``z`` minus the highest of the ``v`` points below it within ``radius`` in plan (nan: none)."""
     out = np.full(len(x), np.nan)
     if len(x) == 0 or len(vx) == 0:
@@ -341,8 +384,9 @@ def _clearance(x: np.ndarray, y: np.ndarray, z: np.ndarray, vx: np.ndarray, vy: 
     return out
 
 
-def conductor_points(tile_paths: Sequence[str], block: str, *, min_hag: float = 5.0,
-                     clearance_radius: float = 2.0) -> dict[str, np.ndarray]:
+def conductor_points(
+    tile_paths: Sequence[str], block: str, *, min_hag: float = 5.0, clearance_radius: float = 2.0
+) -> dict[str, np.ndarray]:
     """The wire points of a block, from its tile files.
 
     Each tile's model-input points at least ``min_hag`` above the ground, core and
@@ -389,6 +433,7 @@ def conductor_points(tile_paths: Sequence[str], block: str, *, min_hag: float = 
         parts["z"].append(t["z"][idx])
         parts["hag"].append(t["hag"][idx].astype(np.float64))
         parts["direction_deg"].append(np.degrees(np.arctan2(u[:, 0], u[:, 1])) % 180.0)
-        parts["clearance_m"].append(_clearance(t["x"][idx], t["y"][idx], t["z"][idx], t["x"][veg], t["y"][veg],
-                                               t["z"][veg], clearance_radius))
+        parts["clearance_m"].append(
+            _clearance(t["x"][idx], t["y"][idx], t["z"][idx], t["x"][veg], t["y"][veg], t["z"][veg], clearance_radius)
+        )
     return {k: (np.concatenate(v) if v else np.empty(0)).astype(np.float64) for k, v in parts.items()}

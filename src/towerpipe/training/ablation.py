@@ -36,9 +36,9 @@ REFERENCE: dict[str, Any] = {"feature_set": "full", "sampling": "constrained", "
 
 def _run_row(windows_path: str, config: dict[str, Any]) -> dict[str, Any]:
     """Train both networks for one row (runs in a worker process)."""
-    from towerpipe.training.windowset import load_windows
     from towerpipe.progress import peak_rss_mb
     from towerpipe.training.train import train_classifier, train_segmenter
+    from towerpipe.training.windowset import load_windows
 
     ws = load_windows(windows_path)
     config = dict(config)
@@ -59,74 +59,114 @@ def _sentence(rows: Mapping[str, Mapping[str, Any]]) -> list[str]:
         return []
     ref = rows["reference"]
     f_ref, iou_ref = ref["classifier"]["test"]["f1"], ref["segmenter"]["test"]["iou_tower"]
-    labels = {"no_rgb_nir": "Dropping RGB and NIR (geometry features)", "random_sampling": "Random sampling",
-              "beta_0.9": "beta = 0.9", "beta_0.9999": "beta = 0.9999", "full_pointnet": "The full PointNet"}
+    labels = {
+        "no_rgb_nir": "Dropping RGB and NIR (geometry features)",
+        "random_sampling": "Random sampling",
+        "beta_0.9": "beta = 0.9",
+        "beta_0.9999": "beta = 0.9999",
+        "full_pointnet": "The full PointNet",
+    }
     out = []
     for name, r in rows.items():
         if name == "reference":
             continue
         df = 100 * (r["classifier"]["test"]["f1"] - f_ref)
         di = 100 * (r["segmenter"]["test"]["iou_tower"] - iou_ref)
-        dt = r["classifier"]["train_time_s"] + r["segmenter"]["train_time_s"] - (
-            ref["classifier"]["train_time_s"] + ref["segmenter"]["train_time_s"])
+        dt = (
+            r["classifier"]["train_time_s"]
+            + r["segmenter"]["train_time_s"]
+            - (ref["classifier"]["train_time_s"] + ref["segmenter"]["train_time_s"])
+        )
 
         def change(d: float, what: str) -> str:
             if abs(d) < 0.05:
                 return f"leaves {what} unchanged"
             return f"{'raises' if d > 0 else 'lowers'} {what} by {abs(d):.1f} points"
 
-        out.append(f"{labels.get(name, name)} {change(df, 'classification F1')} and "
-                   f"{change(di, 'segmentation IoU tower')} relative to the reference "
-                   f"(training time {dt:+.0f} s).")
+        out.append(
+            f"{labels.get(name, name)} {change(df, 'classification F1')} and "
+            f"{change(di, 'segmentation IoU tower')} relative to the reference "
+            f"(training time {dt:+.0f} s)."
+        )
     best_f1 = max(rows, key=lambda n: rows[n]["classifier"]["test"]["f1"])
     best_iou = max(rows, key=lambda n: rows[n]["segmenter"]["test"]["miou"])
     out.append(f"Best classification F1: `{best_f1}`; best segmentation mIoU: `{best_iou}`.")
     return out
 
 
-def render_markdown(rows: Mapping[str, Mapping[str, Any]], configs: Mapping[str, Mapping[str, Any]],
-                    meta: Mapping[str, Any]) -> str:
+def render_markdown(
+    rows: Mapping[str, Mapping[str, Any]], configs: Mapping[str, Mapping[str, Any]], meta: Mapping[str, Any]
+) -> str:
     """``ablation.md``: a Table 3-like and a Table 4-like table plus findings."""
     summary = meta.get("summary") or {}
-    lines = ["# Ablation study (Carós et al. 2022, Tables 3 and 4)", "",
-             "Each row changes one choice of the reference (PointNet_L, RGB+NIR features, constrained "
-             "sampling, beta = 0.999) and trains both networks on the same windows with the same "
-             "settings, listed under `configs` in `ablation.json`.", "",
-             "| split | windows | positive | negative | blocks |", "|---|---|---|---|---|"]
-    lines += [f"| {k} | {v.get('windows')} | {v.get('positive')} | {v.get('negative')} | {len(v.get('blocks', []))} |"
-              for k, v in summary.items()]
-    lines += ["",
-             "## Classification (test split)", "",
-             "| row | model | RGB+NIR | constrained sampling | beta | weights (sum 1) | time [s] | peak RSS [MiB] | precision | recall | F1 |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Ablation study (Carós et al. 2022, Tables 3 and 4)",
+        "",
+        "Each row changes one choice of the reference (PointNet_L, RGB+NIR features, constrained "
+        "sampling, beta = 0.999) and trains both networks on the same windows with the same "
+        "settings, listed under `configs` in `ablation.json`.",
+        "",
+        "| split | windows | positive | negative | blocks |",
+        "|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {k} | {v.get('windows')} | {v.get('positive')} | {v.get('negative')} | {len(v.get('blocks', []))} |"
+        for k, v in summary.items()
+    ]
+    lines += [
+        "",
+        "## Classification (test split)",
+        "",
+        "| row | model | RGB+NIR | constrained sampling | beta | weights (sum 1) | time [s] | peak RSS [MiB] | precision | recall | F1 |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for name, r in rows.items():
         c, m = configs[name], r["classifier"]
         w = class_balanced_weights(m["train_counts"], c["beta"])
-        lines.append(f"| {name} | PointNet{'_L' if c['arch'] == 'light' else ''} | "
-                     f"{'X' if c['feature_set'] == 'full' else ''} | {'X' if c['sampling'] == 'constrained' else ''} | "
-                     f"{c['beta']} | [{w[0] / w.sum():.2f}, {w[1] / w.sum():.2f}] | {m['train_time_s']:.0f} | "
-                     f"{r['process_peak_rss_mb']:.0f} | {_pct(m['test']['precision'])} | {_pct(m['test']['recall'])} | "
-                     f"{_pct(m['test']['f1'])} |")
-    lines += ["", "## Segmentation (all points of the test positive windows)", "",
-              "| row | model | RGB+NIR | constrained sampling | weights (sum 1) | time [s] | peak RSS [MiB] | IoU tower | IoU background | mIoU |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
+        lines.append(
+            f"| {name} | PointNet{'_L' if c['arch'] == 'light' else ''} | "
+            f"{'X' if c['feature_set'] == 'full' else ''} | {'X' if c['sampling'] == 'constrained' else ''} | "
+            f"{c['beta']} | [{w[0] / w.sum():.2f}, {w[1] / w.sum():.2f}] | {m['train_time_s']:.0f} | "
+            f"{r['process_peak_rss_mb']:.0f} | {_pct(m['test']['precision'])} | {_pct(m['test']['recall'])} | "
+            f"{_pct(m['test']['f1'])} |"
+        )
+    lines += [
+        "",
+        "## Segmentation (all points of the test positive windows)",
+        "",
+        "| row | model | RGB+NIR | constrained sampling | weights (sum 1) | time [s] | peak RSS [MiB] | IoU tower | IoU background | mIoU |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for name, r in rows.items():
         c, m = configs[name], r["segmenter"]
         w = class_balanced_weights(m["train_point_counts"], c["beta"])
-        lines.append(f"| {name} | PointNet{'_L' if c['arch'] == 'light' else ''} | "
-                     f"{'X' if c['feature_set'] == 'full' else ''} | {'X' if c['sampling'] == 'constrained' else ''} | "
-                     f"[{w[0] / w.sum():.2f}, {w[1] / w.sum():.2f}] | {m['train_time_s']:.0f} | "
-                     f"{r['process_peak_rss_mb']:.0f} | {_pct(m['test']['iou_tower'])} | "
-                     f"{_pct(m['test']['iou_background'])} | {_pct(m['test']['miou'])} |")
-    lines += ["", "## Findings", ""] + [f"- {s}" for s in _sentence(rows)] + [
-        "", "Time is training wall time per network on this machine; peak RSS is the peak resident memory of the "
-        "process that trained the row (both networks).", ""]
+        lines.append(
+            f"| {name} | PointNet{'_L' if c['arch'] == 'light' else ''} | "
+            f"{'X' if c['feature_set'] == 'full' else ''} | {'X' if c['sampling'] == 'constrained' else ''} | "
+            f"[{w[0] / w.sum():.2f}, {w[1] / w.sum():.2f}] | {m['train_time_s']:.0f} | "
+            f"{r['process_peak_rss_mb']:.0f} | {_pct(m['test']['iou_tower'])} | "
+            f"{_pct(m['test']['iou_background'])} | {_pct(m['test']['miou'])} |"
+        )
+    lines += (
+        ["", "## Findings", ""]
+        + [f"- {s}" for s in _sentence(rows)]
+        + [
+            "",
+            "Time is training wall time per network on this machine; peak RSS is the peak resident memory of the "
+            "process that trained the row (both networks).",
+            "",
+        ]
+    )
     return "\n".join(lines)
 
 
-def run_ablation(dataset_paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str],
-                 out_dir: str | os.PathLike[str], config: Mapping[str, Any] | None = None,
-                 rows: Mapping[str, Mapping[str, Any]] | None = None, subprocess: bool = True) -> Path:
+def run_ablation(
+    dataset_paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str],
+    out_dir: str | os.PathLike[str],
+    config: Mapping[str, Any] | None = None,
+    rows: Mapping[str, Mapping[str, Any]] | None = None,
+    subprocess: bool = True,
+) -> Path:
     """Run the ablation rows and write ``ablation.md`` and ``ablation.json`` into ``out_dir``.
 
     Parameters

@@ -34,8 +34,15 @@ from towerpipe.model.features import COLUMN_ATTRIBUTES, INTENSITY_CLIP, NORM_RAD
 #: The corruptions of an attribute group (see the module docstring).
 OPERATIONS: tuple[str, ...] = ("zero", "constant", "rescale", "bits8", "permute", "swap")
 #: Range of each corruptible column after normalisation (:mod:`towerpipe.model.features`).
-_RANGE = {"intensity": (0.0, INTENSITY_CLIP), "red": (0.0, 1.0), "green": (0.0, 1.0), "blue": (0.0, 1.0),
-          "ndvi": (-1.0, 1.0), "return_ratio": (0.0, 1.0), "n_returns": (0.0, 1.0)}
+_RANGE = {
+    "intensity": (0.0, INTENSITY_CLIP),
+    "red": (0.0, 1.0),
+    "green": (0.0, 1.0),
+    "blue": (0.0, 1.0),
+    "ndvi": (-1.0, 1.0),
+    "return_ratio": (0.0, 1.0),
+    "n_returns": (0.0, 1.0),
+}
 
 
 def augment_geometry(x: np.ndarray, cfg: Mapping[str, Any], rng: np.random.Generator) -> np.ndarray:
@@ -67,8 +74,14 @@ def attribute_groups(names: Sequence[str]) -> dict[str, list[int]]:
     return out
 
 
-def corrupt_attributes(x: np.ndarray, names: Sequence[str], labels: np.ndarray | None, p: float,
-                       rng: np.random.Generator, operations: Sequence[str] = OPERATIONS) -> np.ndarray:
+def corrupt_attributes(
+    x: np.ndarray,
+    names: Sequence[str],
+    labels: np.ndarray | None,
+    p: float,
+    rng: np.random.Generator,
+    operations: Sequence[str] = OPERATIONS,
+) -> np.ndarray:
     """Apply attribute corruptions to ``(B, n, C)`` windows in place (see the module docstring).
 
     Parameters
@@ -113,7 +126,7 @@ def corrupt_attributes(x: np.ndarray, names: Sequence[str], labels: np.ndarray |
                 tower = np.flatnonzero(labels[i] > 0)
                 other = np.flatnonzero(labels[i] == 0)
                 v[tower] = v[other[rng.integers(len(other), size=len(tower))]]
-            else:                                               # permute (or swap without both kinds)
+            else:  # permute (or swap without both kinds)
                 v = v[rng.permutation(n)]
             x[i][:, cols] = v
     return x

@@ -36,8 +36,13 @@ def _cli(args: argparse.Namespace) -> int:
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``towerpipe train`` to the command line."""
     p = subparsers.add_parser("train", help="train a classifier + segmenter bundle from labelled tile files")
-    p.add_argument("--tiles", nargs="+", required=True, metavar="GLOB",
-                   help="labelled tile .npz files (globs allowed) or one windows .npz")
+    p.add_argument(
+        "--tiles",
+        nargs="+",
+        required=True,
+        metavar="GLOB",
+        help="labelled tile .npz files (globs allowed) or one windows .npz",
+    )
     p.add_argument("--out", required=True, help="checkpoint directory to write")
     p.add_argument("--feature-set", default="full", choices=sorted(FEATURE_SETS))
     p.add_argument("--config", help="JSON/YAML file of training overrides (key `dataset` for the dataset)")

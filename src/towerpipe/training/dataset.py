@@ -60,13 +60,12 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from towerpipe.errors import ConfigError
-from towerpipe.model.features import ALL_FEATURES, compute_columns, tile_feature_meta
-from towerpipe.model.sampling import constrained_sample, random_sample
+from towerpipe.inference.windows import height_peaks
 from towerpipe.io.columns import read_meta
 from towerpipe.io.tiles import load_tile
-from towerpipe.inference.windows import height_peaks
-from towerpipe.training.windowset import (FAMILY_BITS, KINDS, SPLITS, WindowSet, is_windows_file, load_windows,
-                                          summarise)
+from towerpipe.model.features import ALL_FEATURES, compute_columns, tile_feature_meta
+from towerpipe.model.sampling import constrained_sample, random_sample
+from towerpipe.training.windowset import FAMILY_BITS, KINDS, SPLITS, WindowSet, is_windows_file, load_windows, summarise
 
 log = logging.getLogger(__name__)
 
@@ -125,8 +124,12 @@ def tower_instances(xyz: np.ndarray, link: float, min_points: int) -> list[np.nd
     if m == 0:
         return []
     pairs = cKDTree(xyz).query_pairs(link, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])) if len(pairs) else
-                       (np.zeros(0), (np.zeros(0, int), np.zeros(0, int))), shape=(m, m))
+    graph = coo_matrix(
+        (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1]))
+        if len(pairs)
+        else (np.zeros(0), (np.zeros(0, int), np.zeros(0, int))),
+        shape=(m, m),
+    )
     _, lab = connected_components(graph, directed=False)
     comps = [np.flatnonzero(lab == c) for c in np.unique(lab)]
     return sorted([c for c in comps if c.size >= min_points], key=lambda c: int(c[0]))
@@ -158,14 +161,15 @@ def tall_objects(xy: np.ndarray, hag: np.ndarray, cell: float) -> list[tuple[np.
     grid[ij[:, 0], ij[:, 1]] = True
     labels, n = ndimage.label(grid, structure=np.ones((3, 3), bool))
     obj = labels[ij[:, 0], ij[:, 1]] - 1
-    order = np.lexsort((-hag, obj))                       # per object, highest point first
+    order = np.lexsort((-hag, obj))  # per object, highest point first
     first = order[np.r_[True, obj[order][1:] != obj[order][:-1]]]
     first = first[np.argsort(-hag[first], kind="stable")]
     return [(xy[i].copy(), float(hag[i])) for i in first]
 
 
-def split_blocks(has_towers: Mapping[str, bool], val_fraction: float, test_fraction: float,
-                 seed: int) -> dict[str, str]:
+def split_blocks(
+    has_towers: Mapping[str, bool], val_fraction: float, test_fraction: float, seed: int
+) -> dict[str, str]:
     """Assign each block to ``train``/``val``/``test``, stratified by whether it has towers.
 
     Blocks with towers: at least one each in val and test (needs >= 3 such blocks).
@@ -179,8 +183,10 @@ def split_blocks(has_towers: Mapping[str, bool], val_fraction: float, test_fract
     tower = sorted(b for b, t in has_towers.items() if t)
     other = sorted(b for b, t in has_towers.items() if not t)
     if len(tower) < 3:
-        raise ConfigError(f"dataset: a block split needs >= 3 blocks with towers, got {len(tower)} "
-                          f"({tower}); use a larger training zone or set `split: {{val: [...], test: [...]}}`")
+        raise ConfigError(
+            f"dataset: a block split needs >= 3 blocks with towers, got {len(tower)} "
+            f"({tower}); use a larger training zone or set `split: {{val: [...], test: [...]}}`"
+        )
     out: dict[str, str] = {}
     for group, need in ((tower, True), (other, False)):
         order = [group[i] for i in rng.permutation(len(group))]
@@ -211,8 +217,7 @@ def _point_families(xy: np.ndarray, truth: Any) -> np.ndarray:
     return bits[i]
 
 
-def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator, truth: Any = None
-                  ) -> dict[str, Any]:
+def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator, truth: Any = None) -> dict[str, Any]:
     """Windows of one tile: dict of lists (centres, pools, samples, labels, kinds, families)."""
     tile = load_tile(path)
     meta = tile.meta
@@ -300,7 +305,8 @@ def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator, t
         counts["towers"] += 1
         centres = [(cen, "positive")] + [
             (cen + rng.uniform(-float(cfg["shift_m"]), float(cfg["shift_m"]), size=2), "positive_shifted")
-            for _ in range(int(cfg["positive_shifts"]))]
+            for _ in range(int(cfg["positive_shifts"]))
+        ]
         for centre, kind in centres:
             if add(centre, kind, tower_c=cen):
                 add(centre, "hard_negative", drop_towers=True)
@@ -309,8 +315,14 @@ def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator, t
         if sum(1 for k in out["kind"] if k == KINDS["random_negative"]) >= n_rand:
             break
         add(np.array([rng.uniform(xmin, xmax), rng.uniform(ymin, ymax)]), "random_negative")
-    tall = np.flatnonzero((arr["hag"] >= float(cfg["tall_hag_m"])) & ~is_tower & (xy[:, 0] >= xmin)
-                          & (xy[:, 0] < xmax) & (xy[:, 1] >= ymin) & (xy[:, 1] < ymax))
+    tall = np.flatnonzero(
+        (arr["hag"] >= float(cfg["tall_hag_m"]))
+        & ~is_tower
+        & (xy[:, 0] >= xmin)
+        & (xy[:, 0] < xmax)
+        & (xy[:, 1] >= ymin)
+        & (xy[:, 1] < ymax)
+    )
     objects = tall_objects(xy[tall], arr["hag"][tall], float(cfg["tall_object_cell_m"]))
     counts["tall_objects"] = len(objects)
     n_tall = int(cfg["tall_negatives_per_tile"])
@@ -321,19 +333,19 @@ def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator, t
         if add(centre, "tall_negative"):
             chosen.append(centre)
 
-    for top, _ in objects[: 3 * n_tall]:                   # the tallest objects of the tile
+    for top, _ in objects[: 3 * n_tall]:  # the tallest objects of the tile
         if len(chosen) >= (n_tall + 1) // 2:
             break
         # centred on the top and shifted, like a positive (rejected where it holds a tower)
         for centre in (top, top + rng.uniform(-2 * shift, 2 * shift, size=2)):
             add_tall(centre)
-    for j in rng.permutation(tall)[: n_tall * 20]:         # then tall points, one window per 20 m
+    for j in rng.permutation(tall)[: n_tall * 20]:  # then tall points, one window per 20 m
         if len(chosen) >= n_tall:
             break
         if not chosen or np.min(np.abs(np.asarray(chosen) - xy[j]).max(axis=1)) >= half:
             add_tall(xy[j].copy())
     n_peak = int(cfg["peak_negatives_per_tile"])
-    if n_peak:                       # windows as inference lays them: on the height peaks (not towers)
+    if n_peak:  # windows as inference lays them: on the height peaks (not towers)
         _, peaks, _ = height_peaks(xy[:, 0], xy[:, 1], arr["hag"], min_height=float(cfg["tall_hag_m"]))
         inside = (peaks[:, 0] >= xmin) & (peaks[:, 0] < xmax) & (peaks[:, 1] >= ymin) & (peaks[:, 1] < ymax)
         added = 0
@@ -344,9 +356,12 @@ def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator, t
     return {"out": out, "counts": counts, "block": meta.get("block", Path(path).parent.name), "meta": meta}
 
 
-def build_windows(tile_paths: Iterable[str | os.PathLike[str]], config: Mapping[str, Any] | None = None,
-                  out_path: str | os.PathLike[str] | None = None,
-                  truth: Mapping[str, str | os.PathLike[str]] | None = None) -> WindowSet:
+def build_windows(
+    tile_paths: Iterable[str | os.PathLike[str]],
+    config: Mapping[str, Any] | None = None,
+    out_path: str | os.PathLike[str] | None = None,
+    truth: Mapping[str, str | os.PathLike[str]] | None = None,
+) -> WindowSet:
     """Build training windows from labelled tile files.
 
     Parameters
@@ -385,38 +400,63 @@ def build_windows(tile_paths: Iterable[str | os.PathLike[str]], config: Mapping[
         sp = cfg["split"]
         unknown = sorted(str(b) for k in ("val", "test") for b in sp.get(k, []) if str(b) not in blocks)
         if unknown or set(sp) - {"val", "test"}:
-            raise ConfigError(f"dataset split: blocks {unknown} are not among the tiles' blocks {blocks} (or keys "
-                              f"other than val/test); quote block names in YAML (400000_4600800 is a number there)")
-        assign = {b: "test" if b in sp.get("test", []) else "val" if b in sp.get("val", []) else "train"
-                  for b in blocks}
+            raise ConfigError(
+                f"dataset split: blocks {unknown} are not among the tiles' blocks {blocks} (or keys "
+                f"other than val/test); quote block names in YAML (400000_4600800 is a number there)"
+            )
+        assign = {
+            b: "test" if b in sp.get("test", []) else "val" if b in sp.get("val", []) else "train" for b in blocks
+        }
     else:
-        assign = split_blocks(has_towers, float(cfg["val_fraction"]), float(cfg["test_fraction"]), int(rng.integers(1 << 31)))
+        assign = split_blocks(
+            has_towers, float(cfg["val_fraction"]), float(cfg["test_fraction"]), int(rng.integers(1 << 31))
+        )
     feats, plabels, cs, rs, label, kind, split, block_id, center, sizes, fams = ([] for _ in range(11))
     for r in per_tile:
         o = r["out"]
         b = blocks.index(r["block"])
-        for f, pl, c, s, lab, k, cen, fm in zip(o["feat"], o["plabel"], o["cs"], o["rs"], o["label"], o["kind"],
-                                                o["center"], o["family"]):
-            feats.append(f); plabels.append(pl); cs.append(c); rs.append(s); label.append(lab); kind.append(k)
-            split.append(SPLITS[assign[r["block"]]]); block_id.append(b); center.append(cen); sizes.append(len(pl))
+        for f, pl, c, s, lab, k, cen, fm in zip(
+            o["feat"], o["plabel"], o["cs"], o["rs"], o["label"], o["kind"], o["center"], o["family"]
+        ):
+            feats.append(f)
+            plabels.append(pl)
+            cs.append(c)
+            rs.append(s)
+            label.append(lab)
+            kind.append(k)
+            split.append(SPLITS[assign[r["block"]]])
+            block_id.append(b)
+            center.append(cen)
+            sizes.append(len(pl))
             fams.append(fm)
     if not label:
         raise ConfigError(f"dataset: no windows could be built from {len(paths)} tile files (no model-input points?)")
     n = int(cfg["n_points"])
     ws = WindowSet(
-        feat=np.concatenate(feats), point_label=np.concatenate(plabels),
+        feat=np.concatenate(feats),
+        point_label=np.concatenate(plabels),
         offsets=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
-        cs_idx=np.stack(cs).reshape(-1, n), rs_idx=np.stack(rs).reshape(-1, n),
-        label=np.asarray(label, np.uint8), kind=np.asarray(kind, np.uint8), split=np.asarray(split, np.uint8),
-        block_id=np.asarray(block_id, np.int32), center=np.asarray(center, np.float64).reshape(-1, 2),
+        cs_idx=np.stack(cs).reshape(-1, n),
+        rs_idx=np.stack(rs).reshape(-1, n),
+        label=np.asarray(label, np.uint8),
+        kind=np.asarray(kind, np.uint8),
+        split=np.asarray(split, np.uint8),
+        block_id=np.asarray(block_id, np.int32),
+        center=np.asarray(center, np.float64).reshape(-1, 2),
         family=np.asarray(fams, np.uint8),
-        meta={"config": cfg, "blocks": blocks, "split": assign, "tiles": paths,
-              "has_rgb": all(bool(r["meta"].get("has_rgb", False)) for r in per_tile),
-              "has_nir": all(bool(r["meta"].get("has_nir", False)) for r in per_tile),
-              "towers": int(sum(r["counts"]["towers"] for r in per_tile)),
-              "towers_dropped_small": int(sum(r["counts"]["towers_dropped"] for r in per_tile)),
-              "tall_objects": int(sum(r["counts"]["tall_objects"] for r in per_tile)),
-              "features": ALL_FEATURES})
+        meta={
+            "config": cfg,
+            "blocks": blocks,
+            "split": assign,
+            "tiles": paths,
+            "has_rgb": all(bool(r["meta"].get("has_rgb", False)) for r in per_tile),
+            "has_nir": all(bool(r["meta"].get("has_nir", False)) for r in per_tile),
+            "towers": int(sum(r["counts"]["towers"] for r in per_tile)),
+            "towers_dropped_small": int(sum(r["counts"]["towers_dropped"] for r in per_tile)),
+            "tall_objects": int(sum(r["counts"]["tall_objects"] for r in per_tile)),
+            "features": ALL_FEATURES,
+        },
+    )
     ws.meta["summary"] = summarise(ws)
     if out_path is not None:
         ws.save(out_path)
@@ -429,8 +469,9 @@ def _read_truth(path: str | os.PathLike[str]) -> Any:
     return pyogrio.read_dataframe(path, layer="towers", columns=["design", "x", "y"], read_geometry=False)
 
 
-def load_or_build(paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str],
-                  config: Mapping[str, Any] | None = None) -> WindowSet:
+def load_or_build(
+    paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str], config: Mapping[str, Any] | None = None
+) -> WindowSet:
     """A :class:`WindowSet` from one windows file, or built from tile files."""
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]

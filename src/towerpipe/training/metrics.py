@@ -40,21 +40,33 @@ def segmentation_metrics(pred: np.ndarray, label: np.ndarray) -> dict[str, float
     inter_b, union_b = int((~p & ~t).sum()), int((~p | ~t).sum())
     iou_t = inter_t / union_t if union_t else 1.0
     iou_b = inter_b / union_b if union_b else 1.0
-    return {"iou_tower": iou_t, "iou_background": iou_b, "miou": (iou_t + iou_b) / 2, "points": int(t.size),
-            "tower_points": int(t.sum())}
+    return {
+        "iou_tower": iou_t,
+        "iou_background": iou_b,
+        "miou": (iou_t + iou_b) / 2,
+        "points": int(t.size),
+        "tower_points": int(t.sum()),
+    }
 
 
 @torch.inference_mode()
-def predict_windows(model: PointNetClassifier, ws: WindowSet, idx: np.ndarray, feature_set: str,
-                    sampling: str = "constrained") -> np.ndarray:
+def predict_windows(
+    model: PointNetClassifier, ws: WindowSet, idx: np.ndarray, feature_set: str, sampling: str = "constrained"
+) -> np.ndarray:
     """Tower probability of the sampled windows ``idx`` (eval-mode statistics, as at inference)."""
     runner = NetRunner(model, ws.n_points)
-    out = [runner.classify(ws.sampled(idx[s:s + 64], feature_set, sampling)[0]) for s in range(0, len(idx), 64)]
+    out = [runner.classify(ws.sampled(idx[s : s + 64], feature_set, sampling)[0]) for s in range(0, len(idx), 64)]
     return np.concatenate(out) if out else np.zeros(0, np.float32)
 
 
-def segment_windows_metrics(model: PointNetSegmenter, ws: WindowSet, idx: np.ndarray, feature_set: str,
-                            threshold: float = 0.5, chunk: int = DEFAULT_CHUNK) -> dict[str, float]:
+def segment_windows_metrics(
+    model: PointNetSegmenter,
+    ws: WindowSet,
+    idx: np.ndarray,
+    feature_set: str,
+    threshold: float = 0.5,
+    chunk: int = DEFAULT_CHUNK,
+) -> dict[str, float]:
     """IoU tower / background / mIoU on *all* points of the positive windows among ``idx``.
 
     Each window goes through :func:`towerpipe.model.folded.segment_points`, as at inference.
@@ -66,7 +78,8 @@ def segment_windows_metrics(model: PointNetSegmenter, ws: WindowSet, idx: np.nda
         f, lab = ws.window_points(int(i), feature_set)
         preds.append(runner.segment(f) >= threshold)
         labs.append(lab)
-    out = segmentation_metrics(np.concatenate(preds) if preds else np.zeros(0, bool),
-                               np.concatenate(labs) if labs else np.zeros(0, bool))
+    out = segmentation_metrics(
+        np.concatenate(preds) if preds else np.zeros(0, bool), np.concatenate(labs) if labs else np.zeros(0, bool)
+    )
     out["windows"] = int(len(pos))
     return out

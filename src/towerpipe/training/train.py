@@ -42,17 +42,17 @@ from typing import Any
 import numpy as np
 import torch
 
-from towerpipe.training.augment import augment_geometry, corrupt_attributes
-from towerpipe.training.dataset import DEFAULT_DATASET_CONFIG, load_or_build
-from towerpipe.training.metrics import classification_metrics, predict_windows, segment_windows_metrics
-from towerpipe.training.windowset import FAMILY_BITS, KINDS, WindowSet
 from towerpipe.errors import ConfigError
-from towerpipe.model.features import FEATURE_SETS, normalisation_spec, required_attributes
-from towerpipe.training.losses import class_balanced_weights, feature_transform_regulariser, weighted_nll
 from towerpipe.model.bundle import load_bundle, save_bundle
 from towerpipe.model.cards import BUNDLE_VERSION, MODEL_RELEASES
+from towerpipe.model.features import FEATURE_SETS, normalisation_spec, required_attributes
 from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter, build_model, count_parameters
 from towerpipe.progress import peak_rss_mb
+from towerpipe.training.augment import augment_geometry, corrupt_attributes
+from towerpipe.training.dataset import DEFAULT_DATASET_CONFIG, load_or_build
+from towerpipe.training.losses import class_balanced_weights, feature_transform_regulariser, weighted_nll
+from towerpipe.training.metrics import classification_metrics, predict_windows, segment_windows_metrics
+from towerpipe.training.windowset import FAMILY_BITS, KINDS, WindowSet
 
 log = logging.getLogger(__name__)
 
@@ -129,9 +129,16 @@ def _progress(total: int, desc: str, cfg: Mapping[str, Any]):
     return tqdm(total=total, desc=desc, disable=disable, leave=False)
 
 
-def _fit(model: torch.nn.Module, ws: WindowSet, train_idx: np.ndarray, val_idx: np.ndarray,
-         weights: np.ndarray, cfg: Mapping[str, Any], per_point: bool, desc: str
-         ) -> tuple[torch.nn.Module, list[dict[str, float]], dict[str, Any]]:
+def _fit(
+    model: torch.nn.Module,
+    ws: WindowSet,
+    train_idx: np.ndarray,
+    val_idx: np.ndarray,
+    weights: np.ndarray,
+    cfg: Mapping[str, Any],
+    per_point: bool,
+    desc: str,
+) -> tuple[torch.nn.Module, list[dict[str, float]], dict[str, Any]]:
     """Shared training loop; returns the best-validation model, history and run info."""
     rng = np.random.default_rng(int(cfg["seed"]))
     torch.manual_seed(int(cfg["seed"]))
@@ -140,13 +147,21 @@ def _fit(model: torch.nn.Module, ws: WindowSet, train_idx: np.ndarray, val_idx: 
     opt = torch.optim.Adam(model.parameters(), lr=float(cfg["lr"]))
     plateau = cfg["lr_schedule"] == "plateau"
     if plateau:
-        sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=float(cfg["lr_factor"]),
-                                                           patience=int(cfg["lr_patience"]))
+        sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
+            opt, factor=float(cfg["lr_factor"]), patience=int(cfg["lr_patience"])
+        )
     else:  # one cycle over the planned epochs: up to max_lr, then annealed (converges in few epochs)
-        per_epoch = max(1, sum(1 for s in range(0, len(train_idx), int(cfg["batch_size"]))
-                               if len(train_idx[s:s + int(cfg["batch_size"])]) > 1))
-        sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=float(cfg["max_lr"]), pct_start=0.3,
-                                                    total_steps=int(cfg["epochs"]) * per_epoch)
+        per_epoch = max(
+            1,
+            sum(
+                1
+                for s in range(0, len(train_idx), int(cfg["batch_size"]))
+                if len(train_idx[s : s + int(cfg["batch_size"])]) > 1
+            ),
+        )
+        sched = torch.optim.lr_scheduler.OneCycleLR(
+            opt, max_lr=float(cfg["max_lr"]), pct_start=0.3, total_steps=int(cfg["epochs"]) * per_epoch
+        )
     fs, samp, bs = cfg["feature_set"], cfg["sampling"], int(cfg["batch_size"])
     history: list[dict[str, float]] = []
     best = (math.inf, -1, copy.deepcopy(model.state_dict()))
@@ -160,7 +175,7 @@ def _fit(model: torch.nn.Module, ws: WindowSet, train_idx: np.ndarray, val_idx: 
     for epoch in range(int(cfg["epochs"])):
         model.train()
         order = rng.permutation(train_idx)
-        batches = [order[s:s + bs] for s in range(0, len(order), bs)]
+        batches = [order[s : s + bs] for s in range(0, len(order), bs)]
         batches = [b for b in batches if len(b) > 1]  # batch norm needs > 1 sample
         tot, cnt = 0.0, 0
         with _progress(len(batches), f"{desc} epoch {epoch + 1}", cfg) as bar:
@@ -169,7 +184,7 @@ def _fit(model: torch.nn.Module, ws: WindowSet, train_idx: np.ndarray, val_idx: 
                 x = torch.from_numpy(_augment(x, lab, cfg, rng))
                 logp, t_feat = model(x)
                 loss = weighted_nll(logp, target(lab, b), w)
-                if cfg["ft_reg"] and t_feat is not None:   # PointNet's feature transform
+                if cfg["ft_reg"] and t_feat is not None:  # PointNet's feature transform
                     loss = loss + float(cfg["ft_reg"]) * feature_transform_regulariser(t_feat)
                 opt.zero_grad()
                 loss.backward()
@@ -185,8 +200,13 @@ def _fit(model: torch.nn.Module, ws: WindowSet, train_idx: np.ndarray, val_idx: 
             val_loss = tot / max(cnt, 1)
         if plateau:
             sched.step(val_loss)
-        rec = {"epoch": epoch + 1, "train_loss": tot / max(cnt, 1), "val_loss": val_loss,
-               "lr": opt.param_groups[0]["lr"], "elapsed_s": time.perf_counter() - t0}
+        rec = {
+            "epoch": epoch + 1,
+            "train_loss": tot / max(cnt, 1),
+            "val_loss": val_loss,
+            "lr": opt.param_groups[0]["lr"],
+            "elapsed_s": time.perf_counter() - t0,
+        }
         history.append(rec)
         log.info("%s epoch %d: train %.4f val %.4f", desc, epoch + 1, rec["train_loss"], val_loss)
         if val_loss < best[0]:
@@ -200,21 +220,29 @@ def _fit(model: torch.nn.Module, ws: WindowSet, train_idx: np.ndarray, val_idx: 
     model.load_state_dict(best[2])
     model.eval()
     elapsed = time.perf_counter() - t0
-    info = {"train_time_s": elapsed, "batches": n_batches, "s_per_batch": elapsed / max(n_batches, 1),
-            "best_epoch": best[1] + 1, "epochs_run": len(history), "stopped_by": stopped,
-            "class_weights": [float(v) for v in weights], "parameters": count_parameters(model)}
+    info = {
+        "train_time_s": elapsed,
+        "batches": n_batches,
+        "s_per_batch": elapsed / max(n_batches, 1),
+        "best_epoch": best[1] + 1,
+        "epochs_run": len(history),
+        "stopped_by": stopped,
+        "class_weights": [float(v) for v in weights],
+        "parameters": count_parameters(model),
+    }
     return model, history, info
 
 
 @torch.inference_mode()
-def _eval_loss(model: torch.nn.Module, ws: WindowSet, idx: np.ndarray, w: torch.Tensor,
-               cfg: Mapping[str, Any], per_point: bool) -> float:
+def _eval_loss(
+    model: torch.nn.Module, ws: WindowSet, idx: np.ndarray, w: torch.Tensor, cfg: Mapping[str, Any], per_point: bool
+) -> float:
     if len(idx) == 0:
         return float("nan")
     model.eval()
     tot, cnt = 0.0, 0
     for s in range(0, len(idx), 64):
-        b = idx[s:s + 64]
+        b = idx[s : s + 64]
         x, lab = ws.sampled(b, cfg["feature_set"], cfg["sampling"])
         logp, _ = model(torch.from_numpy(x))
         t = torch.from_numpy(lab if per_point else ws.label[b].astype(np.int64))
@@ -229,13 +257,21 @@ def _subset(idx: np.ndarray, n: int | None, rng: np.random.Generator) -> np.ndar
 
 def _initial(kind: str, cfg: Mapping[str, Any], n_features: int) -> torch.nn.Module:
     """A fresh network, or a copy of the ``kind`` network of bundle ``cfg["init_from"]`` (warm start)."""
-    hp = {"kind": kind, "in_channels": n_features, "arch": cfg["arch"], "k": 2, "dropout": 0.3 if kind == "classifier" else 0.0}
+    hp = {
+        "kind": kind,
+        "in_channels": n_features,
+        "arch": cfg["arch"],
+        "k": 2,
+        "dropout": 0.3 if kind == "classifier" else 0.0,
+    }
     if not cfg["init_from"]:
         return build_model(hp)
     bundle = load_bundle(cfg["init_from"])
     if bundle.feature_set != cfg["feature_set"]:
-        raise ConfigError(f"train: init_from {cfg['init_from']} is a {bundle.feature_set!r} model, this trains "
-                          f"{cfg['feature_set']!r}; start from a bundle of the same feature set or set init_from: null")
+        raise ConfigError(
+            f"train: init_from {cfg['init_from']} is a {bundle.feature_set!r} model, this trains "
+            f"{cfg['feature_set']!r}; start from a bundle of the same feature set or set init_from: null"
+        )
     net = build_model(hp)
     net.load_state_dict(getattr(bundle, kind).state_dict())
     return net
@@ -248,12 +284,18 @@ def init_record(init_from: str | os.PathLike[str] | None) -> dict[str, Any] | No
     from towerpipe.model import cards as modelcard
 
     card = modelcard.read_card(init_from)
-    return {"path": str(init_from), "name": card.get("name"), "version": card.get("version"),
-            "files_sha256": card.get("files"), "config_hash": card.get("config_hash")}
+    return {
+        "path": str(init_from),
+        "name": card.get("name"),
+        "version": card.get("version"),
+        "files_sha256": card.get("files"),
+        "config_hash": card.get("config_hash"),
+    }
 
 
-def train_classifier(windows: WindowSet, config: Mapping[str, Any] | None = None
-                     ) -> tuple[PointNetClassifier, list[dict[str, float]], dict[str, Any]]:
+def train_classifier(
+    windows: WindowSet, config: Mapping[str, Any] | None = None
+) -> tuple[PointNetClassifier, list[dict[str, float]], dict[str, Any]]:
     """Train the window classifier.
 
     Parameters
@@ -278,8 +320,9 @@ def train_classifier(windows: WindowSet, config: Mapping[str, Any] | None = None
     weights = class_balanced_weights(counts, float(cfg["beta"]))
     torch.manual_seed(int(cfg["seed"]))
     model = _initial("classifier", cfg, len(FEATURE_SETS[cfg["feature_set"]]))
-    model, history, info = _fit(model, windows, train_idx, kept_windows(windows, "val", cfg), weights, cfg, False,
-                                "classifier")
+    model, history, info = _fit(
+        model, windows, train_idx, kept_windows(windows, "val", cfg), weights, cfg, False, "classifier"
+    )
     metrics: dict[str, Any] = dict(info, train_counts=[int(c) for c in counts])
     for split in ("val", "test"):
         idx = kept_windows(windows, split, cfg)
@@ -289,8 +332,9 @@ def train_classifier(windows: WindowSet, config: Mapping[str, Any] | None = None
     return model, history, metrics
 
 
-def train_segmenter(windows: WindowSet, config: Mapping[str, Any] | None = None
-                    ) -> tuple[PointNetSegmenter, list[dict[str, float]], dict[str, Any]]:
+def train_segmenter(
+    windows: WindowSet, config: Mapping[str, Any] | None = None
+) -> tuple[PointNetSegmenter, list[dict[str, float]], dict[str, Any]]:
     """Train the per-point segmenter on positive windows (+ a fraction of negatives).
 
     Test metrics (IoU tower, IoU background, mIoU) are computed on *all* points of the
@@ -320,8 +364,14 @@ def train_segmenter(windows: WindowSet, config: Mapping[str, Any] | None = None
     model, history, info = _fit(model, windows, train_idx, pick("val"), weights, cfg, True, "segmenter")
     metrics: dict[str, Any] = dict(info, train_point_counts=[int(c) for c in counts])
     for split in ("val", "test"):
-        metrics[split] = segment_windows_metrics(model, windows, kept_windows(windows, split, cfg), cfg["feature_set"],
-                                                 float(cfg["threshold"]), int(cfg["eval_chunk"]))
+        metrics[split] = segment_windows_metrics(
+            model,
+            windows,
+            kept_windows(windows, split, cfg),
+            cfg["feature_set"],
+            float(cfg["threshold"]),
+            int(cfg["eval_chunk"]),
+        )
     metrics["peak_rss_mb"] = peak_rss_mb()
     return model, history, metrics
 
@@ -351,9 +401,15 @@ def save_curves(history: Sequence[Mapping[str, float]], path: str | os.PathLike[
     return path
 
 
-def make_card(feature_set: str, windows: WindowSet, config: Mapping[str, Any], clf_metrics: Mapping[str, Any],
-              seg_metrics: Mapping[str, Any], name: str | None = None, version: str | None = None
-              ) -> dict[str, Any]:
+def make_card(
+    feature_set: str,
+    windows: WindowSet,
+    config: Mapping[str, Any],
+    clf_metrics: Mapping[str, Any],
+    seg_metrics: Mapping[str, Any],
+    name: str | None = None,
+    version: str | None = None,
+) -> dict[str, Any]:
     """The model card of a trained bundle (see :mod:`towerpipe.model.cards`).
 
     ``version`` defaults to the shipped release of ``feature_set``
@@ -369,16 +425,28 @@ def make_card(feature_set: str, windows: WindowSet, config: Mapping[str, Any], c
         "bundle_version": BUNDLE_VERSION,
         "feature_set": feature_set,
         "features": FEATURE_SETS[feature_set],
-        "architecture": {"arch": config["arch"], "classifier_parameters": clf_metrics.get("parameters"),
-                         "segmenter_parameters": seg_metrics.get("parameters")},
+        "architecture": {
+            "arch": config["arch"],
+            "classifier_parameters": clf_metrics.get("parameters"),
+            "segmenter_parameters": seg_metrics.get("parameters"),
+        },
         "normalisation": normalisation_spec(),
-        "sampling": {"n_points": windows.n_points, "training": config["sampling"], "bands_m": dcfg.get("bands"),
-                     "padding": "all points once + uniform draws with replacement",
-                     "inference_classifier": "constrained sample of n_points",
-                     "inference_segmenter": "all points of the window"},
-        "training_data": {"tiles": windows.meta.get("tiles", []), "blocks_split": windows.meta.get("split", {}),
-                          "towers": windows.meta.get("towers"), "summary": windows.meta.get("summary"),
-                          "has_rgb": windows.meta.get("has_rgb"), "has_nir": windows.meta.get("has_nir")},
+        "sampling": {
+            "n_points": windows.n_points,
+            "training": config["sampling"],
+            "bands_m": dcfg.get("bands"),
+            "padding": "all points once + uniform draws with replacement",
+            "inference_classifier": "constrained sample of n_points",
+            "inference_segmenter": "all points of the window",
+        },
+        "training_data": {
+            "tiles": windows.meta.get("tiles", []),
+            "blocks_split": windows.meta.get("split", {}),
+            "towers": windows.meta.get("towers"),
+            "summary": windows.meta.get("summary"),
+            "has_rgb": windows.meta.get("has_rgb"),
+            "has_nir": windows.meta.get("has_nir"),
+        },
         "metrics": {"classifier": dict(clf_metrics), "segmenter": dict(seg_metrics)},
         "init_from": init_record(config.get("init_from")),
         "code": modelcard.code_version(),
@@ -388,9 +456,12 @@ def make_card(feature_set: str, windows: WindowSet, config: Mapping[str, Any], c
     }
 
 
-def train_bundle(dataset_paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str],
-                 out_dir: str | os.PathLike[str], feature_set: str = "full",
-                 config: Mapping[str, Any] | None = None) -> Path:
+def train_bundle(
+    dataset_paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str],
+    out_dir: str | os.PathLike[str],
+    feature_set: str = "full",
+    config: Mapping[str, Any] | None = None,
+) -> Path:
     """Build/load windows, train classifier + segmenter and write a checkpoint directory.
 
     Parameters
@@ -417,11 +488,16 @@ def train_bundle(dataset_paths: Sequence[str | os.PathLike[str]] | str | os.Path
     ws = load_or_build(dataset_paths, config.get("dataset"))
     config["feature_set"] = feature_set
     cfg = train_config(config)
-    lacking = [a for a, flag in (("rgb", "has_rgb"), ("nir", "has_nir"))
-               if a in required_attributes(feature_set) and not ws.meta.get(flag)]
+    lacking = [
+        a
+        for a, flag in (("rgb", "has_rgb"), ("nir", "has_nir"))
+        if a in required_attributes(feature_set) and not ws.meta.get(flag)
+    ]
     if lacking:
-        raise ConfigError(f"train: feature set {feature_set!r} needs {', '.join(lacking).upper()} but some training "
-                          "tiles lack it; use a feature set without it (e.g. --feature-set shape)")
+        raise ConfigError(
+            f"train: feature set {feature_set!r} needs {', '.join(lacking).upper()} but some training "
+            "tiles lack it; use a feature set without it (e.g. --feature-set shape)"
+        )
     out = Path(out_dir)
     # the release from the directory name (``towerpipe-shape-v3``, ``towerpipe-shape-v3-without-uav``),
     # decided before hours of training rather than after
@@ -433,11 +509,13 @@ def train_bundle(dataset_paths: Sequence[str | os.PathLike[str]] | str | os.Path
     save_curves(h_clf, out / "classifier_curves.png", f"classifier ({feature_set})")
     save_curves(h_seg, out / "segmenter_curves.png", f"segmenter ({feature_set})")
     (out / "history.json").write_text(json.dumps({"classifier": h_clf, "segmenter": h_seg}, indent=1))
-    card = make_card(feature_set, ws, {**cfg, "per_network": per_net}, m_clf, m_seg, name=_bundle_name(out.name),
-                     version=version)
+    card = make_card(
+        feature_set, ws, {**cfg, "per_network": per_net}, m_clf, m_seg, name=_bundle_name(out.name), version=version
+    )
     save_bundle(out, clf, seg, card)
-    log.info("wrote %s: classifier test F1 %.3f, segmenter test mIoU %.3f", out, m_clf["test"]["f1"],
-             m_seg["test"]["miou"])
+    log.info(
+        "wrote %s: classifier test F1 %.3f, segmenter test mIoU %.3f", out, m_clf["test"]["f1"], m_seg["test"]["miou"]
+    )
     return out
 
 
@@ -447,8 +525,15 @@ def _bundle_name(dirname: str) -> str | None:
     return f"{m.group(1)}{m.group(2) or ''}" if m else None
 
 
-def time_batch(kind: str = "classifier", arch: str = "light", feature_set: str = "full", n_points: int = 2048,
-               batch_size: int = 32, repeats: int = 3, threads: int = 2) -> float:
+def time_batch(
+    kind: str = "classifier",
+    arch: str = "light",
+    feature_set: str = "full",
+    n_points: int = 2048,
+    batch_size: int = 32,
+    repeats: int = 3,
+    threads: int = 2,
+) -> float:
     """Median seconds of one training step (forward + backward + Adam) on random data, on CPU.
 
     Use it to size epochs to a time budget: ``epochs * ceil(windows / batch_size) * time_batch()``.

@@ -87,11 +87,11 @@ class WindowSet:
     def window_points(self, i: int, feature_set: str) -> tuple[np.ndarray, np.ndarray]:
         """All stored points of window ``i``: ``(features (m, C) float32, labels (m,) int64)``."""
         s, e = self.offsets[i], self.offsets[i + 1]
-        return (self.feat[s:e][:, self.columns(feature_set)].astype(np.float32),
-                self.point_label[s:e].astype(np.int64))
+        return (self.feat[s:e][:, self.columns(feature_set)].astype(np.float32), self.point_label[s:e].astype(np.int64))
 
-    def sampled(self, idx: np.ndarray, feature_set: str, sampling: str = "constrained"
-                ) -> tuple[np.ndarray, np.ndarray]:
+    def sampled(
+        self, idx: np.ndarray, feature_set: str, sampling: str = "constrained"
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Sampled windows ``idx``: ``(B, n, C)`` float32 features and ``(B, n)`` int64 labels."""
         samp = {"constrained": self.cs_idx, "random": self.rs_idx}[sampling]
         rows = self.offsets[np.asarray(idx)][:, None] + samp[np.asarray(idx)]
@@ -103,8 +103,22 @@ class WindowSet:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".part")
-        arrays = {k: getattr(self, k) for k in ("feat", "point_label", "offsets", "cs_idx", "rs_idx", "label",
-                                                 "kind", "split", "block_id", "center", "family")}
+        arrays = {
+            k: getattr(self, k)
+            for k in (
+                "feat",
+                "point_label",
+                "offsets",
+                "cs_idx",
+                "rs_idx",
+                "label",
+                "kind",
+                "split",
+                "block_id",
+                "center",
+                "family",
+            )
+        }
         with open(tmp, "wb") as fh:
             np.savez(fh, meta=np.frombuffer(json.dumps(self.meta).encode(), dtype=np.uint8), **arrays)
         os.replace(tmp, path)
@@ -120,7 +134,9 @@ def load_windows(path: str | os.PathLike[str]) -> WindowSet:
         arrays.setdefault("family", np.zeros(len(arrays["label"]), np.uint8))
         return WindowSet(meta=meta, **arrays)
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InputError(path, f"not a towerpipe windows file ({exc}); rebuild it with towerpipe.training.dataset") from exc
+        raise InputError(
+            path, f"not a towerpipe windows file ({exc}); rebuild it with towerpipe.training.dataset"
+        ) from exc
 
 
 def is_windows_file(path: str | os.PathLike[str]) -> bool:
@@ -138,10 +154,15 @@ def summarise(ws: WindowSet) -> dict[str, Any]:
     for name, code in SPLITS.items():
         sel = ws.split == code
         pos = np.flatnonzero(sel & (ws.label == 1))
-        tower_pts = int(sum(int(ws.point_label[ws.offsets[i]:ws.offsets[i + 1]].sum()) for i in pos))
-        out[name] = {"windows": int(sel.sum()), "positive": int((ws.label[sel] == 1).sum()),
-                     "negative": int((ws.label[sel] == 0).sum()),
-                     "positive_by_family": {f: int(((ws.family[pos] & bit) > 0).sum()) for f, bit in FAMILY_BITS.items()},
-                     "blocks": sorted({ws.meta["blocks"][b] for b in np.unique(ws.block_id[sel])}) if "blocks" in ws.meta else [],
-                     "tower_points_in_positives": tower_pts}
+        tower_pts = int(sum(int(ws.point_label[ws.offsets[i] : ws.offsets[i + 1]].sum()) for i in pos))
+        out[name] = {
+            "windows": int(sel.sum()),
+            "positive": int((ws.label[sel] == 1).sum()),
+            "negative": int((ws.label[sel] == 0).sum()),
+            "positive_by_family": {f: int(((ws.family[pos] & bit) > 0).sum()) for f, bit in FAMILY_BITS.items()},
+            "blocks": sorted({ws.meta["blocks"][b] for b in np.unique(ws.block_id[sel])})
+            if "blocks" in ws.meta
+            else [],
+            "tower_points_in_positives": tower_pts,
+        }
     return out

@@ -20,20 +20,30 @@ import math
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from towerpipe import classes
-from towerpipe.products import layout
 from towerpipe.io.atomic import write_text_atomic
-from towerpipe.progress import Progress
-from towerpipe.products.qa.plots import (block_map, density_map, hag_histogram, max_z_grid, raster_grid,
-                                         tower_elevations)
-from towerpipe.products.qa.metrics import Limits, data_extent, density_grid, distance_to_data_edge, jsonable, label_accuracy, load_classified, read_benchmark, read_towers, sum_dicts
+from towerpipe.products import layout
+from towerpipe.products.qa.metrics import (
+    Limits,
+    data_extent,
+    density_grid,
+    distance_to_data_edge,
+    jsonable,
+    label_accuracy,
+    load_classified,
+    read_benchmark,
+    read_towers,
+    sum_dicts,
+)
 from towerpipe.products.qa.pages import render
+from towerpipe.products.qa.plots import block_map, density_map, hag_histogram, max_z_grid, raster_grid, tower_elevations
+from towerpipe.progress import Progress
 
 log = logging.getLogger(__name__)
 
@@ -41,8 +51,12 @@ log = logging.getLogger(__name__)
 VIEW_RADIUS_M = 30.0
 
 
-def tower_neighbourhoods(tile_files: Sequence[str | os.PathLike[str]], member_files: Sequence[str | os.PathLike[str]],
-                         towers: Any, radius: float = VIEW_RADIUS_M) -> dict[str, dict[str, np.ndarray]]:
+def tower_neighbourhoods(
+    tile_files: Sequence[str | os.PathLike[str]],
+    member_files: Sequence[str | os.PathLike[str]],
+    towers: Any,
+    radius: float = VIEW_RADIUS_M,
+) -> dict[str, dict[str, np.ndarray]]:
     """The points around each tower, for its side views.
 
     Parameters
@@ -65,8 +79,8 @@ def tower_neighbourhoods(tile_files: Sequence[str | os.PathLike[str]], member_fi
         ``tower_id`` → ``x, y, z`` (float64) and ``tower`` (bool) of the points in its square.
     """
     from towerpipe.io.columns import load_columns
-    from towerpipe.io.tiles import load_tile
     from towerpipe.io.members import MEMBER_ARRAYS
+    from towerpipe.io.tiles import load_tile
 
     if not len(towers):
         return {}
@@ -96,8 +110,14 @@ def tower_neighbourhoods(tile_files: Sequence[str | os.PathLike[str]], member_fi
             fresh = np.array([k not in seen[tid] for k in keys], dtype=bool)
             seen[tid].update(keys)
             sel = sel[fresh]
-            parts[tid].append({"x": x[sel], "y": y[sel], "z": tile.arrays["z"][sel],
-                               "tower": np.array([k in member_keys for k, f in zip(keys, fresh) if f], dtype=bool)})
+            parts[tid].append(
+                {
+                    "x": x[sel],
+                    "y": y[sel],
+                    "z": tile.arrays["z"][sel],
+                    "tower": np.array([k in member_keys for k, f in zip(keys, fresh) if f], dtype=bool),
+                }
+            )
     out = {}
     for tid, ps in parts.items():
         if ps:
@@ -107,14 +127,22 @@ def tower_neighbourhoods(tile_files: Sequence[str | os.PathLike[str]], member_fi
 
 def _links(block: str) -> list[dict[str, str]]:
     here = layout.block_product(layout.QA_PAGE, block)
-    return [{"label": f"← {label}", "href": layout.link(here, target)} if i == 0 else
-            {"label": label, "href": layout.link(here, target)}
-            for i, (label, target) in enumerate((
+    return [
+        {"label": f"← {label}", "href": layout.link(here, target)}
+        if i == 0
+        else {"label": label, "href": layout.link(here, target)}
+        for i, (label, target) in enumerate(
+            (
                 ("zone index", layout.QA_INDEX),
-                (f"classified points ({Path(layout.BLOCK_LAZ).name.format(block=block)})",
-                 layout.block_product(layout.BLOCK_LAZ, block)),
+                (
+                    f"classified points ({Path(layout.BLOCK_LAZ).name.format(block=block)})",
+                    layout.block_product(layout.BLOCK_LAZ, block),
+                ),
                 ("block towers (GeoPackage)", layout.block_product(layout.BLOCK_GPKG, block)),
-                ("zone towers (GeoPackage)", layout.ZONE_GPKG)))]
+                ("zone towers (GeoPackage)", layout.ZONE_GPKG),
+            )
+        )
+    ]
 
 
 def _summary(n_towers: int, n_look_towers: int, flags: list[dict[str, str]]) -> str:
@@ -193,8 +221,9 @@ class BlockInputs:
     neighbourhoods: Mapping[str, Mapping[str, np.ndarray]] | None = None
 
 
-def block_report(out_html: str | os.PathLike[str], out_json: str | os.PathLike[str], inputs: BlockInputs,
-                 limits: Limits = Limits()) -> dict[str, Any]:
+def block_report(
+    out_html: str | os.PathLike[str], out_json: str | os.PathLike[str], inputs: BlockInputs, limits: Limits | None = None
+) -> dict[str, Any]:
     """Write the QA page and its JSON for one block.
 
     Parameters
@@ -241,13 +270,21 @@ def block_report(out_html: str | os.PathLike[str], out_json: str | os.PathLike[s
     n_points = int(len(pts["x"])) if pts is not None else None
     cls = pts["classification"] if pts is not None else None
     # the ground the pipeline used (class 2, or PDAL's when it had to classify), else class 2
-    n_ground = (int(tile_counts["ground_core"]) if "ground_core" in tile_counts else
-                int(np.count_nonzero(cls == classes.GROUND)) if cls is not None else None)
+    n_ground = (
+        int(tile_counts["ground_core"])
+        if "ground_core" in tile_counts
+        else int(np.count_nonzero(cls == classes.GROUND))
+        if cls is not None
+        else None
+    )
     n_tower_pts = int(np.count_nonzero(cls == classes.TOWER)) if cls is not None else None
     ground_ratio = (n_ground / n_points) if n_points else None
     if ground_classified:
-        flag("ground_classified", f"input had no usable ground class; ground classified by towerpipe "
-                                  f"({', '.join(s for s in ground_sources if s != 'class2')})")
+        flag(
+            "ground_classified",
+            f"input had no usable ground class; ground classified by towerpipe "
+            f"({', '.join(s for s in ground_sources if s != 'class2')})",
+        )
     if ground_ratio is not None and ground_ratio < limits.min_ground_ratio:
         flag("low_ground", f"only {100 * ground_ratio:.1f} % of points are ground")
 
@@ -255,16 +292,23 @@ def block_report(out_html: str | os.PathLike[str], out_json: str | os.PathLike[s
     attributes = stats.get("attributes") or {}
     degenerate = list(stats.get("degenerate_attributes") or [])
     if degenerate:
-        flag("degenerate_attributes", "sensor attributes unusable: " + "; ".join(
-            f"{a} ({(attributes.get(a) or {}).get('reason', 'degenerate')})" for a in degenerate))
+        flag(
+            "degenerate_attributes",
+            "sensor attributes unusable: "
+            + "; ".join(f"{a} ({(attributes.get(a) or {}).get('reason', 'degenerate')})" for a in degenerate),
+        )
 
     # ---- windows, model
-    win = {k: int(sum(int(m.get(k) or 0) for m in pred_metas))
-           for k in ("windows_total", "windows_passed_gate", "windows_segmented")}
+    win = {
+        k: int(sum(int(m.get(k) or 0) for m in pred_metas))
+        for k in ("windows_total", "windows_passed_gate", "windows_segmented")
+    }
     gate_ratio = win["windows_passed_gate"] / win["windows_total"] if win["windows_total"] else None
     if gate_ratio is not None and gate_ratio > limits.max_gate_ratio:
-        flag("many_windows_gated", f"{100 * gate_ratio:.0f} % of windows passed the classifier gate "
-                                   f"(> {100 * limits.max_gate_ratio:.0f} %)")
+        flag(
+            "many_windows_gated",
+            f"{100 * gate_ratio:.0f} % of windows passed the classifier gate (> {100 * limits.max_gate_ratio:.0f} %)",
+        )
     model = next((m.get("model") for m in pred_metas if m.get("model")), None) or {}
     points_model_input = int(sum(int(m.get("points_model_input_core") or 0) for m in pred_metas))
 
@@ -273,8 +317,11 @@ def block_report(out_html: str | os.PathLike[str], out_json: str | os.PathLike[s
     if pred_metas:
         stage_counts.append(("model input (core points)", points_model_input))
     if n_points is not None:
-        stage_counts += [("output: all points", n_points), ("output: ground (class 2)", n_ground),
-                         ("output: tower (class 15)", n_tower_pts)]
+        stage_counts += [
+            ("output: all points", n_points),
+            ("output: ground (class 2)", n_ground),
+            ("output: tower (class 15)", n_tower_pts),
+        ]
     stage_counts.append(("towers", int(len(gdf))))
 
     # ---- figures and density
@@ -283,11 +330,14 @@ def block_report(out_html: str | os.PathLike[str], out_json: str | os.PathLike[s
     if pts is not None and n_points and bounds:
         grid, density = density_grid(pts["x"], pts["y"], bounds)
         density["mean"] = n_points / area_m2 if area_m2 else None
-        figures.append({"src": density_map(grid, bounds, density["density_cell_m"]),
-                        "caption": "Point density: look for stripes, holes and low-density corners"})
+        figures.append(
+            {
+                "src": density_map(grid, bounds, density["density_cell_m"]),
+                "caption": "Point density: look for stripes, holes and low-density corners",
+            }
+        )
         if density["density_median"] < limits.min_density:
-            flag("low_density", f"median density {density['density_median']:.1f} pts/m² "
-                                f"(< {limits.min_density:.1f})")
+            flag("low_density", f"median density {density['density_median']:.1f} pts/m² (< {limits.min_density:.1f})")
     hag = None
     hag_source = None
     if pts is not None and "hag" in pts:
@@ -302,8 +352,12 @@ def block_report(out_html: str | os.PathLike[str], out_json: str | os.PathLike[s
             dtm = ds.read(1, masked=True).astype(np.float64).filled(np.nan)
             hag, hag_source = pts["z"] - dtm[rows, cols], f"z − {Path(raster).name}"
     if hag is not None:
-        figures.append({"src": hag_histogram(hag, cls == classes.TOWER if cls is not None else None),
-                        "caption": f"Height above ground ({hag_source})"})
+        figures.append(
+            {
+                "src": hag_histogram(hag, cls == classes.TOWER if cls is not None else None),
+                "caption": f"Height above ground ({hag_source})",
+            }
+        )
     if raster is not None:
         grid, gb, cell = raster_grid(raster)
         map_src = Path(raster).name
@@ -323,8 +377,10 @@ def block_report(out_html: str | os.PathLike[str], out_json: str | os.PathLike[s
         tflags = []
         to_edge = distance_to_data_edge(r.geometry, extent)
         if math.isfinite(to_edge) and to_edge < limits.edge_margin_m:
-            tflags.append(f"footprint {to_edge:.1f} m from the edge of the data (zone edge, or a neighbour "
-                          f"without points): the tower may be cut")
+            tflags.append(
+                f"footprint {to_edge:.1f} m from the edge of the data (zone edge, or a neighbour "
+                f"without points): the tower may be cut"
+            )
         if r.prob_mean < limits.min_tower_prob:
             tflags.append(f"low mean probability {r.prob_mean:.2f}")
         support = float(getattr(r, "wire_support", float("nan")))
@@ -334,31 +390,56 @@ def block_report(out_html: str | os.PathLike[str], out_json: str | os.PathLike[s
             tflags.append("conductor ring (80-160 m) outside the data: support not measured, kept")
         for t in tflags:
             flag("tower", f"tower {i} ({r.tower_id}): {t}")
-        tower_rows.append({"n": i, "tower_id": r.tower_id, "x": r.centroid_x, "y": r.centroid_y,
-                           "height_m": r.height_m, "base_z": r.base_z, "n_points": int(r.n_points),
-                           "prob_mean": r.prob_mean, "prob_max": r.prob_max,
-                           "wire_support": support, "blocks": r.blocks,
-                           "edge_distance_m": r.edge_distance_m,
-                           "data_edge_m": round(to_edge, 2) if math.isfinite(to_edge) else None, "flags": tflags})
+        tower_rows.append(
+            {
+                "n": i,
+                "tower_id": r.tower_id,
+                "x": r.centroid_x,
+                "y": r.centroid_y,
+                "height_m": r.height_m,
+                "base_z": r.base_z,
+                "n_points": int(r.n_points),
+                "prob_mean": r.prob_mean,
+                "prob_max": r.prob_max,
+                "wire_support": support,
+                "blocks": r.blocks,
+                "edge_distance_m": r.edge_distance_m,
+                "data_edge_m": round(to_edge, 2) if math.isfinite(to_edge) else None,
+                "flags": tflags,
+            }
+        )
         hood = (inputs.neighbourhoods or {}).get(r.tower_id)
         if hood is not None and len(hood["x"]):
-            views[i] = tower_elevations(hood, (r.centroid_x, r.centroid_y),
-                                              f"Tower {i} ({r.tower_id}), {r.height_m:.1f} m")
+            views[i] = tower_elevations(
+                hood, (r.centroid_x, r.centroid_y), f"Tower {i} ({r.tower_id}), {r.height_m:.1f} m"
+            )
         progress.update()
     progress.close()
 
     # ---- accuracy against input labels
     accuracy = None
     if inputs.truth is not None and pts is not None:
-        accuracy = label_accuracy(pts, inputs.truth, gdf, bounds, min_truth_points=int(limits.min_truth_points),
-                                  neighbour_towers=inputs.neighbour_towers)
+        accuracy = label_accuracy(
+            pts,
+            inputs.truth,
+            gdf,
+            bounds,
+            min_truth_points=int(limits.min_truth_points),
+            neighbour_towers=inputs.neighbour_towers,
+        )
         if accuracy is not None:
             if accuracy["recall"] is not None and accuracy["recall"] < limits.min_recall:
-                flag("missed_towers", f"{accuracy['fn']} of {accuracy['towers_true']} labelled towers not found "
-                                      f"(recall {accuracy['recall']:.2f})")
+                flag(
+                    "missed_towers",
+                    f"{accuracy['fn']} of {accuracy['towers_true']} labelled towers not found "
+                    f"(recall {accuracy['recall']:.2f})",
+                )
             if accuracy["precision"] is not None and accuracy["precision"] < limits.min_precision:
-                flag("false_towers", f"{accuracy['fp']} of {len(gdf)} towers found match no labelled tower "
-                                     f"(precision {accuracy['precision']:.2f})")
+                flag(
+                    "false_towers",
+                    f"{accuracy['fp']} of {len(gdf)} towers found match no labelled tower "
+                    f"(precision {accuracy['precision']:.2f})",
+                )
 
     # ---- timings and memory
     stage_time: list[dict[str, Any]] = []
@@ -388,25 +469,52 @@ def block_report(out_html: str | os.PathLike[str], out_json: str | os.PathLike[s
     status = "look" if flags else "ok"
     n_look_towers = sum(1 for t in tower_rows if t["flags"])
     doc = {
-        "block": block_name, "zone": inputs.zone, "status": status, "summary": _summary(len(gdf), n_look_towers, flags),
-        "flags": flags, "html": out_html.name,
-        "generated_at": datetime.now(timezone.utc).replace(microsecond=0).isoformat(),
-        "bounds": bounds, "area_m2": area_m2,
-        "points": n_points, "points_ground": n_ground, "points_tower": n_tower_pts, "ground_ratio": ground_ratio,
-        "ground_sources": ground_sources, "ground_classified": ground_classified,
-        "density": density, "stage_counts": dict(stage_counts), "tile_counts": tile_counts,
-        "attributes": attributes, "degenerate_attributes": degenerate,
-        "tiles": len(tile_metas), "pred_files": len(pred_metas), **win, "gate_ratio": gate_ratio,
+        "block": block_name,
+        "zone": inputs.zone,
+        "status": status,
+        "summary": _summary(len(gdf), n_look_towers, flags),
+        "flags": flags,
+        "html": out_html.name,
+        "generated_at": datetime.now(UTC).replace(microsecond=0).isoformat(),
+        "bounds": bounds,
+        "area_m2": area_m2,
+        "points": n_points,
+        "points_ground": n_ground,
+        "points_tower": n_tower_pts,
+        "ground_ratio": ground_ratio,
+        "ground_sources": ground_sources,
+        "ground_classified": ground_classified,
+        "density": density,
+        "stage_counts": dict(stage_counts),
+        "tile_counts": tile_counts,
+        "attributes": attributes,
+        "degenerate_attributes": degenerate,
+        "tiles": len(tile_metas),
+        "pred_files": len(pred_metas),
+        **win,
+        "gate_ratio": gate_ratio,
         "points_model_input": points_model_input if pred_metas else None,
         "model": {k: model.get(k) for k in ("name", "version", "feature_set", "sha256", "choice") if k in model},
-        "towers": tower_rows, "n_towers": len(gdf),
+        "towers": tower_rows,
+        "n_towers": len(gdf),
         "tower_prob_mean": float(gdf["prob_mean"].mean()) if len(gdf) else None,
-        "accuracy": accuracy, "timings": stage_time,
+        "accuracy": accuracy,
+        "timings": stage_time,
         "timings_total": sum(t["seconds"] or 0 for t in stage_time if ":" not in t["stage"]),
-        "warnings": warnings, "stats": stats, "limits": dataclasses.asdict(limits),
+        "warnings": warnings,
+        "stats": stats,
+        "limits": dataclasses.asdict(limits),
     }
     doc = jsonable(doc)
     write_text_atomic(out_json, json.dumps(doc, indent=1))
-    render("block.html", out_html, d=doc, map_png=map_png, figures=figures, views=views,
-           links=_links(block_name), json_name=out_json.name)
+    render(
+        "block.html",
+        out_html,
+        d=doc,
+        map_png=map_png,
+        figures=figures,
+        views=views,
+        links=_links(block_name),
+        json_name=out_json.name,
+    )
     return doc

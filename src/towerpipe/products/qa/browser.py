@@ -30,9 +30,18 @@ from typing import Any
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "chrome")
 
 #: Flags for a quiet, offline, throw-away browser.
-CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                  "--disable-dev-shm-usage", "--remote-debugging-pipe")
+CHROMIUM_FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-dev-shm-usage",
+    "--remote-debugging-pipe",
+)
 
 #: The width the pages must fit without horizontal scrolling (px).
 PAGE_WIDTH = 1280
@@ -98,8 +107,10 @@ class PageCheck:
         out = [f"console error: {e}" for e in self.console_errors]
         if self.overflow_px:
             out.append(f"the page scrolls sideways by {self.overflow_px} px at {self.client_width} px")
-        out += [f"<{w['tag']} class={w['cls']!r}> sticks out (right edge {w['right']} px, scrolls {w['scroll']} px)"
-                for w in self.overflowing]
+        out += [
+            f"<{w['tag']} class={w['cls']!r}> sticks out (right edge {w['right']} px, scrolls {w['scroll']} px)"
+            for w in self.overflowing
+        ]
         return out
 
 
@@ -124,7 +135,7 @@ class Browser:
         self._events: list[dict[str, Any]] = []
 
     # ---- process and pipe
-    def __enter__(self) -> "Browser":
+    def __enter__(self) -> Browser:
         self._profile = tempfile.mkdtemp(prefix="towerpipe-chromium-")
         to_chrome_r, self._to_chrome = os.pipe()
         self._from_chrome, from_chrome_w = os.pipe()
@@ -133,9 +144,14 @@ class Browser:
             os.dup2(to_chrome_r, 3)
             os.dup2(from_chrome_w, 4)
 
-        self.proc = subprocess.Popen([self.binary, *CHROMIUM_FLAGS, f"--user-data-dir={self._profile}",
-                                      "about:blank"], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.PIPE, preexec_fn=fds, pass_fds=(3, 4))
+        self.proc = subprocess.Popen(
+            [self.binary, *CHROMIUM_FLAGS, f"--user-data-dir={self._profile}", "about:blank"],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            preexec_fn=fds,
+            pass_fds=(3, 4),
+        )
         os.close(to_chrome_r)
         os.close(from_chrome_w)
         return self
@@ -210,8 +226,11 @@ class Browser:
         route = self.send("Target.attachToTarget", {"targetId": target, "flatten": True})[_ROUTE]
         for domain in ("Page", "Runtime", "Log"):
             self.send(f"{domain}.enable", route=route)
-        self.send("Emulation.setDeviceMetricsOverride",
-                  {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False}, route=route)
+        self.send(
+            "Emulation.setDeviceMetricsOverride",
+            {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False},
+            route=route,
+        )
         self._events = [e for e in self._events if e.get(_ROUTE) != route]
         self.send("Page.navigate", {"url": Path(path).resolve().as_uri()}, route=route)
         self.wait_for("Page.loadEventFired", route)
@@ -235,11 +254,18 @@ class Browser:
             elif ev.get("method") == "Log.entryAdded" and p.get("entry", {}).get("level") == "error":
                 e = p["entry"]
                 errors.append(f"{e.get('text', '')} {e.get('url', '')}".strip())
-        return PageCheck(url=Path(path).resolve().as_uri(), title=found["title"], scroll_width=found["scrollWidth"],
-                         client_width=found["clientWidth"], console_errors=errors, overflowing=found["wide"])
+        return PageCheck(
+            url=Path(path).resolve().as_uri(),
+            title=found["title"],
+            scroll_width=found["scrollWidth"],
+            client_width=found["clientWidth"],
+            console_errors=errors,
+            overflowing=found["wide"],
+        )
 
-    def screenshot(self, path: str | os.PathLike[str], out_png: str | os.PathLike[str], width: int = PAGE_WIDTH,
-                   height: int = 1400) -> Path:
+    def screenshot(
+        self, path: str | os.PathLike[str], out_png: str | os.PathLike[str], width: int = PAGE_WIDTH, height: int = 1400
+    ) -> Path:
         """A PNG of the top ``height`` px of the page at ``width`` px."""
         route = self.open(path, width, height)
         shot = self.send("Page.captureScreenshot", {"format": "png", "captureBeyondViewport": False}, route=route)
@@ -254,8 +280,13 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m towerpipe.products.qa.browser", description=main.__doc__)
     ap.add_argument("pages", nargs="+", help="HTML files")
     ap.add_argument("--width", type=int, default=PAGE_WIDTH)
-    ap.add_argument("--height", type=int, action="append", default=[],
-                    help="screenshot height (px) per page, in order (default 1400)")
+    ap.add_argument(
+        "--height",
+        type=int,
+        action="append",
+        default=[],
+        help="screenshot height (px) per page, in order (default 1400)",
+    )
     ap.add_argument("--screenshot", action="append", default=[], help="PNG per page, in order")
     args = ap.parse_args(argv)
     heights = args.height or [1400]

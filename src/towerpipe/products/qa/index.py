@@ -6,18 +6,18 @@ import json
 import logging
 import os
 from collections.abc import Mapping, Sequence
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from markupsafe import Markup
 
-from towerpipe.products import layout
 from towerpipe.io.atomic import write_text_atomic
-from towerpipe.products.qa.plots import zone_map
+from towerpipe.products import layout
 from towerpipe.products.qa.metrics import jsonable
 from towerpipe.products.qa.pages import render
+from towerpipe.products.qa.plots import zone_map
 
 log = logging.getLogger(__name__)
 
@@ -46,11 +46,17 @@ def _gpkg_lines(gpkg: str | os.PathLike[str] | None) -> list[np.ndarray]:
     return lines
 
 
-def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.PathLike[str]], *,
-               failures: Mapping[str, str] | None = None, zone: str = "",
-               out_json: str | os.PathLike[str] | None = None, gpkg: str | os.PathLike[str] | None = None,
-               block_bounds: Mapping[str, Sequence[float] | None] | None = None,
-               vanished: Sequence[Mapping[str, Any]] = ()) -> dict[str, Any]:
+def zone_index(
+    out_html: str | os.PathLike[str],
+    block_jsons: Sequence[str | os.PathLike[str]],
+    *,
+    failures: Mapping[str, str] | None = None,
+    zone: str = "",
+    out_json: str | os.PathLike[str] | None = None,
+    gpkg: str | os.PathLike[str] | None = None,
+    block_bounds: Mapping[str, Sequence[float] | None] | None = None,
+    vanished: Sequence[Mapping[str, Any]] = (),
+) -> dict[str, Any]:
     """Write the zone's QA index: every block, totals, a map, and the blocks that need a look.
 
     Parameters
@@ -95,46 +101,79 @@ def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.
         try:
             d = json.loads(p.read_text(encoding="utf-8"))
         except (OSError, ValueError) as exc:
-            blocks.append({"block": p.stem, "status": "failed", "reasons": [f"QA JSON unreadable: {exc}"],
-                           "codes": ["failed"], "bounds": block_bounds.get(p.stem)})
+            blocks.append(
+                {
+                    "block": p.stem,
+                    "status": "failed",
+                    "reasons": [f"QA JSON unreadable: {exc}"],
+                    "codes": ["failed"],
+                    "bounds": block_bounds.get(p.stem),
+                }
+            )
             continue
         name = d.get("block", p.stem)
         if name in failures:
             continue
         block_docs[name] = d
         href = os.path.relpath(p.parent / d.get("html", p.stem + ".html"), out_html.parent)
-        products = [{"label": label, "href": layout.link(layout.QA_INDEX, layout.block_product(pattern, name))}
-                    for label, pattern in (("LAZ", layout.BLOCK_LAZ), ("GeoPackage", layout.BLOCK_GPKG))]
-        blocks.append({"block": name, "status": d.get("status", "look"), "href": href, "products": products,
-                       "reasons": [f["reason"] for f in d.get("flags", [])], "codes": [f["code"] for f in d.get("flags", [])],
-                       "n_towers": d.get("n_towers", 0), "points": d.get("points"),
-                       "density": (d.get("density") or {}).get("density_median"),
-                       "ground_ratio": d.get("ground_ratio"), "ground_classified": d.get("ground_classified"),
-                       "windows_total": d.get("windows_total"), "windows_passed_gate": d.get("windows_passed_gate"),
-                       "tower_prob_mean": d.get("tower_prob_mean"), "accuracy": d.get("accuracy"),
-                       "bounds": d.get("bounds") or block_bounds.get(name)})
+        products = [
+            {"label": label, "href": layout.link(layout.QA_INDEX, layout.block_product(pattern, name))}
+            for label, pattern in (("LAZ", layout.BLOCK_LAZ), ("GeoPackage", layout.BLOCK_GPKG))
+        ]
+        blocks.append(
+            {
+                "block": name,
+                "status": d.get("status", "look"),
+                "href": href,
+                "products": products,
+                "reasons": [f["reason"] for f in d.get("flags", [])],
+                "codes": [f["code"] for f in d.get("flags", [])],
+                "n_towers": d.get("n_towers", 0),
+                "points": d.get("points"),
+                "density": (d.get("density") or {}).get("density_median"),
+                "ground_ratio": d.get("ground_ratio"),
+                "ground_classified": d.get("ground_classified"),
+                "windows_total": d.get("windows_total"),
+                "windows_passed_gate": d.get("windows_passed_gate"),
+                "tower_prob_mean": d.get("tower_prob_mean"),
+                "accuracy": d.get("accuracy"),
+                "bounds": d.get("bounds") or block_bounds.get(name),
+            }
+        )
     for b, reason in failures.items():
-        blocks.append({"block": b, "status": "failed", "reasons": [str(reason)], "codes": ["failed"],
-                       "bounds": block_bounds.get(b)})
+        blocks.append(
+            {
+                "block": b,
+                "status": "failed",
+                "reasons": [str(reason)],
+                "codes": ["failed"],
+                "bounds": block_bounds.get(b),
+            }
+        )
     order = {"failed": 0, "look": 1, "ok": 2}
     blocks.sort(key=lambda b: (order.get(b["status"], 1), str(b["block"])))
     done = [b for b in blocks if b["status"] != "failed"]
     acc = [b["accuracy"] for b in done if b.get("accuracy")]
     totals: dict[str, Any] = {
-        "blocks": len(blocks), "failed": sum(b["status"] == "failed" for b in blocks),
-        "look": sum(b["status"] == "look" for b in blocks), "ok": sum(b["status"] == "ok" for b in blocks),
+        "blocks": len(blocks),
+        "failed": sum(b["status"] == "failed" for b in blocks),
+        "look": sum(b["status"] == "look" for b in blocks),
+        "ok": sum(b["status"] == "ok" for b in blocks),
         "towers": int(sum(b.get("n_towers") or 0 for b in done)),
         "points": int(sum(b.get("points") or 0 for b in done)),
         "windows_total": int(sum(b.get("windows_total") or 0 for b in done)),
         "windows_passed_gate": int(sum(b.get("windows_passed_gate") or 0 for b in done)),
-        "precision": None, "recall": None,
+        "precision": None,
+        "recall": None,
     }
     if acc:
         tp, fp, fn = (sum(a[k] for a in acc) for k in ("tp", "fp", "fn"))
         totals["precision"] = tp / (tp + fp) if tp + fp else None
         totals["recall"] = tp / (tp + fn) if tp + fn else None
-    s = f"{totals['towers']} tower{'s' if totals['towers'] != 1 else ''} found in {totals['blocks']} block" \
+    s = (
+        f"{totals['towers']} tower{'s' if totals['towers'] != 1 else ''} found in {totals['blocks']} block"
         f"{'s' if totals['blocks'] != 1 else ''}"
+    )
     if totals["failed"]:
         s += f"; {totals['failed']} failed"
     if totals["look"]:
@@ -145,13 +184,19 @@ def zone_index(out_html: str | os.PathLike[str], block_jsons: Sequence[str | os.
     totals["vanished_towers"] = len(vanished)
     tower_xy = [(t["x"], t["y"]) for b in block_docs.values() for t in b.get("towers") or []]
     lines = _gpkg_lines(gpkg)
-    doc = jsonable({"zone": zone, "blocks": blocks, "totals": totals, "n_lines": len(lines),
-                    "vanished_towers": list(vanished),
-                    "generated_at": datetime.now(timezone.utc).replace(microsecond=0).isoformat()})
+    doc = jsonable(
+        {
+            "zone": zone,
+            "blocks": blocks,
+            "totals": totals,
+            "n_lines": len(lines),
+            "vanished_towers": list(vanished),
+            "generated_at": datetime.now(UTC).replace(microsecond=0).isoformat(),
+        }
+    )
     if out_json is not None:
         write_text_atomic(out_json, json.dumps(doc, indent=1))
-    zone_svg = (Markup(zone_map(doc["blocks"], tower_xy, lines))
-                if any(b.get("bounds") for b in doc["blocks"]) else None)
+    zone_svg = Markup(zone_map(doc["blocks"], tower_xy, lines)) if any(b.get("bounds") for b in doc["blocks"]) else None
     links = [{"label": f"zone towers ({layout.ZONE_GPKG})", "href": layout.link(layout.QA_INDEX, layout.ZONE_GPKG)}]
     render("index.html", out_html, d=doc, zone_svg=zone_svg, links=links)
     return doc

@@ -18,20 +18,21 @@ import numpy as np
 from towerpipe import classes
 from towerpipe.towers.matching import f1_score, match_towers
 
+
 @dataclass(frozen=True)
 class Limits:
     """Limits that flag a block or a tower for a human look (the defaults are the pipeline's)."""
 
-    min_density: float = 2.0            # median points / m² over non-empty cells
-    min_ground_ratio: float = 0.05      # share of points classified ground
-    edge_margin_m: float = 2.0          # tower footprint closer than this to the edge of the data: cut
-    min_tower_prob: float = 0.6         # mean probability of a tower's points
-    min_wire_support: float = 0.5       # conductor support of a tower (a low tower is kept without it)
-    wire_min_height: float = 20.0       # the conductor rule applies from this height (towers.wire_min_height)
-    max_gate_ratio: float = 0.25        # share of windows that passed the classifier gate
-    min_recall: float = 1.0             # tower recall against input labels (when present)
-    min_precision: float = 1.0          # tower precision against input labels (when present)
-    min_truth_points: int = 20          # labelled clusters with fewer points are not towers (paper: < 20 dropped)
+    min_density: float = 2.0  # median points / m² over non-empty cells
+    min_ground_ratio: float = 0.05  # share of points classified ground
+    edge_margin_m: float = 2.0  # tower footprint closer than this to the edge of the data: cut
+    min_tower_prob: float = 0.6  # mean probability of a tower's points
+    min_wire_support: float = 0.5  # conductor support of a tower (a low tower is kept without it)
+    wire_min_height: float = 20.0  # the conductor rule applies from this height (towers.wire_min_height)
+    max_gate_ratio: float = 0.25  # share of windows that passed the classifier gate
+    min_recall: float = 1.0  # tower recall against input labels (when present)
+    min_precision: float = 1.0  # tower precision against input labels (when present)
+    min_truth_points: int = 20  # labelled clusters with fewer points are not towers (paper: < 20 dropped)
 
 
 #: Header bounds of adjoining blocks meet up to rounding (a block's max is its last point,
@@ -86,8 +87,12 @@ def load_classified(src: str | os.PathLike[str] | Mapping[str, np.ndarray]) -> d
         from towerpipe.io.lasformat import PROB_DIMENSION
 
         las = laspy.read(src)
-        out = {"x": np.asarray(las.x), "y": np.asarray(las.y), "z": np.asarray(las.z),
-               "classification": np.asarray(las.classification, dtype=np.uint8)}
+        out = {
+            "x": np.asarray(las.x),
+            "y": np.asarray(las.y),
+            "z": np.asarray(las.z),
+            "classification": np.asarray(las.classification, dtype=np.uint8),
+        }
         names = {n.lower(): n for n in las.point_format.extra_dimension_names}
         if PROB_DIMENSION.lower() in names:
             out["prob"] = np.asarray(las[names[PROB_DIMENSION.lower()]], dtype=np.float32)
@@ -108,8 +113,11 @@ def read_benchmark(path: str | os.PathLike[str]) -> dict[str, float]:
         return {}
     head, rows = lines[0], lines[1:]
     out: dict[str, float] = {}
-    for col, key, agg in (("s", "seconds", np.mean), ("max_rss", "max_rss_mb", np.max),
-                          ("cpu_time", "cpu_seconds", np.mean)):
+    for col, key, agg in (
+        ("s", "seconds", np.mean),
+        ("max_rss", "max_rss_mb", np.max),
+        ("cpu_time", "cpu_seconds", np.mean),
+    ):
         if col in head:
             vals = []
             for r in rows:
@@ -198,28 +206,42 @@ def distance_to_data_edge(footprint: Any, extent: Any) -> float:
 
 
 # --------------------------------------------------------------------------- accuracy
-def with_neighbour_towers(m: dict[str, Any], truth: Any, neighbour_towers: Sequence[Mapping[str, Any]]
-                          ) -> dict[str, Any]:
+def with_neighbour_towers(
+    m: dict[str, Any], truth: Any, neighbour_towers: Sequence[Mapping[str, Any]]
+) -> dict[str, Any]:
     """Recall counting labelled towers matched by a neighbour-owned tower as found."""
     import geopandas as gpd
     import shapely
 
-    nb = gpd.GeoDataFrame({"tower_id": [t["tower_id"] for t in neighbour_towers]},
-                          geometry=shapely.from_wkt([t["footprint_wkt"] for t in neighbour_towers]), crs=truth.crs)
+    nb = gpd.GeoDataFrame(
+        {"tower_id": [t["tower_id"] for t in neighbour_towers]},
+        geometry=shapely.from_wkt([t["footprint_wkt"] for t in neighbour_towers]),
+        crs=truth.crs,
+    )
     left = truth[truth["tower_id"].astype(str).isin(m["unmatched_truth"])]
     extra = match_towers(nb, left, max_dist=5.0)["matches"] if len(left) else []
     found = {x["truth"] for x in extra}
     tp_recall = m["tp"] + len(extra)
-    m = dict(m, fn=len(truth) - tp_recall, recall=tp_recall / len(truth),
-             matches=[*m["matches"], *({**x, "owner": "neighbour"} for x in extra)],
-             unmatched_truth=[t for t in m["unmatched_truth"] if t not in found])
+    m = dict(
+        m,
+        fn=len(truth) - tp_recall,
+        recall=tp_recall / len(truth),
+        matches=[*m["matches"], *({**x, "owner": "neighbour"} for x in extra)],
+        unmatched_truth=[t for t in m["unmatched_truth"] if t not in found],
+    )
     m["f1"] = f1_score(m["precision"], m["recall"])
     return m
 
 
-def label_accuracy(pts: Mapping[str, np.ndarray], truth: np.ndarray, towers: Any, bounds: Sequence[float] | None,
-                   *, min_truth_points: int, neighbour_towers: Sequence[Mapping[str, Any]] | None = None
-                   ) -> dict[str, Any] | None:
+def label_accuracy(
+    pts: Mapping[str, np.ndarray],
+    truth: np.ndarray,
+    towers: Any,
+    bounds: Sequence[float] | None,
+    *,
+    min_truth_points: int,
+    neighbour_towers: Sequence[Mapping[str, Any]] | None = None,
+) -> dict[str, Any] | None:
     """Tower precision/recall and point IoU against the input's class 15 labels (None without any)."""
     from towerpipe.towers.matching import towers_from_labels
 
@@ -232,8 +254,9 @@ def label_accuracy(pts: Mapping[str, np.ndarray], truth: np.ndarray, towers: Any
     p_mask = pts["classification"] == classes.TOWER
     inter = int(np.count_nonzero(p_mask & t_mask))
     union = int(np.count_nonzero(p_mask | t_mask))
-    true_towers = towers_from_labels(pts["x"], pts["y"], pts["z"], pts.get("hag"), t_mask,
-                                     min_points=int(min_truth_points))
+    true_towers = towers_from_labels(
+        pts["x"], pts["y"], pts["z"], pts.get("hag"), t_mask, min_points=int(min_truth_points)
+    )
     if bounds is not None and len(true_towers):
         c = true_towers.geometry.centroid
         inside = (c.x >= bounds[0]) & (c.x < bounds[2]) & (c.y >= bounds[1]) & (c.y < bounds[3])
@@ -241,6 +264,11 @@ def label_accuracy(pts: Mapping[str, np.ndarray], truth: np.ndarray, towers: Any
     m = match_towers(towers, true_towers, max_dist=5.0)
     if neighbour_towers and len(true_towers):
         m = with_neighbour_towers(m, true_towers, neighbour_towers)
-    return {"point_iou": inter / union if union else None, "points_true": int(t_mask.sum()),
-            "points_pred": int(p_mask.sum()), "points_both": inter, "towers_true": int(len(true_towers)),
-            **{k: m[k] for k in ("precision", "recall", "f1", "tp", "fp", "fn", "matches")}}
+    return {
+        "point_iou": inter / union if union else None,
+        "points_true": int(t_mask.sum()),
+        "points_pred": int(p_mask.sum()),
+        "points_both": inter,
+        "towers_true": int(len(true_towers)),
+        **{k: m[k] for k in ("precision", "recall", "f1", "tp", "fp", "fn", "matches")},
+    }

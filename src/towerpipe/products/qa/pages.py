@@ -55,9 +55,13 @@ def environment() -> jinja2.Environment:
     Missing keys render empty (``–`` through the filters): pages of older runs lack
     fields that newer ones have (sensor attributes, the model choice).
     """
-    env = jinja2.Environment(loader=jinja2.PackageLoader("towerpipe.products.qa", "templates"),
-                             autoescape=jinja2.select_autoescape(["html"]), undefined=jinja2.ChainableUndefined,
-                             trim_blocks=True, lstrip_blocks=True)
+    env = jinja2.Environment(
+        loader=jinja2.PackageLoader("towerpipe.products.qa", "templates"),
+        autoescape=jinja2.select_autoescape(["html"]),
+        undefined=jinja2.ChainableUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
     env.filters.update(num=num, pct=pct, pretty_json=pretty_json)
     return env
 

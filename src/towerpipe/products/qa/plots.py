@@ -45,7 +45,7 @@ def svg(fig: Any) -> str:
     fig.savefig(buf, format="svg", bbox_inches="tight")
     plt.close(fig)
     text = buf.getvalue()
-    text = text[text.index("<svg"):]
+    text = text[text.index("<svg") :]
     # inline in HTML the parser knows the SVG and XLink namespaces: no namespace URLs, and no
     # RDF metadata block, so the page names no address at all
     text = re.sub(r"<metadata>.*?</metadata>\s*", "", text, flags=re.S)
@@ -73,8 +73,9 @@ def fill_nearest(grid: np.ndarray) -> np.ndarray:
     return grid[tuple(idx)]
 
 
-def max_z_grid(x: np.ndarray, y: np.ndarray, z: np.ndarray, bounds: Sequence[float],
-               max_cells: int = 700) -> tuple[np.ndarray, float]:
+def max_z_grid(
+    x: np.ndarray, y: np.ndarray, z: np.ndarray, bounds: Sequence[float], max_cells: int = 700
+) -> tuple[np.ndarray, float]:
     """Max z per cell (north up), cell size chosen so the longer side has <= ``max_cells`` cells."""
     xmin, ymin, xmax, ymax = bounds
     cell = max(1.0, max(xmax - xmin, ymax - ymin) / max_cells)
@@ -109,8 +110,14 @@ def hillshade(grid: np.ndarray, cell: float) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- block figures
-def block_map(towers: Any, bounds: Sequence[float] | None, grid: np.ndarray | None,
-              grid_bounds: Sequence[float] | None, cell: float, source: str) -> str:
+def block_map(
+    towers: Any,
+    bounds: Sequence[float] | None,
+    grid: np.ndarray | None,
+    grid_bounds: Sequence[float] | None,
+    cell: float,
+    source: str,
+) -> str:
     """The block's towers (numbered as in the table) over a hillshade."""
     fig, ax = plt.subplots(figsize=(7.6, 7.2))
     if grid is not None and np.isfinite(grid).any():
@@ -124,8 +131,16 @@ def block_map(towers: Any, bounds: Sequence[float] | None, grid: np.ndarray | No
         xs, ys = geom.exterior.xy
         ax.fill(xs, ys, facecolor=TOWER_RED, alpha=0.35, edgecolor=TOWER_DARK, lw=1.5)
         ax.plot(cx, cy, marker="^", color=TOWER_DARK, ms=9, mec="white", mew=1)
-        ax.annotate(str(i), (cx, cy), xytext=(6, 6), textcoords="offset points", fontsize=11, weight="bold",
-                    color=INK, bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": TOWER_DARK, "alpha": 0.9})
+        ax.annotate(
+            str(i),
+            (cx, cy),
+            xytext=(6, 6),
+            textcoords="offset points",
+            fontsize=11,
+            weight="bold",
+            color=INK,
+            bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": TOWER_DARK, "alpha": 0.9},
+        )
     _axes_style(ax)
     if bounds is not None:
         pad = 0.02 * max(bounds[2] - bounds[0], bounds[3] - bounds[1], 1.0)
@@ -163,8 +178,14 @@ def hag_histogram(hag: np.ndarray, tower: np.ndarray | None) -> str:
     counts, edges = np.histogram(np.clip(hag, *rng), bins=79, range=rng)
     ax.stairs(counts, edges, fill=True, color="#829ab1", label="all points")
     if tower is not None and tower.any():
-        ax.stairs(np.histogram(np.clip(hag[tower], *rng), bins=79, range=rng)[0], edges, fill=True,
-                  color=TOWER_RED, alpha=0.8, label="classified tower (15)")
+        ax.stairs(
+            np.histogram(np.clip(hag[tower], *rng), bins=79, range=rng)[0],
+            edges,
+            fill=True,
+            color=TOWER_RED,
+            alpha=0.8,
+            label="classified tower (15)",
+        )
     for b in (3.0, 8.0):
         ax.axvline(b, color="#616e7c", lw=0.8, ls=":")
     ax.set_yscale("log")
@@ -212,8 +233,10 @@ def tower_elevations(hood: Mapping[str, np.ndarray], centre: Sequence[float], ti
         other = other[np.linspace(0, len(other) - 1, MAX_VIEW_POINTS).astype(np.int64)]
     bearing = math.degrees(math.atan2(axis[0], axis[1])) % 180.0
     fig, axes = plt.subplots(1, 2, figsize=(10.0, 4.0), sharey=True)
-    for ax, h, label in ((axes[0], u, f"along the crossarms (bearing {bearing:.0f}°), m"),
-                         (axes[1], v, f"across the crossarms (bearing {(bearing + 90) % 180:.0f}°), m")):
+    for ax, h, label in (
+        (axes[0], u, f"along the crossarms (bearing {bearing:.0f}°), m"),
+        (axes[1], v, f"across the crossarms (bearing {(bearing + 90) % 180:.0f}°), m"),
+    ):
         ax.scatter(h[other], z[other], s=0.4, c="#9aa5b1", linewidths=0, rasterized=True)
         ax.scatter(h[is_tower], z[is_tower], s=2.0, c=TOWER_RED, linewidths=0, rasterized=True)
         ax.set_aspect("equal", adjustable="datalim")
@@ -227,8 +250,9 @@ def tower_elevations(hood: Mapping[str, np.ndarray], centre: Sequence[float], ti
 
 
 # --------------------------------------------------------------------------- zone map
-def zone_map(blocks: Sequence[Mapping[str, Any]], towers: Sequence[tuple[float, float]] = (),
-             lines: Sequence[np.ndarray] = ()) -> str:
+def zone_map(
+    blocks: Sequence[Mapping[str, Any]], towers: Sequence[tuple[float, float]] = (), lines: Sequence[np.ndarray] = ()
+) -> str:
     """The zone at a glance (inline SVG): blocks coloured by status and linked to their pages,
     towers, lines.
 
@@ -248,14 +272,29 @@ def zone_map(blocks: Sequence[Mapping[str, Any]], towers: Sequence[tuple[float, 
     drawn = [b for b in blocks if b.get("bounds")]
     for b in drawn:
         xmin, ymin, xmax, ymax = b["bounds"]
-        rect = Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, facecolor=STATUS_COLOURS.get(b["status"], "#eee"),
-                         edgecolor=INK, lw=0.8, hatch="//" if b["status"] == "failed" else None)
+        rect = Rectangle(
+            (xmin, ymin),
+            xmax - xmin,
+            ymax - ymin,
+            facecolor=STATUS_COLOURS.get(b["status"], "#eee"),
+            edgecolor=INK,
+            lw=0.8,
+            hatch="//" if b["status"] == "failed" else None,
+        )
         if b.get("href"):
             rect.set_url(b["href"])
         ax.add_patch(rect)
         size = min(xmax - xmin, ymax - ymin)
-        ax.text((xmin + xmax) / 2, ymin + 0.06 * size, str(b["block"]), ha="center", va="bottom", fontsize=7,
-                color=INK, url=b.get("href"))
+        ax.text(
+            (xmin + xmax) / 2,
+            ymin + 0.06 * size,
+            str(b["block"]),
+            ha="center",
+            va="bottom",
+            fontsize=7,
+            color=INK,
+            url=b.get("href"),
+        )
     for line in lines:
         ax.plot(line[:, 0], line[:, 1], color="#2680c2", lw=1.4, zorder=3)
     if len(towers):
@@ -267,8 +306,10 @@ def zone_map(blocks: Sequence[Mapping[str, Any]], towers: Sequence[tuple[float, 
         ax.set_xlim(b[:, 0].min() - pad, b[:, 2].max() + pad)
         ax.set_ylim(b[:, 1].min() - pad, b[:, 3].max() + pad)
     _axes_style(ax, 7)
-    handles = [Patch(facecolor=STATUS_COLOURS[s], edgecolor=INK, hatch="//" if s == "failed" else None, label=lab)
-               for s, lab in (("ok", "block: ok"), ("look", "block: needs a look"), ("failed", "block: failed"))]
+    handles = [
+        Patch(facecolor=STATUS_COLOURS[s], edgecolor=INK, hatch="//" if s == "failed" else None, label=lab)
+        for s, lab in (("ok", "block: ok"), ("look", "block: needs a look"), ("failed", "block: failed"))
+    ]
     handles.append(plt.Line2D([], [], ls="none", marker="^", color=TOWER_DARK, mec="white", label="tower"))
     if len(lines):
         handles.append(plt.Line2D([], [], color="#2680c2", lw=1.4, label="line"))
