@@ -183,6 +183,16 @@ def tower_rules(**towers):
     return TowersConfig.from_config(schema_config(towers=towers))
 
 
+def qa_limits(**overrides):
+    """:class:`towerpipe.products.qa.metrics.Limits` of the schema's defaults, ``overrides``
+    (any field, also the three that are tower rules) set over them."""
+    from dataclasses import replace
+
+    from towerpipe.products.qa.metrics import Limits
+
+    return replace(Limits.from_config(schema_config()), **overrides)
+
+
 #: The inference settings the inference tests start from (over the schema's defaults): the
 #: paper's sliding grid, gate 0.5, one view, every window classified.
 GRID_INFERENCE = {"windows": "grid", "gate": 0.5, "tta": 1, "min_height": None}

@@ -38,7 +38,10 @@ def test_unknown_keys_name_the_closest_valid_one():
         "config: inference.treshold: unknown key; did you mean 'threshold'?"
     ]
     assert problems({"zones": {"z": {"input": "in"}}, "colour": 1}) == [
-        "config: colour: unknown key; valid keys: zones, workdir, preprocess, inference, towers, training"
+        "config: colour: unknown key; valid keys: zones, workdir, preprocess, inference, towers, qa, training"
+    ]
+    assert problems({"zones": {"z": {"input": "in"}}, "qa": {"min_densty": 1.0}}) == [
+        "config: qa.min_densty: unknown key; did you mean 'min_density'?"
     ]
 
 
@@ -157,4 +160,5 @@ def test_defaults_live_only_in_the_schema_and_towerpipe_config_prints_them(tmp_p
     # the shipped, calibrated values, and the file given merged over them
     assert cfg["inference"]["gate"] == 0.2 and cfg["inference"]["tta"] == 2 and cfg["inference"]["threshold"] == 0.3
     assert cfg["towers"]["min_core_prob"] == 0.7 and cfg["towers"]["max_base_ratio"] == 0.7
+    assert cfg["qa"]["min_density"] == 2.0 and cfg["qa"]["max_gate_ratio"] == 0.25  # the QA limits
     assert "demo" in cfg["zones"] and cfg["training"]["models"]  # config/models.yaml too, as the workflow loads it

@@ -13,7 +13,9 @@ import pytest
 
 from conftest import grid_inference
 from towerpipe.errors import ConfigError, ModelError
-from towerpipe.inference.infer import TTA_CHOICES, check_model_compatibility, infer_tile, predict_tile, segment_views
+from towerpipe.inference.compat import check_model_compatibility
+from towerpipe.inference.infer import infer_tile, predict_tile
+from towerpipe.inference.views import TTA_CHOICES, segment_views
 from towerpipe.io.predictions import PRED_META_KEYS, load_pred
 from towerpipe.io.tiles import Tile, empty_arrays, save_tile
 from towerpipe.model import features

@@ -1,4 +1,4 @@
-"""Tests of towerpipe.products.gpkg: the tower GeoPackage and the zone merge."""
+"""Tests of towerpipe.products.gpkg and gpkg_read: the tower GeoPackage and the zone merge."""
 
 from __future__ import annotations
 
@@ -19,12 +19,10 @@ from towerpipe.products.gpkg import (
     LAYER_POINTS,
     LAYER_TOWERS,
     default_style,
-    merge_gpkgs,
-    read_metadata,
-    read_towers,
     run_metadata,
     write_towers_gpkg,
 )
+from towerpipe.products.gpkg_read import merge_gpkgs, read_metadata, read_towers
 from towerpipe.towers.extract import TOWER_COLUMNS, empty_towers
 
 X0, Y0 = 400_000.0, 4_600_000.0

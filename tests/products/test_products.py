@@ -45,7 +45,7 @@ def configure(tmp, name, indir, tag="default", **sections):
 
 
 def layer(out, name):
-    from towerpipe.products.gpkg import read_towers
+    from towerpipe.products.gpkg_read import read_towers
 
     return read_towers(out / "towers.gpkg", name)
 

@@ -10,7 +10,7 @@ import pytest
 import rasterio
 from affine import Affine
 
-from conftest import extract
+from conftest import extract, qa_limits
 from towerpipe.products.qa.block import BlockInputs, block_report
 from towerpipe.products.qa.index import zone_index
 from towerpipe.products.qa.metrics import load_classified, read_benchmark
@@ -121,6 +121,7 @@ def test_block_report_page_and_json(tmp_path):
             timings={"infer_tile": str(bench), "merge_block": 3.25},
             warnings=["tile t3: 2 holes filled"],
         ),
+        qa_limits(),
     )
     page = (tmp_path / "b1.html").read_text()
     on_disk = json.loads((tmp_path / "b1.json").read_text())
@@ -142,6 +143,12 @@ def test_block_report_page_and_json(tmp_path):
     assert infer["seconds"] == 12.5 and infer["max_rss_mb"] == pytest.approx(1534.2)
     assert {"code": "warnings", "reason": "1 warning(s) during processing"} in doc["flags"]
     assert doc["status"] == "look"
+    # the schema's limits (its qa section and three tower rules), keys in this order
+    assert json.dumps(on_disk["limits"]) == (
+        '{"min_density": 2.0, "min_ground_ratio": 0.05, "edge_margin_m": 2.0, "min_tower_prob": 0.6, '
+        '"min_wire_support": 0.5, "wire_min_height": 20.0, "max_gate_ratio": 0.25, "min_recall": 1.0, '
+        '"min_precision": 1.0, "min_truth_points": 20}'
+    )
     assert doc["summary"].startswith("2 towers found")
     for text in ("40006004600060", "tile t3: 2 holes filled", "Accuracy against", "peak memory (MB)"):
         assert text in page
@@ -160,6 +167,7 @@ def test_block_flags(tmp_path):
         BlockInputs(
             block_name="b", block_bounds=BOUNDS, tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts
         ),
+        qa_limits(),
     )
     codes = {f["code"] for f in doc["flags"]}
     assert {"ground_classified", "low_density", "many_windows_gated", "tower"} <= codes
@@ -180,6 +188,7 @@ def test_tower_whose_ring_is_outside_the_data_is_flagged(tmp_path):
         BlockInputs(
             block_name="b", block_bounds=BOUNDS, tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts
         ),
+        qa_limits(),
     )
     tall = [t for t in doc["towers"] if t["height_m"] >= 20]
     assert tall and all(any("outside the data" in f for f in t["flags"]) for t in tall)
@@ -221,6 +230,7 @@ def test_clean_block_is_ok_and_uses_raster(tmp_path):
             classified=no_hag,
             raster=tif,
         ),
+        qa_limits(),
     )
     assert doc["status"] == "ok" and doc["flags"] == []
     assert doc["summary"] == "2 towers found; nothing to check."
@@ -250,6 +260,7 @@ def test_block_report_from_files_and_no_towers(tmp_path):
         tmp_path / "b.html",
         tmp_path / "b.json",
         BlockInputs(block_name="b", towers=gpkg, classified=tmp_path / "b.laz"),
+        qa_limits(),
     )
     assert doc["n_towers"] == 0 and doc["summary"].startswith("0 towers found")
     assert "No towers in this block" in (tmp_path / "b.html").read_text()
@@ -275,6 +286,7 @@ def test_zone_index(tmp_path):
             towers=towers_of(make_block()),
             classified=make_block(),
         ),
+        qa_limits(),
     )
     tiles2, preds2 = metas(ground_source="smrf")
     look = block_report(
@@ -288,6 +300,7 @@ def test_zone_index(tmp_path):
             pred_metas=preds2,
             classified=make_block(towers_at=()),
         ),
+        qa_limits(),
     )
     assert (ok["status"], look["status"]) == ("ok", "look")
     doc = zone_index(
@@ -328,7 +341,7 @@ def test_edge_tower_reported_by_the_neighbour_counts_as_found(tmp_path):
         classified=pts,
         truth=truth,
     )
-    alone = block_report(tmp_path / "a.html", tmp_path / "a.json", BlockInputs(**kw))
+    alone = block_report(tmp_path / "a.html", tmp_path / "a.json", BlockInputs(**kw), qa_limits())
     assert alone["accuracy"]["recall"] == 0.5 and alone["status"] == "look"
     full_tower = tower(X0 + SIZE - 0.5, Y0 + 100)
     import shapely
@@ -340,7 +353,7 @@ def test_edge_tower_reported_by_the_neighbour_counts_as_found(tmp_path):
             "blocks": "b1,b2",
         }
     ]
-    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", BlockInputs(neighbour_towers=nb, **kw))
+    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", BlockInputs(neighbour_towers=nb, **kw), qa_limits())
     acc = doc["accuracy"]
     assert acc["recall"] == 1.0 and acc["precision"] == 1.0 and acc["fn"] == 0
     assert any(m.get("owner") == "neighbour" for m in acc["matches"])
@@ -373,6 +386,7 @@ def test_seam_tower_handled_whole_is_not_flagged(tmp_path):
             classified=pts,
             data_bounds=[BOUNDS, east],
         ),
+        qa_limits(),
     )
     t = doc["towers"][0]
     assert t["edge_distance_m"] == pytest.approx(0.5, abs=0.2)
@@ -396,6 +410,7 @@ def test_tower_at_the_zone_edge_or_a_failed_neighbour_is_flagged(tmp_path):
             classified=pts,
             data_bounds=[BOUNDS],
         ),
+        qa_limits(),
     )
     t = doc["towers"][0]
     assert t["data_edge_m"] == 0.0
@@ -418,7 +433,7 @@ def test_data_edge_joins_adjoining_blocks_without_a_slit():
 def test_side_views_see_a_seam_tower_whole(tmp_path):
     from towerpipe.io.members import save_members
     from towerpipe.io.tiles import Tile, empty_arrays, save_tile
-    from towerpipe.products.qa.block import tower_neighbourhoods
+    from towerpipe.products.qa.neighbourhoods import tower_neighbourhoods
 
     pts, gdf, _ = seam_setup()
     tid = gdf["tower_id"].iloc[0]
@@ -457,6 +472,7 @@ def test_side_views_see_a_seam_tower_whole(tmp_path):
             classified=pts,
             neighbourhoods=hoods,
         ),
+        qa_limits(),
     )
     page = (tmp_path / "b.html").read_text()
     assert 'id="tower-1"' in page and 'href="#tower-1"' in page and "Side views" in page
@@ -486,6 +502,7 @@ def test_sensor_attributes_and_model_choice(tmp_path):
             classified=make_block(towers_at=()),
             stats=summary,
         ),
+        qa_limits(),
     )
     assert {
         "code": "degenerate_attributes",
@@ -512,6 +529,7 @@ def test_page_of_an_older_run_without_attributes_or_choice(tmp_path):
             pred_metas=preds,
             classified=make_block(towers_at=()),
         ),
+        qa_limits(),
     )
     page = (tmp_path / "b.html").read_text()
     assert doc["attributes"] == {} and "Sensor attributes" not in page and "Model used and why" not in page
@@ -529,6 +547,7 @@ def test_block_page_links_to_index_and_products(tmp_path):
             pred_metas=preds,
             classified=make_block(towers_at=()),
         ),
+        qa_limits(),
     )
     page = (tmp_path / "qa" / "b1.html").read_text()
     for href in ("index.html", "../blocks/b1.laz", "../towers/b1.gpkg", "../towers.gpkg"):
@@ -557,6 +576,7 @@ def test_zone_index_map_with_lines_and_failed_block(tmp_path):
             towers=towers_of(pts),
             classified=pts,
         ),
+        qa_limits(),
     )
     gpkg = write_towers_gpkg(tmp_path / "towers.gpkg", towers_of(pts), crs_wkt="EPSG:25831")
     line = shapely.LineString([(X0 + 60, Y0 + 60), (X0 + 150, Y0 + 120)])

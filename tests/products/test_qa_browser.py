@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from test_qa import BOUNDS, SIZE, X0, Y0, make_block, metas, towers_of
 
+from conftest import qa_limits
 from towerpipe.products.qa.block import BlockInputs, block_report
 from towerpipe.products.qa.browser import PAGE_WIDTH, Browser, find_chromium
 from towerpipe.products.qa.index import zone_index
@@ -65,6 +66,7 @@ def pages(tmp_path_factory):
             neighbourhoods=hood,
             timings={"infer_tile": 12.5},
         ),
+        qa_limits(),
     )
     index = zone_index(
         qa / "index.html",

@@ -2,7 +2,7 @@
 #
 # Snakemake deletes a directory() output before rerunning its rule, which would leave no
 # results/<zone>/ while the zone is rebuilt (and only a half-built one after a kill). So the
-# assembly's output is a manifest; towerpipe.jobs.steps.zone_step builds the zone in
+# assembly's output is a manifest; towerpipe.jobs.zone.zone_step builds the zone in
 # work/<zone>/published/ and swaps results/<zone>/ in atomically (never deleting it first).
 # zone_results only recreates results/<zone>/ when it is missing (its input is ancient).
 rule assemble_zone:

@@ -1,5 +1,5 @@
 from towerpipe.jobs.smk import run_step
-from towerpipe.jobs.steps import zone_step
+from towerpipe.jobs.zone import zone_step
 
 p = snakemake.params
 run_step(

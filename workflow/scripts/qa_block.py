@@ -1,5 +1,6 @@
 from towerpipe.jobs.smk import run_step
 from towerpipe.jobs.steps import qa_step
+from towerpipe.products.qa.metrics import Limits
 
 i = snakemake.input
 run_step(
@@ -13,6 +14,7 @@ run_step(
         pred_files=i.preds,
         towers_gpkg=i.towers,
         threshold=snakemake.params.threshold,
+        limits=Limits.from_config({"qa": snakemake.params.qa, "towers": snakemake.params.towers}),
         dtm_files=i.dtms,
         benchmarks=snakemake.params.benchmarks,
         out_html=snakemake.output.html,

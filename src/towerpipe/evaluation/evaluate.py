@@ -141,7 +141,7 @@ def evaluate_zone(
         the tower figures, and a prediction matching one is not counted as false: the
         paper drops towers under 20 points from its data. 0 evaluates every tower.
     """
-    from towerpipe.products.gpkg import read_towers
+    from towerpipe.products.gpkg_read import read_towers
     from towerpipe.towers.matching import match_towers
 
     input_dir, results_dir = Path(input_dir), Path(results_dir)

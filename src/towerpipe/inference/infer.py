@@ -11,17 +11,18 @@ segmented windows that contain it are combined with ``max`` (default) or ``mean`
 A point that no segmented window contains has probability 0 and is not written.
 
 With ``tta`` > 1 each segmented window also goes through the segmenter turned about its
-centre (:func:`segment_views`); two probabilities are written per point: the window as
-it is (``prob_single``, on which towers are found) and the mean over the views
-(``prob``, which picks a tower's points and becomes ``TowerProbability``).
+centre (:func:`towerpipe.inference.views.segment_views`); two probabilities are written
+per point: the window as it is (``prob_single``, on which towers are found) and the mean
+over the views (``prob``, which picks a tower's points and becomes ``TowerProbability``).
 
 Only the tile's **core** points are written (each point of a zone lies in exactly one
 tile core); buffer points give context to the windows that reach into them.
 
 Determinism
     Each window's sampler draws from its own generator seeded from ``seed`` and the
-    window's *global* grid indices (:mod:`towerpipe.inference.windows`), and a window's points
-    are listed in canonical ``(block_id, point_index)`` order. The result therefore
+    window's *global* grid indices (:mod:`towerpipe.inference.windows`,
+    :mod:`towerpipe.inference.candidates`), and a window's points are listed in canonical
+    ``(block_id, point_index)`` order. The result therefore
     depends neither on the order in which windows are processed, nor on the batch
     size, nor on how the tile stores its points; a window seen by two neighbouring
     tiles gets identical inputs in both.
@@ -35,108 +36,29 @@ Memory
 
 from __future__ import annotations
 
-import hashlib
 import os
 import time
 from collections.abc import Mapping
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
 from towerpipe import classes
 from towerpipe.config import InferenceConfig
 from towerpipe.errors import ConfigError, ModelError
-from towerpipe.inference.windows import CandidateWindows, TileWindows, candidate_windows, sliding_windows
+from towerpipe.inference.candidates import CandidateWindows, candidate_windows
+from towerpipe.inference.compat import BundleLike, check_model_compatibility, model_info
+from towerpipe.inference.views import check_views, segment_views
+from towerpipe.inference.windows import TileWindows, sliding_windows
 from towerpipe.io.predictions import save_pred
 from towerpipe.io.tiles import Tile, load_tile
 from towerpipe.progress import Progress, peak_rss_mb
 
-__all__ = [
-    "TTA_CHOICES",
-    "BundleLike",
-    "check_model_compatibility",
-    "infer_tile",
-    "predict_tile",
-    "segment_views",
-    "window_rng",
-]
+__all__ = ["infer_tile", "predict_tile", "window_rng"]
 
 _COMBINE = ("max", "mean")
 #: How a tile's windows are laid: centred on height peaks, or the paper's sliding grid.
 WINDOW_MODES = ("candidates", "grid")
-#: test-time views of a window's plan, in the order they are added: the window as it is,
-#: the half turn, the quarter turns, then the mirror images (x -> -x etc.). Each is the
-#: matrix (a, b, c, d): x' = a x + b y, y' = c x + d y, on the first two feature columns.
-_TTA_VIEWS = (
-    (1, 0, 0, 1),
-    (-1, 0, 0, -1),
-    (0, -1, 1, 0),
-    (0, 1, -1, 0),
-    (-1, 0, 0, 1),
-    (0, 1, 1, 0),
-    (1, 0, 0, -1),
-    (0, -1, -1, 0),
-)
-TTA_CHOICES = (1, 2, 4, 8)
-
-
-def _check_views(views: int) -> None:
-    if views not in TTA_CHOICES:
-        raise ConfigError(f"inference.tta must be one of {TTA_CHOICES}, got {views!r}")
-
-
-class BundleLike(Protocol):
-    """The part of :class:`towerpipe.model.bundle.ModelBundle` inference uses."""
-
-    name: str
-    version: str
-    feature_set: str
-    card: dict[str, Any]
-    n_points: int
-
-    def classify(self, feats: np.ndarray) -> np.ndarray: ...  # (B, n, C) -> (B,)
-
-    def segment(self, feats: np.ndarray) -> np.ndarray: ...  # (N, C) -> (N,)
-
-
-def segment_views(bundle: BundleLike, feats: np.ndarray, views: int) -> tuple[np.ndarray, np.ndarray]:
-    """Segmenter probability of each point: the window as it is, and the mean over ``views`` views.
-
-    2 and 4 views add the window turned by 180 and by 90 / 270 degrees about its centre,
-    8 adds their mirror images. The views are exact (the plan coordinates are permuted
-    and negated, no resampling). A tower looks like a tower from every side; a crown
-    that the segmenter paints in one view seldom scores as high in all of them, so the
-    mean trims the uncertain edge of a tower. It also lowers the whole of a tower the
-    segmenter is unsure of, which is why towers are found on the single view
-    (:mod:`towerpipe.towers.extract`) and only their points are chosen on the mean.
-
-    Parameters
-    ----------
-    bundle
-        The model (its ``segment``).
-    feats
-        ``(N, C)`` float32 features of one window; columns 0 and 1 are the plan
-        coordinates relative to the window centre.
-    views
-        One of :data:`TTA_CHOICES`; 1 is the plain segmenter.
-
-    Returns
-    -------
-    single, mean
-        ``(N,)`` float32 probabilities (the same array when ``views`` is 1).
-    """
-    _check_views(views)
-    single = np.asarray(bundle.segment(feats), dtype=np.float32).reshape(-1)
-    if views == 1:
-        return single, single
-    acc = single.copy()
-    xy = np.array(feats[:, :2], dtype=np.float32)
-    f = np.array(feats, dtype=np.float32)
-    for a, b, c, d in _TTA_VIEWS[1:views]:
-        f[:, 0] = a * xy[:, 0] + b * xy[:, 1]
-        f[:, 1] = c * xy[:, 0] + d * xy[:, 1]
-        acc += np.asarray(bundle.segment(f), dtype=np.float32).reshape(-1)
-    return single, acc / np.float32(views)
 
 
 def window_rng(seed: int, kx: int, ky: int) -> np.random.Generator:
@@ -144,51 +66,6 @@ def window_rng(seed: int, kx: int, ky: int) -> np.random.Generator:
     return np.random.default_rng(
         np.random.SeedSequence([int(seed) & 0xFFFFFFFF, int(kx) & 0xFFFFFFFF, int(ky) & 0xFFFFFFFF])
     )
-
-
-def check_model_compatibility(tile_meta: Mapping[str, Any], bundle: BundleLike) -> None:
-    """Raise :class:`ModelError` when the tile lacks valid attributes the model's features need.
-
-    Parameters
-    ----------
-    tile_meta
-        Tile metadata (``valid_attributes``, ``tile``, ``block``).
-    bundle
-        The model bundle (its ``feature_set`` decides the needed attributes).
-
-    Raises
-    ------
-    ModelError
-        Naming the missing attributes, the model, and the config key that chooses a model.
-    """
-    from towerpipe.model import features
-
-    try:
-        missing = features.missing_attributes(bundle.feature_set, tile_meta)
-    except ModelError as exc:
-        raise ModelError(f"model {bundle.name!r} v{bundle.version}: {exc}") from exc
-    if missing:
-        where = f"block {tile_meta.get('block', '?')!r} tile {tile_meta.get('tile', '?')!r}"
-        raise ModelError(
-            f"{where} has no valid {', '.join(missing)} but model {bundle.name!r} v{bundle.version} "
-            f"(feature set {bundle.feature_set!r}) needs {', '.join(features.required_attributes(bundle.feature_set))}; "
-            f"set `inference: {{model: auto}}` (or the zone's `model: auto`) to use a model these data support"
-        )
-
-
-def _model_info(bundle: BundleLike, model_path: str | os.PathLike[str] | None) -> dict[str, Any]:
-    path = model_path if model_path is not None else getattr(bundle, "path", None)
-    files = (bundle.card or {}).get("files") if isinstance(getattr(bundle, "card", None), Mapping) else None
-    sha = None
-    if isinstance(files, Mapping) and files:
-        sha = hashlib.sha256("".join(f"{k}:{files[k]}" for k in sorted(files)).encode()).hexdigest()
-    return {
-        "name": bundle.name,
-        "version": str(bundle.version),
-        "feature_set": bundle.feature_set,
-        "path": None if path is None else str(path),
-        "sha256": sha,
-    }
 
 
 def _classified_wire(arrays: Mapping[str, np.ndarray], idx: np.ndarray) -> np.ndarray:
@@ -227,7 +104,7 @@ def predict_tile(
 
     ``settings.windows``: ``"grid"`` slides windows on a ``stride`` grid and skips those whose
     highest point is below ``min_height`` (the paper's); ``"candidates"`` centres one window
-    on each height peak of at least ``min_height`` (:func:`towerpipe.inference.windows.candidate_windows`).
+    on each height peak of at least ``min_height`` (:func:`towerpipe.inference.candidates.candidate_windows`).
 
     Returns
     -------
@@ -268,7 +145,7 @@ def predict_tile(
         raise ConfigError(f"infer.gate must be in [0, 1], got {gate}")
     if batch_size < 1:
         raise ConfigError(f"infer.batch_size must be >= 1, got {batch_size}")
-    _check_views(tta)  # before the classifier pass, not at the first segmented window
+    check_views(tta)  # before the classifier pass, not at the first segmented window
     if np.asarray(tile.arrays["model_input"], dtype=bool).any():  # nothing to predict needs no features
         check_model_compatibility(tile.meta, bundle)
     timings: dict[str, float] = {}
@@ -453,7 +330,7 @@ def infer_tile(
           point is below this HAG (m) are background without a classifier pass. Transmission
           towers are 14-58 m tall, so 10 m loses no tower and skips open land and low
           vegetation at no model cost. ``None``: every window is classified;
-        - ``tta``: views of each segmented window averaged (:func:`segment_views`): 1, 2, 4 or 8;
+        - ``tta``: views of each segmented window averaged (:func:`towerpipe.inference.views.segment_views`): 1, 2, 4 or 8;
         - ``windows``: ``"candidates"`` (windows centred on height peaks) or ``"grid"``
           (:func:`predict_tile`).
     seed
@@ -498,7 +375,7 @@ def infer_tile(
     arrays, stats = predict_tile(tile, bundle, settings, seed=seed)
     timings = {"load_model": t_model, "load_tile": t_load, **stats.pop("timings")}
     meta = {k: tile.meta.get(k) for k in ("zone", "block", "tile", "blocks", "crs_wkt", "core_bounds")}
-    meta["model"] = _model_info(bundle, model_path)
+    meta["model"] = model_info(bundle, model_path)
     if choice is not None:
         meta["model"]["choice"] = {k: choice.get(k) for k in ("mode", "key", "reason", "valid_attributes")}
     meta.update(stats)

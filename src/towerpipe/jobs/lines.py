@@ -1,7 +1,7 @@
 """``towerpipe lines``: the lines through several published zones, written to one GeoPackage.
 
 The lines themselves are :func:`towerpipe.towers.lines.build_lines`; here the zones' per-block
-GeoPackages are assembled as a zone's are (:func:`towerpipe.jobs.steps.zone_towers`) and written.
+GeoPackages are assembled as a zone's are (:func:`towerpipe.jobs.zone.zone_towers`) and written.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def lines_across_zones(zone_dirs: list[str | Path], out_path: str | Path) -> dic
     from datetime import datetime
 
     from towerpipe.errors import InputError
-    from towerpipe.jobs.steps import zone_towers
+    from towerpipe.jobs.zone import zone_towers
     from towerpipe.products.gpkg import write_towers_gpkg
     from towerpipe.towers.registry import empty_registry
 

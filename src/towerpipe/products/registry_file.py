@@ -15,7 +15,8 @@ import pandas as pd
 
 from towerpipe.errors import InputError
 from towerpipe.io.fields import conform
-from towerpipe.products.gpkg import LAYER_TOWERS, LAYER_VANISHED, Layer, list_layers, read_towers, write_gpkg
+from towerpipe.products.gpkg import LAYER_TOWERS, LAYER_VANISHED, Layer, write_gpkg
+from towerpipe.products.gpkg_read import list_layers, read_towers
 from towerpipe.towers.registry import (
     ACTIVE,
     REGISTRY_FIELDS,

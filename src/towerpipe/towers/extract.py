@@ -3,7 +3,7 @@ record per tower (set by the config's ``towers`` section, :class:`towerpipe.conf
 
 The segmenter gives every point a tower probability, from the window as it is
 (``prob_single``) and averaged over several views of it (``prob``, see
-:func:`towerpipe.inference.infer.segment_views`). :func:`extract_towers` turns the points of one
+:func:`towerpipe.inference.views.segment_views`). :func:`extract_towers` turns the points of one
 block *and its neighbours* with ``prob_single >= threshold`` into towers (a tower the
 segmenter is unsure of in some views is still found), and a tower's points are those of
 its cluster with ``prob >= point_threshold`` (a crown painted in one view is left out):

@@ -18,7 +18,7 @@ For each tile (``towerpipe.io.tiles``) only the ``model_input`` points are used:
   at least half a window apart (mostly trees and wires: what the height pre-filter
   sends to the classifier). A candidate holding a tower is rejected. With
   ``peak_negatives_per_tile``, more tall negatives are centred on the tile's height peaks,
-  where candidate windows (:func:`towerpipe.inference.windows.candidate_windows`) put them at inference.
+  where candidate windows (:func:`towerpipe.inference.candidates.candidate_windows`) put them at inference.
 
 Variety aimed at real flights (``density_range``, ``occlusion``): each window is thinned
 to its own density, drawn log-uniformly in ``density_range`` (pts/m², all returns; a
@@ -60,7 +60,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from towerpipe.errors import ConfigError
-from towerpipe.inference.windows import height_peaks
+from towerpipe.inference.candidates import height_peaks
 from towerpipe.io.columns import read_meta
 from towerpipe.io.tiles import load_tile
 from towerpipe.model.features import ALL_FEATURES, compute_columns, tile_feature_meta

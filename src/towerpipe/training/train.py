@@ -17,8 +17,9 @@ attribute group) so that no model collapses when a column carries nothing.
 ``exclude_families`` leaves the windows of some real tower families out of every split
 (the leave-one-source-out benchmark).
 
-Window and point scores are in :mod:`towerpipe.training.metrics`, the ``towerpipe train``
-command in :mod:`towerpipe.training.cli`. Entry points take plain paths and dicts::
+Window and point scores are in :mod:`towerpipe.training.metrics`, the model card and loss
+curves in :mod:`towerpipe.training.card`, the ``towerpipe train`` command in
+:mod:`towerpipe.training.cli`. Entry points take plain paths and dicts::
 
     from towerpipe.training.train import train_bundle
     train_bundle(["work/train/tiles/b1/t1.npz", ...], "results/models/towerpipe-full-v2", "full",
@@ -44,12 +45,13 @@ import torch
 
 from towerpipe.errors import ConfigError
 from towerpipe.model.bundle import load_bundle, save_bundle
-from towerpipe.model.cards import BUNDLE_VERSION, MODEL_RELEASES
-from towerpipe.model.features import FEATURE_SETS, normalisation_spec, required_attributes
+from towerpipe.model.cards import MODEL_RELEASES
+from towerpipe.model.features import FEATURE_SETS, required_attributes
 from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter, build_model, count_parameters
 from towerpipe.progress import peak_rss_mb
 from towerpipe.training.augment import augment_geometry, corrupt_attributes
-from towerpipe.training.dataset import DEFAULT_DATASET_CONFIG, load_or_build
+from towerpipe.training.card import make_card, save_curves
+from towerpipe.training.dataset import load_or_build
 from towerpipe.training.losses import class_balanced_weights, feature_transform_regulariser, weighted_nll
 from towerpipe.training.metrics import classification_metrics, predict_windows, segment_windows_metrics
 from towerpipe.training.windowset import FAMILY_BITS, KINDS, WindowSet
@@ -277,22 +279,6 @@ def _initial(kind: str, cfg: Mapping[str, Any], n_features: int) -> torch.nn.Mod
     return net
 
 
-def init_record(init_from: str | os.PathLike[str] | None) -> dict[str, Any] | None:
-    """What a warm-started bundle started from: name, version and weight hashes of ``init_from``."""
-    if not init_from:
-        return None
-    from towerpipe.model import cards as modelcard
-
-    card = modelcard.read_card(init_from)
-    return {
-        "path": str(init_from),
-        "name": card.get("name"),
-        "version": card.get("version"),
-        "files_sha256": card.get("files"),
-        "config_hash": card.get("config_hash"),
-    }
-
-
 def train_classifier(
     windows: WindowSet, config: Mapping[str, Any] | None = None
 ) -> tuple[PointNetClassifier, list[dict[str, float]], dict[str, Any]]:
@@ -376,86 +362,6 @@ def train_segmenter(
     return model, history, metrics
 
 
-def save_curves(history: Sequence[Mapping[str, float]], path: str | os.PathLike[str], title: str) -> Path:
-    """Plot train/validation loss and learning rate per epoch to a PNG (matplotlib Agg)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    ep = [h["epoch"] for h in history]
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    ax.plot(ep, [h["train_loss"] for h in history], "o-", label="train loss")
-    ax.plot(ep, [h["val_loss"] for h in history], "s-", label="validation loss")
-    ax.set_xlabel("epoch")
-    ax.set_ylabel("weighted NLL")
-    ax.set_title(title)
-    ax2 = ax.twinx()
-    ax2.plot(ep, [h["lr"] for h in history], ":", color="grey", label="learning rate")
-    ax2.set_ylabel("learning rate")
-    ax.legend(loc="upper right")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
-
-
-def make_card(
-    feature_set: str,
-    windows: WindowSet,
-    config: Mapping[str, Any],
-    clf_metrics: Mapping[str, Any],
-    seg_metrics: Mapping[str, Any],
-    name: str | None = None,
-    version: str | None = None,
-) -> dict[str, Any]:
-    """The model card of a trained bundle (see :mod:`towerpipe.model.cards`).
-
-    ``version`` defaults to the shipped release of ``feature_set``
-    (:data:`towerpipe.model.cards.MODEL_RELEASES`).
-    """
-    from towerpipe.model import cards as modelcard
-
-    dcfg = windows.meta.get("config", DEFAULT_DATASET_CONFIG)
-    full_config = {"train": dict(config), "dataset": dcfg}
-    return {
-        "name": name or f"towerpipe-{feature_set}",
-        "version": str(version or MODEL_RELEASES[feature_set]),
-        "bundle_version": BUNDLE_VERSION,
-        "feature_set": feature_set,
-        "features": FEATURE_SETS[feature_set],
-        "architecture": {
-            "arch": config["arch"],
-            "classifier_parameters": clf_metrics.get("parameters"),
-            "segmenter_parameters": seg_metrics.get("parameters"),
-        },
-        "normalisation": normalisation_spec(),
-        "sampling": {
-            "n_points": windows.n_points,
-            "training": config["sampling"],
-            "bands_m": dcfg.get("bands"),
-            "padding": "all points once + uniform draws with replacement",
-            "inference_classifier": "constrained sample of n_points",
-            "inference_segmenter": "all points of the window",
-        },
-        "training_data": {
-            "tiles": windows.meta.get("tiles", []),
-            "blocks_split": windows.meta.get("split", {}),
-            "towers": windows.meta.get("towers"),
-            "summary": windows.meta.get("summary"),
-            "has_rgb": windows.meta.get("has_rgb"),
-            "has_nir": windows.meta.get("has_nir"),
-        },
-        "metrics": {"classifier": dict(clf_metrics), "segmenter": dict(seg_metrics)},
-        "init_from": init_record(config.get("init_from")),
-        "code": modelcard.code_version(),
-        "config_hash": modelcard.config_hash(full_config),
-        "config": full_config,
-        "created_unix": int(time.time()),
-    }
-
-
 def train_bundle(
     dataset_paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str],
     out_dir: str | os.PathLike[str],
@@ -523,35 +429,3 @@ def _bundle_name(dirname: str) -> str | None:
     """``towerpipe-shape-v3-without-uav`` -> ``towerpipe-shape-without-uav``; ``None`` for the default name."""
     m = re.match(r"^(.*)-v\d+(-without-[a-z0-9]+)?$", dirname)
     return f"{m.group(1)}{m.group(2) or ''}" if m else None
-
-
-def time_batch(
-    kind: str = "classifier",
-    arch: str = "light",
-    feature_set: str = "full",
-    n_points: int = 2048,
-    batch_size: int = 32,
-    repeats: int = 3,
-    threads: int = 2,
-) -> float:
-    """Median seconds of one training step (forward + backward + Adam) on random data, on CPU.
-
-    Use it to size epochs to a time budget: ``epochs * ceil(windows / batch_size) * time_batch()``.
-    """
-    torch.set_num_threads(threads)
-    torch.manual_seed(0)
-    c = len(FEATURE_SETS[feature_set])
-    model = (PointNetClassifier if kind == "classifier" else PointNetSegmenter)(c, arch)
-    opt = torch.optim.Adam(model.parameters(), lr=1e-3)
-    x = torch.rand(batch_size, n_points, c) - 0.5
-    y = torch.randint(0, 2, (batch_size,) if kind == "classifier" else (batch_size, n_points))
-    times = []
-    for _ in range(repeats + 1):
-        t = time.perf_counter()
-        logp, t_feat = model(x)
-        loss = weighted_nll(logp, y, None) + 0.001 * feature_transform_regulariser(t_feat)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times[1:]))

@@ -1,4 +1,4 @@
-"""The QA page of one block: :func:`block_report`, and the points around its towers.
+"""The QA page of one block: :func:`block_report`.
 
 :func:`block_report` gathers the numbers of one block (points per stage, ground,
 density, HAG, windows, towers, timings and memory, sensor attributes, accuracy against
@@ -46,83 +46,6 @@ from towerpipe.products.qa.plots import block_map, density_map, hag_histogram, m
 from towerpipe.progress import Progress
 
 log = logging.getLogger(__name__)
-
-#: Half-width (m) of the square around a tower shown in its side views, at least.
-VIEW_RADIUS_M = 30.0
-
-
-def tower_neighbourhoods(
-    tile_files: Sequence[str | os.PathLike[str]],
-    member_files: Sequence[str | os.PathLike[str]],
-    towers: Any,
-    radius: float = VIEW_RADIUS_M,
-) -> dict[str, dict[str, np.ndarray]]:
-    """The points around each tower, for its side views.
-
-    Parameters
-    ----------
-    tile_files
-        The block's tile files: core and buffer, so a tower across a block edge is seen
-        whole (its neighbour's points are in the buffer).
-    member_files
-        Tower-points files (:func:`towerpipe.io.members.save_members`): which points are the
-        towers' own (the points the merge classifies 15).
-    towers
-        The block's towers (GeoDataFrame with ``tower_id``, ``centroid_x``, ``centroid_y``).
-    radius
-        Half-width of the square around each tower's centroid (grown to hold the whole
-        footprint and 15 m around it).
-
-    Returns
-    -------
-    dict
-        ``tower_id`` → ``x, y, z`` (float64) and ``tower`` (bool) of the points in its square.
-    """
-    from towerpipe.io.columns import load_columns
-    from towerpipe.io.members import MEMBER_ARRAYS
-    from towerpipe.io.tiles import load_tile
-
-    if not len(towers):
-        return {}
-    member_keys: set[tuple[str, int]] = set()
-    for p in member_files:
-        arrays, meta = load_columns(p, list(MEMBER_ARRAYS), "tower-points", "rerun the towers_block job")
-        names = list(meta.get("blocks") or [])
-        member_keys.update(zip((names[i] for i in arrays["block_id"].tolist()), arrays["point_index"].tolist()))
-    boxes = {}
-    for r in towers.itertuples(index=False):
-        b = r.geometry.bounds
-        half = max(radius, 0.5 * max(b[2] - b[0], b[3] - b[1]) + 15.0)
-        boxes[r.tower_id] = (r.centroid_x - half, r.centroid_y - half, r.centroid_x + half, r.centroid_y + half)
-    parts: dict[str, list[dict[str, np.ndarray]]] = {t: [] for t in boxes}
-    seen: dict[str, set[tuple[int, int]]] = {t: set() for t in boxes}
-    for path in tile_files:
-        tile = load_tile(path, ["x", "y", "z", "block_id", "point_index"])
-        names = list(tile.meta.get("blocks") or [])
-        x, y = tile.arrays["x"], tile.arrays["y"]
-        for tid, (x0, y0, x1, y1) in boxes.items():
-            sel = np.flatnonzero((x >= x0) & (x < x1) & (y >= y0) & (y < y1))
-            if not sel.size:
-                continue
-            bid, pidx = tile.arrays["block_id"][sel], tile.arrays["point_index"][sel]
-            # a buffer point is in several tiles: keep each (block, point) once
-            keys = list(zip((names[i] for i in bid.tolist()), pidx.tolist()))
-            fresh = np.array([k not in seen[tid] for k in keys], dtype=bool)
-            seen[tid].update(keys)
-            sel = sel[fresh]
-            parts[tid].append(
-                {
-                    "x": x[sel],
-                    "y": y[sel],
-                    "z": tile.arrays["z"][sel],
-                    "tower": np.array([k in member_keys for k, f in zip(keys, fresh) if f], dtype=bool),
-                }
-            )
-    out = {}
-    for tid, ps in parts.items():
-        if ps:
-            out[tid] = {k: np.concatenate([p[k] for p in ps]) for k in ("x", "y", "z", "tower")}
-    return out
 
 
 def _links(block: str) -> list[dict[str, str]]:
@@ -200,7 +123,8 @@ class BlockInputs:
         the block alone). A tower across a seam between blocks that both gave points
         is whole and is not flagged.
     neighbourhoods
-        ``tower_id`` → the points around the tower (:func:`tower_neighbourhoods`): two
+        ``tower_id`` → the points around the tower
+        (:func:`towerpipe.products.qa.neighbourhoods.tower_neighbourhoods`): two
         side views per tower.
     """
 
@@ -222,7 +146,10 @@ class BlockInputs:
 
 
 def block_report(
-    out_html: str | os.PathLike[str], out_json: str | os.PathLike[str], inputs: BlockInputs, limits: Limits | None = None
+    out_html: str | os.PathLike[str],
+    out_json: str | os.PathLike[str],
+    inputs: BlockInputs,
+    limits: Limits,
 ) -> dict[str, Any]:
     """Write the QA page and its JSON for one block.
 
@@ -233,7 +160,7 @@ def block_report(
     inputs
         The block's numbers, towers and points.
     limits
-        What flags the block or a tower for a look.
+        What flags the block or a tower for a look (:meth:`Limits.from_config`).
 
     Returns
     -------

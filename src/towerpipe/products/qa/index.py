@@ -33,7 +33,7 @@ def _gpkg_lines(gpkg: str | os.PathLike[str] | None) -> list[np.ndarray]:
 
     import shapely
 
-    from towerpipe.products.gpkg import read_towers
+    from towerpipe.products.gpkg_read import read_towers
 
     with sqlite3.connect(f"file:{Path(gpkg).resolve()}?mode=ro", uri=True) as db:
         has = db.execute("SELECT 1 FROM gpkg_contents WHERE table_name = ?", (LINES_LAYER,)).fetchone()

@@ -9,9 +9,9 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -21,18 +21,51 @@ from towerpipe.towers.matching import f1_score, match_towers
 
 @dataclass(frozen=True)
 class Limits:
-    """Limits that flag a block or a tower for a human look (the defaults are the pipeline's)."""
+    """Limits that flag a block or a tower for a human look.
 
-    min_density: float = 2.0  # median points / m² over non-empty cells
-    min_ground_ratio: float = 0.05  # share of points classified ground
-    edge_margin_m: float = 2.0  # tower footprint closer than this to the edge of the data: cut
-    min_tower_prob: float = 0.6  # mean probability of a tower's points
-    min_wire_support: float = 0.5  # conductor support of a tower (a low tower is kept without it)
-    wire_min_height: float = 20.0  # the conductor rule applies from this height (towers.wire_min_height)
-    max_gate_ratio: float = 0.25  # share of windows that passed the classifier gate
-    min_recall: float = 1.0  # tower recall against input labels (when present)
-    min_precision: float = 1.0  # tower precision against input labels (when present)
-    min_truth_points: int = 20  # labelled clusters with fewer points are not towers (paper: < 20 dropped)
+    No defaults here: the schema holds them (the config's ``qa`` section, and three tower
+    rules of its ``towers`` section, :attr:`FROM_TOWERS`); :meth:`from_config` reads a
+    validated config.
+    """
+
+    #: Median points / m² over non-empty cells below this: the block is flagged.
+    min_density: float
+    #: Share of points classified ground below this: the block is flagged.
+    min_ground_ratio: float
+    #: A tower footprint closer than this (m) to the edge of the data may be cut: flagged.
+    edge_margin_m: float
+    #: Mean probability of a tower's points below this: the tower is flagged.
+    min_tower_prob: float
+    #: Conductor support of a tower below this: flagged (``towers.min_wire_support``).
+    min_wire_support: float
+    #: The conductor rule applies from this height (m) (``towers.wire_min_height``).
+    wire_min_height: float
+    #: Share of windows that passed the classifier gate above this: the block is flagged.
+    max_gate_ratio: float
+    #: Tower recall against input labels (when present) below this: the block is flagged.
+    min_recall: float
+    #: Tower precision against input labels (when present) below this: the block is flagged.
+    min_precision: float
+    #: Labelled clusters with fewer points are not towers (``towers.min_points``).
+    min_truth_points: int
+
+    #: The limits that are tower rules: field → key of the config's ``towers`` section.
+    FROM_TOWERS: ClassVar[Mapping[str, str]] = {
+        "min_wire_support": "min_wire_support",
+        "wire_min_height": "wire_min_height",
+        "min_truth_points": "min_points",
+    }
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any]) -> Limits:
+        """The limits of a validated config: its ``qa`` section and :attr:`FROM_TOWERS` of ``towers``."""
+        qa, towers = config["qa"], config["towers"]
+        return cls(
+            **{
+                f.name: towers[cls.FROM_TOWERS[f.name]] if f.name in cls.FROM_TOWERS else qa[f.name]
+                for f in fields(cls)
+            }
+        )
 
 
 #: Header bounds of adjoining blocks meet up to rounding (a block's max is its last point,
@@ -139,7 +172,7 @@ def read_towers(towers: Any) -> Any:
 
         return empty_towers()
     if isinstance(towers, (str, os.PathLike)):
-        from towerpipe.products.gpkg import read_towers as read_gpkg
+        from towerpipe.products.gpkg_read import read_towers as read_gpkg
 
         return read_gpkg(towers)
     return gpd.GeoDataFrame(towers)

@@ -213,7 +213,7 @@ def tower_elevations(hood: Mapping[str, np.ndarray], centre: Sequence[float], ti
     ----------
     hood
         ``x, y, z`` of the points around the tower and ``tower`` (bool: the tower's own
-        points, as classified 15), e.g. from :func:`towerpipe.products.qa.block.tower_neighbourhoods`.
+        points, as classified 15), e.g. from :func:`towerpipe.products.qa.neighbourhoods.tower_neighbourhoods`.
     centre
         The tower's footprint centroid.
     title

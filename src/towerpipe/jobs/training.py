@@ -1,0 +1,22 @@
+"""Publishing a trained model: ``results/models/<name>/`` from its bundle and ablation tables."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+from towerpipe.io.atomic import assemble_directory
+
+
+def model_results_step(bundle_dir: str, ablation_dirs: Sequence[str], out_dir: str) -> Path:
+    """``results/models/<name>/``: checkpoint, card, curves, ``metrics.json`` (+ ablation), atomically."""
+    files = {p.name: str(p) for p in sorted(Path(bundle_dir).iterdir()) if p.is_file()}
+    for d in ablation_dirs:
+        files.update({p.name: str(p) for p in sorted(Path(d).iterdir()) if p.is_file()})
+
+    def build(tmp: Path) -> None:
+        card = json.loads((Path(bundle_dir) / "model_card.json").read_text())
+        (tmp / "metrics.json").write_text(json.dumps(card.get("metrics", {}), indent=1))
+
+    return assemble_directory(out_dir, files, build)
