@@ -41,8 +41,8 @@ test: setup slurm lint
 
 # ruff (src, tests, workflow scripts; pyproject.toml), snakefmt (Snakefile and rules), Snakemake's own lint
 lint: setup
-	$(BIN)/ruff check
-	$(BIN)/ruff format --check
+	$(BIN)/ruff check src tests workflow scripts
+	$(BIN)/ruff format --check src tests workflow scripts
 	$(BIN)/snakefmt --check workflow/
 	$(BIN)/snakemake --lint
 
