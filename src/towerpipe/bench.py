@@ -5,6 +5,9 @@ seconds (the machines are shared and noisy)::
 
     python -m towerpipe.bench preprocess            # 1 km², 10 and 20 pts/m²
     python -m towerpipe.bench preprocess --block my.laz --repeat 3
+    python -m towerpipe.bench e2e --repeat 3 --json e2e.json        # raw block -> zone products
+    python -m towerpipe.bench blocks --json blocks.json             # 50 blocks of ~2,000 points
+    python -m towerpipe.bench scale --e2e e2e.json --blocks blocks.json   # a night, on paper
 
 For each block it times ``pdal translate in.laz out.laz`` (LAZ → LAZ, one
 process) and the Snakemake preprocessing of the same block (``--cores 2``,
@@ -64,8 +67,16 @@ def pdal_translate(block: Path, tmp: Path) -> float:
     return dt
 
 
+def _number(value: str | None) -> float:
+    """A benchmark TSV cell as a float (``NA`` or empty: 0)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return 0.0
+
+
 def read_benchmarks(work: Path) -> list[dict]:
-    """Rows of every Snakemake benchmark TSV under ``work`` (rule, job, s, max_rss)."""
+    """Rows of every Snakemake benchmark TSV under ``work`` (rule, job, s, max_rss, I/O in MB, CPU s)."""
     rows = []
     for tsv in sorted(work.rglob("benchmarks/**/*.tsv")):
         with open(tsv) as fh:
@@ -77,6 +88,8 @@ def read_benchmarks(work: Path) -> list[dict]:
                         "job": "/".join(rel[3:]).removesuffix(".tsv"),
                         "s": float(r["s"]),
                         "max_rss_mb": float(r["max_rss"]),
+                        "io_mb": _number(r.get("io_in")) + _number(r.get("io_out")),
+                        "cpu_s": _number(r.get("cpu_time")),
                     }
                 )
     return rows
@@ -86,18 +99,26 @@ def run_workflow(
     block: Path, tmp: Path, *, zone: str, target: str, cores: int = 2, extra_config: dict | None = None
 ) -> tuple[float, list[dict]]:
     """Run Snakemake on a one-block zone in a fresh working directory."""
-    work = tmp / f"work_{zone}"
-    shutil.rmtree(work, ignore_errors=True)
     indir = tmp / f"in_{zone}"
     shutil.rmtree(indir, ignore_errors=True)
     indir.mkdir(parents=True)
     os.link(block, indir / block.name) if block.stat().st_dev == indir.stat().st_dev else shutil.copy(block, indir)
+    return run_zone(
+        indir, tmp, zone=zone, target=target.replace("{block}", block.stem), cores=cores, extra_config=extra_config
+    )
+
+
+def run_zone(
+    indir: Path, tmp: Path, *, zone: str, target: str, cores: int = 2, extra_config: dict | None = None
+) -> tuple[float, list[dict]]:
+    """Run Snakemake on the zone of the blocks in ``indir`` in a fresh working directory."""
+    work = tmp / f"work_{zone}"
+    shutil.rmtree(work, ignore_errors=True)
     cfg = {"zones": {zone: {"input": str(indir)}}, "workdir": str(work)}
     cfg.update(extra_config or {})
     cfg_file = tmp / f"{zone}.yaml"
     cfg_file.write_text(yaml.safe_dump(cfg))
-    name = block.stem
-    tgt = target.format(work=work, zone=zone, block=name)
+    tgt = target.format(work=work, zone=zone)
     dt = time_cmd(
         [
             sys.executable,
@@ -171,11 +192,12 @@ def bench_preprocess(args: argparse.Namespace) -> int:
 
 
 def stage_split(rows: list[dict]) -> dict[str, dict[str, float]]:
-    """Seconds (sum over jobs) and peak RSS (max over jobs) per rule."""
+    """Seconds and I/O (sums over jobs) and peak RSS (max over jobs) per rule."""
     out: dict[str, dict[str, float]] = {}
     for r in rows:
-        d = out.setdefault(r["rule"], {"s": 0.0, "max_rss_mb": 0.0, "jobs": 0})
+        d = out.setdefault(r["rule"], {"s": 0.0, "max_rss_mb": 0.0, "jobs": 0, "io_mb": 0.0})
         d["s"] += r["s"]
+        d["io_mb"] += r.get("io_mb", 0.0)
         d["max_rss_mb"] = max(d["max_rss_mb"], r["max_rss_mb"])
         d["jobs"] += 1
     return out
@@ -244,6 +266,140 @@ def bench_e2e(args: argparse.Namespace) -> int:
     return 0
 
 
+def bench_blocks(args: argparse.Namespace) -> int:
+    """A zone of many small blocks: the fixed cost of a job, whatever its work."""
+    from towerpipe.synth import generate_zone
+
+    tmp = Path(args.workdir or tempfile.mkdtemp(prefix="towerpipe-bench-"))
+    tmp.mkdir(parents=True, exist_ok=True)
+    indir = tmp / "blocks_in"
+    shutil.rmtree(indir, ignore_errors=True)
+    truth = generate_zone(indir, seed=args.seed, blocks=args.blocks, size=args.size, density=args.density)
+    n = sum(b["n_points"] for b in truth.blocks)
+    walls, rows = [], []
+    for r in range(args.repeat):
+        dt, rows = run_zone(
+            indir,
+            tmp,
+            zone=f"blocks{r}",
+            target="results/{zone}/",
+            cores=args.cores,
+            extra_config={"inference": {"model": args.model}},
+        )
+        walls.append(dt)
+        shutil.rmtree(REPO / "results" / f"blocks{r}", ignore_errors=True)
+    job_s = sorted(row["s"] for row in rows)
+    res = {
+        "blocks": args.blocks,
+        "points": n,
+        "cores": args.cores,
+        "wall_s": statistics.median(walls),
+        "wall_runs": walls,
+        "jobs": len(rows),
+        "job_s_sum": sum(job_s),
+        "job_s_median": statistics.median(job_s),
+        "max_rss_mb": max(row["max_rss_mb"] for row in rows),
+        "io_mb_per_block": sum(row["io_mb"] for row in rows) / args.blocks,
+        "stages": stage_split(rows),
+    }
+    res["core_s_per_job"] = res["wall_s"] * args.cores / res["jobs"]
+    res["scheduler_s_per_job"] = max(res["wall_s"] * args.cores - res["job_s_sum"], 0.0) / res["jobs"]
+    print(
+        f"blocks: {args.blocks} blocks, {n:,} points, {res['jobs']} jobs in {res['wall_s']:.1f} s on --cores "
+        f"{args.cores}: {res['core_s_per_job']:.2f} core-s per job (job itself: median {res['job_s_median']:.2f} s; "
+        f"outside the jobs: {res['scheduler_s_per_job']:.2f} core-s per job)"
+    )
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=1))
+    if not args.keep and not args.workdir:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return 0
+
+
+def project(
+    e2e: dict,
+    blocks: dict,
+    *,
+    area_km2: float,
+    block_m: float,
+    nodes: int,
+    node_cores: int,
+    max_jobs: int,
+    submit_per_s: float,
+    e2e_km2: float = 1.0,
+) -> dict:
+    """What ``area_km2`` costs as blocks of ``block_m`` m, from an e2e and a small-blocks benchmark.
+
+    The work of the jobs scales with the points (the area, at the e2e block's density); each job
+    also pays the start-up of a small job (the small-blocks benchmark's median job) and, on one
+    machine, the time Snakemake spends between jobs. On SLURM, concurrency is the smaller of the
+    partition's cores and the profile's ``jobs``, and Snakemake submits ``submit_per_s`` jobs a
+    second at most.
+    """
+    e2e_jobs = sum(d["jobs"] for d in e2e["stages"].values())
+    e2e_s = sum(d["s"] for d in e2e["stages"].values())
+    start_s = blocks["job_s_median"]
+    work_per_km2 = max(e2e_s - e2e_jobs * start_s, 0.0) / e2e_km2
+    share = block_m * block_m / 1e6 / e2e_km2  # of the e2e block's points in one block
+    n_blocks = area_km2 * 1e6 / (block_m * block_m)
+    # a block smaller than the e2e block has the small blocks' jobs; a larger one, the e2e block's per km²
+    jobs = n_blocks * (blocks["jobs"] / blocks["blocks"] if share < 1 else e2e_jobs * share)
+    # memory: a tile job holds at most one tile (<= preprocess.tile_size) and its buffer, so the e2e
+    # block's peak bounds smaller blocks; I/O follows the points
+    rss = max(d["max_rss_mb"] for d in e2e["stages"].values())
+    io = sum(d.get("io_mb", 0.0) for d in e2e["stages"].values()) * share
+    job_core_s = area_km2 * work_per_km2 + jobs * start_s
+    local_core_s = job_core_s + jobs * blocks["scheduler_s_per_job"]
+    concurrency = min(nodes * node_cores, max_jobs)
+    return {
+        "area_km2": area_km2,
+        "block_m": block_m,
+        "blocks": n_blocks,
+        "jobs": jobs,
+        "core_h": job_core_s / 3600,
+        "wall_h_2_cores": local_core_s / 2 / 3600,
+        "wall_h_slurm": max(job_core_s / concurrency, jobs / submit_per_s) / 3600,
+        "slurm_bound": "submission" if jobs / submit_per_s > job_core_s / concurrency else "cores",
+        "peak_rss_mb_per_job": rss,
+        "io_mb_per_block": io,
+    }
+
+
+def bench_scale(args: argparse.Namespace) -> int:
+    """Project a night's area from measured benchmarks (``bench e2e --json``, ``bench blocks --json``)."""
+    e2e = json.loads(Path(args.e2e).read_text())
+    blocks = json.loads(Path(args.blocks).read_text())
+    rows = [
+        project(
+            e2e,
+            blocks,
+            area_km2=args.area,
+            block_m=b,
+            nodes=args.nodes,
+            node_cores=args.node_cores,
+            max_jobs=args.max_jobs,
+            submit_per_s=args.submit_per_s,
+            e2e_km2=args.e2e_km2,
+        )
+        for b in args.block_m
+    ]
+    print(
+        f"| {args.area:,.0f} km² as blocks of | blocks | jobs | core-hours | wall on 2 cores | wall on "
+        f"{args.nodes} × {args.node_cores} cores (jobs ≤ {args.max_jobs}, ≤ {args.submit_per_s:g} submits/s) "
+        "| peak RSS per job | I/O per block |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(
+            f"| {r['block_m']:.0f} m | {r['blocks']:,.0f} | {r['jobs']:,.0f} | {r['core_h']:,.0f} | "
+            f"{r['wall_h_2_cores']:,.1f} h | {r['wall_h_slurm']:,.2f} h ({r['slurm_bound']}-bound) | "
+            f"≤ {r['peak_rss_mb_per_job']:,.0f} MiB | {r['io_mb_per_block']:,.0f} MB |"
+        )
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="benchmarks against a plain `pdal translate` (see towerpipe.bench)")
     bsub = p.add_subparsers(dest="bench", metavar="BENCH", required=True)
@@ -269,6 +425,30 @@ def register(sub: argparse._SubParsersAction) -> None:
     pe.add_argument("--keep", action="store_true")
     pe.add_argument("--json")
     pe.set_defaults(func=bench_e2e)
+    pb = bsub.add_parser("blocks", help="a zone of many small blocks: the fixed cost per job")
+    pb.add_argument("--blocks", type=int, default=50)
+    pb.add_argument("--size", type=float, default=16.0, help="block side (m); 16 m at 8 pts/m² ~ 2,000 points")
+    pb.add_argument("--density", type=float, default=8.0)
+    pb.add_argument("--seed", type=int, default=3)
+    pb.add_argument("--model", default="geometry", help="inference.model for the run")
+    pb.add_argument("--cores", type=int, default=2)
+    pb.add_argument("--repeat", type=int, default=1)
+    pb.add_argument("--workdir")
+    pb.add_argument("--keep", action="store_true")
+    pb.add_argument("--json")
+    pb.set_defaults(func=bench_blocks)
+    ps = bsub.add_parser("scale", help="project a night's area from the e2e and blocks benchmarks' JSON")
+    ps.add_argument("--e2e", required=True, help="JSON of `bench e2e --json`")
+    ps.add_argument("--e2e-km2", type=float, default=1.0, help="area of the e2e block (km²)")
+    ps.add_argument("--blocks", required=True, help="JSON of `bench blocks --json`")
+    ps.add_argument("--area", type=float, default=1000.0, help="km² a night")
+    ps.add_argument("--block-m", type=float, nargs="+", default=[1000.0, 500.0, 250.0], help="block sides (m)")
+    ps.add_argument("--nodes", type=int, default=20)
+    ps.add_argument("--node-cores", type=int, default=32)
+    ps.add_argument("--max-jobs", type=int, default=200, help="the SLURM profile's `jobs`")
+    ps.add_argument("--submit-per-s", type=float, default=10.0, help="jobs Snakemake submits per second")
+    ps.add_argument("--json")
+    ps.set_defaults(func=bench_scale)
 
 
 def main(argv: list[str] | None = None) -> int:
