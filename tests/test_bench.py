@@ -1,0 +1,43 @@
+"""The projection of a night's cost from measured benchmarks (towerpipe.bench.project)."""
+
+from __future__ import annotations
+
+import pytest
+
+from towerpipe.bench import project
+
+E2E = {  # a 1 km² block: 4 tile jobs x 2 rules + 9 others, 100 s of job time
+    "stages": {
+        "infer_tile": {"jobs": 4, "s": 40.0, "max_rss_mb": 700.0, "io_mb": 20.0},
+        "preprocess_tile": {"jobs": 4, "s": 30.0, "max_rss_mb": 600.0, "io_mb": 900.0},
+        "other": {"jobs": 9, "s": 30.0, "max_rss_mb": 850.0, "io_mb": 80.0},
+    }
+}
+BLOCKS = {"blocks": 50, "jobs": 350, "job_s_median": 1.0, "scheduler_s_per_job": 0.5}
+
+
+def _project(block_m):
+    return project(E2E, BLOCKS, area_km2=100.0, block_m=block_m, nodes=2, node_cores=10, max_jobs=200, submit_per_s=5.0)
+
+
+def test_large_blocks_take_the_e2e_jobs_per_km2():
+    r = _project(1000.0)
+    assert r["blocks"] == pytest.approx(100) and r["jobs"] == pytest.approx(1700)
+    # work without the start-up of its 17 jobs, then every job's start-up again
+    assert r["core_h"] * 3600 == pytest.approx(100 * (100.0 - 17 * 1.0) + 1700 * 1.0)
+    assert r["wall_h_2_cores"] * 3600 == pytest.approx((100 * 83.0 + 1700 * 1.5) / 2)
+    assert r["peak_rss_mb_per_job"] == 850.0 and r["io_mb_per_block"] == pytest.approx(1000.0)
+
+
+def test_small_blocks_pay_the_start_up_of_their_jobs():
+    big, small = _project(1000.0), _project(250.0)
+    assert small["blocks"] == pytest.approx(1600) and small["jobs"] == pytest.approx(1600 * 7)
+    assert small["core_h"] > big["core_h"]  # same points, more jobs
+    assert small["io_mb_per_block"] == pytest.approx(1000.0 / 16)
+
+
+def test_a_cluster_is_bound_by_cores_or_by_submission():
+    r = _project(1000.0)
+    cores_s, submit_s = r["core_h"] * 3600 / 20, 1700 / 5.0
+    assert r["wall_h_slurm"] * 3600 == pytest.approx(max(cores_s, submit_s))
+    assert r["slurm_bound"] == ("submission" if submit_s > cores_s else "cores")
