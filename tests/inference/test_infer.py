@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import grid_inference
+from conftest import grid_inference, inference_settings
 from towerpipe.errors import ConfigError, ModelError
 from towerpipe.inference.compat import check_model_compatibility
 from towerpipe.inference.infer import infer_tile, predict_tile
@@ -425,3 +425,28 @@ def test_random_initialised_real_bundle_runs(tmp_path):
     np.testing.assert_array_equal(p1["point_index"], p2["point_index"])
     np.testing.assert_allclose(p1["prob"], p2["prob"], atol=1e-5)
     assert m2["windows_total"] == m1["windows_total"]
+
+
+def test_a_tile_with_nothing_tall_never_loads_the_networks(tmp_path, random_model_factory):
+    from towerpipe.model.bundle import load_bundle
+    from towerpipe.model.lazy import LazyBundle
+
+    path = random_model_factory("shape")
+    save_tile(tmp_path / "flat.npz", make_tile(tower=None))
+    lazy = LazyBundle(path)
+    meta = infer_tile(tmp_path / "flat.npz", lazy, tmp_path / "flat_p.npz", inference_settings())
+    assert not lazy.loaded and len(load_pred(tmp_path / "flat_p.npz")) == 0
+    assert meta["model"]["name"] == lazy.card["name"] and meta["windows_total"] == 0
+
+    # a tile with a tower loads them on its first window, with the same result as a loaded bundle
+    save_tile(tmp_path / "tall.npz", make_tile())
+    lazy = LazyBundle(path)
+    infer_tile(tmp_path / "tall.npz", lazy, tmp_path / "lazy_p.npz", inference_settings())
+    infer_tile(tmp_path / "tall.npz", load_bundle(path), tmp_path / "eager_p.npz", inference_settings())
+    infer_tile(tmp_path / "tall.npz", path, tmp_path / "path_p.npz", inference_settings())
+    assert lazy.loaded
+    eager = load_pred(tmp_path / "eager_p.npz")
+    for other in ("lazy_p.npz", "path_p.npz"):
+        got = load_pred(tmp_path / other)
+        for k in eager.arrays:
+            np.testing.assert_array_equal(got.arrays[k], eager.arrays[k])

@@ -314,8 +314,9 @@ def infer_tile(
     tile_path
         Tile file (:mod:`towerpipe.io.tiles`).
     model
-        A model bundle, or the path of a checkpoint directory (:func:`towerpipe.model.bundle.load_bundle`);
-        ``None``: the model of ``choice``.
+        A model bundle, or the path of a checkpoint directory (read as a
+        :class:`towerpipe.model.lazy.LazyBundle`: a tile with no window to classify never
+        loads the networks); ``None``: the model of ``choice``.
     out_path
         Prediction file (:mod:`towerpipe.io.predictions`), written atomically.
     settings
@@ -356,11 +357,11 @@ def infer_tile(
         if not isinstance(choice, Mapping) or not choice.get("path"):
             raise ConfigError(f"{tile_path}: no model given and no model choice to read it from")
         model = choice["path"]
-    if isinstance(model, (str, os.PathLike)):
-        from towerpipe.model.bundle import load_bundle
+    if isinstance(model, (str, os.PathLike)):  # the networks load on the first window that needs them
+        from towerpipe.model.lazy import LazyBundle
 
         model_path = model
-        bundle = load_bundle(model)
+        bundle = LazyBundle(model)
     else:
         bundle = model
     t_model = time.perf_counter() - t0
