@@ -203,13 +203,21 @@ def stage_split(rows: list[dict]) -> dict[str, dict[str, float]]:
     return out
 
 
-def gate_stats(work: Path) -> dict[str, int]:
-    """Windows total / passed the gate / segmented over all prediction files under ``work``."""
+def gate_stats(work: Path) -> dict[str, float]:
+    """Windows total / passed the gate / segmented over all prediction files under ``work``, and
+    the speed of the gate and the segmenter in windows per second of one job's thread."""
     tot = {"windows_total": 0, "windows_passed_gate": 0, "windows_segmented": 0}
+    t = {"windows_classified": 0, "gate_s": 0.0, "segment_s": 0.0}
     for p in work.rglob("pred/*/*.npz"):
         meta = read_meta(p)
         for k in tot:
             tot[k] += int(meta.get(k, 0))
+        timings = meta.get("timings") or {}
+        t["windows_classified"] += int(meta.get("windows_classified", 0))
+        t["gate_s"] += float(timings.get("sample_features", 0.0)) + float(timings.get("classify", 0.0))
+        t["segment_s"] += float(timings.get("segment", 0.0))
+    tot["gate_windows_per_s_per_thread"] = t["windows_classified"] / t["gate_s"] if t["gate_s"] > 0 else None
+    tot["segment_windows_per_s_per_thread"] = tot["windows_segmented"] / t["segment_s"] if t["segment_s"] > 0 else None
     return tot
 
 
@@ -255,6 +263,8 @@ def bench_e2e(args: argparse.Namespace) -> int:
         f"gate: {g['windows_total']} windows, {g['windows_passed_gate']} passed, {g['windows_segmented']} segmented "
         f"-> {100 * res['gate_skip_rate']:.1f} % skipped"
     )
+    speed = [(k, g[f"{k}_windows_per_s_per_thread"]) for k in ("gate", "segment")]
+    print("  ".join(f"{k}: {v:.1f} windows/s per thread" for k, v in speed if v is not None))
     for rule, d in sorted(res["stages"].items(), key=lambda kv: -kv[1]["s"]):
         print(f"  {rule:<16} {d['s']:7.1f} s over {d['jobs']:3d} job(s)   peak RSS {d['max_rss_mb']:6.0f} MiB")
     if args.json:

@@ -11,6 +11,7 @@ compatibility check and the prediction file's metadata need) and loads the netwo
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +41,8 @@ class LazyBundle:
         self.feature_set = self.card["feature_set"]
         self.n_points = int(self.card["sampling"]["n_points"])
         self._bundle = None
+        #: Seconds spent loading the networks (0 until they are loaded).
+        self.load_s = 0.0
 
     @property
     def loaded(self) -> bool:
@@ -48,9 +51,11 @@ class LazyBundle:
 
     def _networks(self):
         if self._bundle is None:
+            t0 = time.perf_counter()
             from towerpipe.model.bundle import load_bundle
 
             self._bundle = load_bundle(self.path)
+            self.load_s = time.perf_counter() - t0
         return self._bundle
 
     def classify(self, feats: np.ndarray) -> np.ndarray:
