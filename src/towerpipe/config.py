@@ -20,8 +20,9 @@ import difflib
 import os
 import sys
 from collections.abc import Iterable, Mapping, MutableMapping, Sequence
+from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, Self
 
 import yaml
 
@@ -210,16 +211,32 @@ def validate_or_exit(config: MutableMapping[str, Any], schema: str | os.PathLike
         exit_with(str(exc))
 
 
-from dataclasses import dataclass, fields  # noqa: E402  (the section classes below)
+class Section:
+    """A typed section of the validated config: the fields of a frozen dataclass, read by name.
+
+    No defaults in a section: the schema holds them; :meth:`from_config` reads a validated
+    config (:func:`validate_config`), which has every key.
+    """
+
+    #: The config section the fields come from.
+    SECTION: ClassVar[str] = ""
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any]) -> Self:
+        """The section :attr:`SECTION` of a validated config as this type."""
+        section = config[cls.SECTION]
+        return cls(**{f.name: section[f.name] for f in fields(cls)})
 
 
 @dataclass(frozen=True)
-class TowersConfig:
+class TowersConfig(Section):
     """The tower rules of :func:`towerpipe.towers.extract.extract_towers`: the keys of the
     ``towers`` section it uses (``wire_ring_coverage`` is the conductor context's).
 
     No defaults here: the schema holds them; :meth:`from_config` reads a validated config.
     """
+
+    SECTION: ClassVar[str] = "towers"
 
     #: Towers are clustered from the points whose single-view probability reaches this.
     threshold: float
@@ -238,21 +255,17 @@ class TowersConfig:
     #: Towers whose lowest point is above this share of their height are dropped.
     max_base_ratio: float
 
-    @classmethod
-    def from_config(cls, config: Mapping[str, Any]) -> TowersConfig:
-        """The rules of a validated config's ``towers`` section (:func:`validate_config`)."""
-        section = config["towers"]
-        return cls(**{f.name: section[f.name] for f in fields(cls)})
-
 
 @dataclass(frozen=True)
-class InferenceConfig:
+class InferenceConfig(Section):
     """The settings of :func:`towerpipe.inference.infer.predict_tile`: the keys of the
     ``inference`` section it uses (``model`` picks the bundle, ``threshold`` applies after
     the windows: neither is here).
 
     No defaults here: the schema holds them; :meth:`from_config` reads a validated config.
     """
+
+    SECTION: ClassVar[str] = "inference"
 
     #: Window side (m).
     window: float
@@ -274,20 +287,16 @@ class InferenceConfig:
     #: Views of each segmented window averaged (1, 2, 4 or 8).
     tta: int
 
-    @classmethod
-    def from_config(cls, config: Mapping[str, Any]) -> InferenceConfig:
-        """The settings of a validated config's ``inference`` section (:func:`validate_config`)."""
-        section = config["inference"]
-        return cls(**{f.name: section[f.name] for f in fields(cls)})
-
 
 @dataclass(frozen=True)
-class PreprocessConfig:
+class PreprocessConfig(Section):
     """The parameters of the preprocessing (:mod:`towerpipe.preprocess.split`,
     :mod:`towerpipe.preprocess.tile`): the ``preprocess`` section.
 
     No defaults here: the schema holds them; :meth:`from_config` reads a validated config.
     """
+
+    SECTION: ClassVar[str] = "preprocess"
 
     #: Side of a tile (m).
     tile_size: float
@@ -309,9 +318,3 @@ class PreprocessConfig:
     outlier_mean_k: int
     #: Standard deviations beyond which the outlier filter drops a point.
     outlier_multiplier: float
-
-    @classmethod
-    def from_config(cls, config: Mapping[str, Any]) -> PreprocessConfig:
-        """The parameters of a validated config's ``preprocess`` section (:func:`validate_config`)."""
-        section = config["preprocess"]
-        return cls(**{f.name: section[f.name] for f in fields(cls)})

@@ -127,22 +127,7 @@ def gather_tile(zone: str, block: str, tile: str, caches: Mapping[str, BlockCach
         parts.append(part)
     arrays = empty_arrays(0)
     if parts:
-        for k in (
-            "x",
-            "y",
-            "z",
-            "intensity",
-            "red",
-            "green",
-            "blue",
-            "nir",
-            "classification",
-            "return_number",
-            "number_of_returns",
-            "block_id",
-            "point_index",
-            "core",
-        ):
+        for k in (*BLOCK_COLUMNS, "block_id", "point_index", "core"):
             arrays[k] = np.concatenate([p[k] for p in parts]).astype(arrays[k].dtype, copy=False)
         n = len(arrays["x"])
         arrays["hag"] = np.zeros(n, np.float32)
