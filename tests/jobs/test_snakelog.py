@@ -36,71 +36,76 @@ total                  4
 
 """
 
-FAILED_SPLIT = """\
+
+def _job(rule: str, jobid: int, output: str, log: str, wildcards: str, time: str = "21:06:21") -> str:
+    """Snakemake's lines for a job that starts."""
+    return f"""\
 Select jobs to execute...
 Execute 1 jobs...
-[Mon Nov 23 21:06:21 2026]
-localrule split_block:
-    output: work/demo/cache/broken/meta.json
-    log: work/demo/logs/split_block/broken.log
-    jobid: 2
-    reason: Missing output files: work/demo/cache/broken/meta.json
-    wildcards: zone=demo, block=broken
+[Mon Nov 23 {time} 2026]
+localrule {rule}:
+    output: {output}
+    log: {log}
+    jobid: {jobid}
+    reason: Missing output files: {output}
+    wildcards: {wildcards}
     resources: tmpdir=/tmp
-RuleException:
-CalledProcessError in file "/tmp/smklog/workflow/rules/preprocess.smk", line 15:
-Command 'set -euo pipefail;  python workflow/scripts/split_block.py' returned non-zero exit status 1.
-[Mon Nov 23 21:06:21 2026]
-Error in rule split_block:
-    message: None
-    jobid: 2
-    output: work/demo/cache/broken/meta.json
-    log: work/demo/logs/split_block/broken.log (check log file(s) for error details)
-    shell:
-        python workflow/scripts/split_block.py
-        (command exited with non-zero exit code)
 """
 
-FAILED_TILE = """\
-Select jobs to execute...
-Execute 1 jobs...
-[Mon Nov 23 21:06:21 2026]
-localrule preprocess_tile:
-    output: work/demo/tiles/nir/t0.npz
-    log: work/demo/logs/preprocess_tile/nir/t0.log
-    jobid: 3
-    reason: Missing output files: work/demo/tiles/nir/t0.npz
-    wildcards: zone=demo, block=nir, tile=t0
-    resources: tmpdir=/tmp
+
+def _failed(rule: str, jobid: int, output: str, log: str, wildcards: str, smk_line: int) -> str:
+    """Snakemake's lines for a job whose shell command fails."""
+    return (
+        _job(rule, jobid, output, log, wildcards)
+        + f"""\
 RuleException:
-CalledProcessError in file "/tmp/smklog/workflow/rules/preprocess.smk", line 32:
-Command 'set -euo pipefail;  python workflow/scripts/preprocess_tile.py' returned non-zero exit status 1.
+CalledProcessError in file "/tmp/smklog/workflow/rules/preprocess.smk", line {smk_line}:
+Command 'set -euo pipefail;  python workflow/scripts/{rule}.py' returned non-zero exit status 1.
 [Mon Nov 23 21:06:21 2026]
-Error in rule preprocess_tile:
+Error in rule {rule}:
     message: None
-    jobid: 3
-    output: work/demo/tiles/nir/t0.npz
-    log: work/demo/logs/preprocess_tile/nir/t0.log (check log file(s) for error details)
+    jobid: {jobid}
+    output: {output}
+    log: {log} (check log file(s) for error details)
     shell:
-        python workflow/scripts/preprocess_tile.py
+        python workflow/scripts/{rule}.py
         (command exited with non-zero exit code)
 """
+    )
 
-FINISHED_GOOD = """\
-Select jobs to execute...
-Execute 1 jobs...
-[Mon Nov 23 21:06:21 2026]
-localrule split_block:
-    output: work/demo/cache/good/meta.json
-    log: work/demo/logs/split_block/good.log
-    jobid: 1
-    reason: Missing output files: work/demo/cache/good/meta.json
-    wildcards: zone=demo, block=good
-    resources: tmpdir=/tmp
+
+FAILED_SPLIT = _failed(
+    "split_block",
+    2,
+    "work/demo/cache/broken/meta.json",
+    "work/demo/logs/split_block/broken.log",
+    "zone=demo, block=broken",
+    15,
+)
+
+FAILED_TILE = _failed(
+    "preprocess_tile",
+    3,
+    "work/demo/tiles/nir/t0.npz",
+    "work/demo/logs/preprocess_tile/nir/t0.log",
+    "zone=demo, block=nir, tile=t0",
+    32,
+)
+
+FINISHED_GOOD = (
+    _job(
+        "split_block",
+        1,
+        "work/demo/cache/good/meta.json",
+        "work/demo/logs/split_block/good.log",
+        "zone=demo, block=good",
+    )
+    + """\
 [Mon Nov 23 21:06:21 2026]
 Finished jobid: 1 (Rule: split_block)
 1 of 4 steps (25%) done
 """
+)
 
 FOOTER = """\
 Exiting because a job execution failed. Look above for error messages
@@ -111,20 +116,13 @@ At least one job did not complete successfully.
 """
 
 # a run interrupted (Ctrl-C, kill) while a job ran: the log stops inside the job
-INTERRUPTED = (
-    HEADER
-    + """\
-Select jobs to execute...
-Execute 1 jobs...
-[Mon Nov 23 21:06:39 2026]
-localrule split_block:
-    output: work/demo/cache/slow/meta.json
-    log: work/demo/logs/split_block/slow.log
-    jobid: 1
-    reason: Missing output files: work/demo/cache/slow/meta.json
-    wildcards: zone=demo, block=slow
-    resources: tmpdir=/tmp
-"""
+INTERRUPTED = HEADER + _job(
+    "split_block",
+    1,
+    "work/demo/cache/slow/meta.json",
+    "work/demo/logs/split_block/slow.log",
+    "zone=demo, block=slow",
+    time="21:06:39",
 )
 
 # the next run of an interrupted one, without --rerun-incomplete

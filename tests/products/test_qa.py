@@ -90,6 +90,17 @@ def metas(ground_source="class2", passed=3):
     return tiles, preds
 
 
+def report(out_dir, name, *, stem=None, **inputs):
+    """block_report of block ``name`` to ``out_dir/<stem>.html`` and ``.json`` (stem: the name)
+    with the schema's limits; the inputs default to BOUNDS and the tile/prediction metas of metas()."""
+    tiles, preds = metas()
+    stem = stem or name
+    inputs = {"block_bounds": BOUNDS, "tile_metas": tiles, "pred_metas": preds, **inputs}
+    return block_report(
+        out_dir / f"{stem}.html", out_dir / f"{stem}.json", BlockInputs(block_name=name, **inputs), qa_limits()
+    )
+
+
 def test_block_report_page_and_json(tmp_path):
     pts = make_block()
     truth = pts["classification"].copy()
@@ -104,24 +115,16 @@ def test_block_report_page_and_json(tmp_path):
         "s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
         "12.5\t0:00:12\t1534.2\t2000\t1400\t1450\t10\t5\t90\t11.0\n"
     )
-    tiles, preds = metas()
-    doc = block_report(
-        tmp_path / "b1.html",
-        tmp_path / "b1.json",
-        BlockInputs(
-            block_name="b1",
-            zone="z1",
-            block_bounds=BOUNDS,
-            stats={"points_written": len(cls)},
-            tile_metas=tiles,
-            pred_metas=preds,
-            towers=gdf,
-            classified=pts,
-            truth=truth,
-            timings={"infer_tile": str(bench), "merge_block": 3.25},
-            warnings=["tile t3: 2 holes filled"],
-        ),
-        qa_limits(),
+    doc = report(
+        tmp_path,
+        "b1",
+        zone="z1",
+        stats={"points_written": len(cls)},
+        towers=gdf,
+        classified=pts,
+        truth=truth,
+        timings={"infer_tile": str(bench), "merge_block": 3.25},
+        warnings=["tile t3: 2 holes filled"],
     )
     page = (tmp_path / "b1.html").read_text()
     on_disk = json.loads((tmp_path / "b1.json").read_text())
@@ -161,14 +164,7 @@ def test_block_flags(tmp_path):
     assert len(gdf) == 1
     gdf["wire_support"] = 0.25  # a low tower kept without conductors (exempt from the rule)
     tiles, preds = metas(ground_source="smrf", passed=20)
-    doc = block_report(
-        tmp_path / "b.html",
-        tmp_path / "b.json",
-        BlockInputs(
-            block_name="b", block_bounds=BOUNDS, tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts
-        ),
-        qa_limits(),
-    )
+    doc = report(tmp_path, "b", tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts)
     codes = {f["code"] for f in doc["flags"]}
     assert {"ground_classified", "low_density", "many_windows_gated", "tower"} <= codes
     reasons = " ".join(f["reason"] for f in doc["flags"])
@@ -181,15 +177,7 @@ def test_tower_whose_ring_is_outside_the_data_is_flagged(tmp_path):
     pts = make_block()
     gdf = towers_of(pts)
     gdf["wire_support"] = float("nan")  # towerpipe.towers.wires: ring mostly outside the surveyed area
-    tiles, preds = metas()
-    doc = block_report(
-        tmp_path / "b.html",
-        tmp_path / "b.json",
-        BlockInputs(
-            block_name="b", block_bounds=BOUNDS, tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts
-        ),
-        qa_limits(),
-    )
+    doc = report(tmp_path, "b", towers=gdf, classified=pts)
     tall = [t for t in doc["towers"] if t["height_m"] >= 20]
     assert tall and all(any("outside the data" in f for f in t["flags"]) for t in tall)
 
@@ -215,23 +203,8 @@ def test_clean_block_is_ok_and_uses_raster(tmp_path):
     ) as ds:
         ds.write(dtm, 1)
     no_hag = {k: v for k, v in pts.items() if k != "hag"}
-    tiles, preds = metas()
     gdf = towers_of(pts)
-    doc = block_report(
-        tmp_path / "b.html",
-        tmp_path / "b.json",
-        BlockInputs(
-            block_name="b",
-            zone="z1",
-            block_bounds=BOUNDS,
-            tile_metas=tiles,
-            pred_metas=preds,
-            towers=gdf,
-            classified=no_hag,
-            raster=tif,
-        ),
-        qa_limits(),
-    )
+    doc = report(tmp_path, "b", zone="z1", towers=gdf, classified=no_hag, raster=tif)
     assert doc["status"] == "ok" and doc["flags"] == []
     assert doc["summary"] == "2 towers found; nothing to check."
     page = (tmp_path / "b.html").read_text()
@@ -256,11 +229,8 @@ def test_block_report_from_files_and_no_towers(tmp_path):
     from towerpipe.products.gpkg import write_towers_gpkg
 
     gpkg = write_towers_gpkg(tmp_path / "b.gpkg", None, crs_wkt="EPSG:25831")
-    doc = block_report(
-        tmp_path / "b.html",
-        tmp_path / "b.json",
-        BlockInputs(block_name="b", towers=gpkg, classified=tmp_path / "b.laz"),
-        qa_limits(),
+    doc = report(
+        tmp_path, "b", block_bounds=None, tile_metas=(), pred_metas=(), towers=gpkg, classified=tmp_path / "b.laz"
     )
     assert doc["n_towers"] == 0 and doc["summary"].startswith("0 towers found")
     assert "No towers in this block" in (tmp_path / "b.html").read_text()
@@ -273,34 +243,10 @@ def test_read_benchmark_repeats_and_na(tmp_path):
 
 
 def test_zone_index(tmp_path):
-    tiles, preds = metas()
-    ok = block_report(
-        tmp_path / "qa" / "a.html",
-        tmp_path / "qa" / "a.json",
-        BlockInputs(
-            block_name="a",
-            zone="z1",
-            block_bounds=BOUNDS,
-            tile_metas=tiles,
-            pred_metas=preds,
-            towers=towers_of(make_block()),
-            classified=make_block(),
-        ),
-        qa_limits(),
-    )
+    ok = report(tmp_path / "qa", "a", zone="z1", towers=towers_of(make_block()), classified=make_block())
     tiles2, preds2 = metas(ground_source="smrf")
-    look = block_report(
-        tmp_path / "qa" / "b.html",
-        tmp_path / "qa" / "b.json",
-        BlockInputs(
-            block_name="b",
-            zone="z1",
-            block_bounds=BOUNDS,
-            tile_metas=tiles2,
-            pred_metas=preds2,
-            classified=make_block(towers_at=()),
-        ),
-        qa_limits(),
+    look = report(
+        tmp_path / "qa", "b", zone="z1", tile_metas=tiles2, pred_metas=preds2, classified=make_block(towers_at=())
     )
     assert (ok["status"], look["status"]) == ("ok", "look")
     doc = zone_index(
@@ -329,19 +275,9 @@ def test_edge_tower_reported_by_the_neighbour_counts_as_found(tmp_path):
     gdf = towers_of(pts)
     gdf = gdf[gdf["centroid_x"] < X0 + 100]
     assert len(gdf) == 1
-    tiles, preds = metas()
     truth = pts["classification"].copy()
-    kw = dict(
-        block_name="b1",
-        zone="z1",
-        block_bounds=BOUNDS,
-        tile_metas=tiles,
-        pred_metas=preds,
-        towers=gdf,
-        classified=pts,
-        truth=truth,
-    )
-    alone = block_report(tmp_path / "a.html", tmp_path / "a.json", BlockInputs(**kw), qa_limits())
+    kw = dict(zone="z1", towers=gdf, classified=pts, truth=truth)
+    alone = report(tmp_path, "b1", stem="a", **kw)
     assert alone["accuracy"]["recall"] == 0.5 and alone["status"] == "look"
     full_tower = tower(X0 + SIZE - 0.5, Y0 + 100)
     import shapely
@@ -353,7 +289,7 @@ def test_edge_tower_reported_by_the_neighbour_counts_as_found(tmp_path):
             "blocks": "b1,b2",
         }
     ]
-    doc = block_report(tmp_path / "b.html", tmp_path / "b.json", BlockInputs(neighbour_towers=nb, **kw), qa_limits())
+    doc = report(tmp_path, "b1", stem="b", neighbour_towers=nb, **kw)
     acc = doc["accuracy"]
     assert acc["recall"] == 1.0 and acc["precision"] == 1.0 and acc["fn"] == 0
     assert any(m.get("owner") == "neighbour" for m in acc["matches"])
@@ -372,22 +308,8 @@ def seam_setup():
 
 def test_seam_tower_handled_whole_is_not_flagged(tmp_path):
     pts, gdf, east = seam_setup()
-    tiles, preds = metas()
     # the neighbour gave points: the tower is whole, its centroid 0.5 m from the seam does not matter
-    doc = block_report(
-        tmp_path / "b.html",
-        tmp_path / "b.json",
-        BlockInputs(
-            block_name="b1",
-            block_bounds=BOUNDS,
-            tile_metas=tiles,
-            pred_metas=preds,
-            towers=gdf,
-            classified=pts,
-            data_bounds=[BOUNDS, east],
-        ),
-        qa_limits(),
-    )
+    doc = report(tmp_path, "b1", stem="b", towers=gdf, classified=pts, data_bounds=[BOUNDS, east])
     t = doc["towers"][0]
     assert t["edge_distance_m"] == pytest.approx(0.5, abs=0.2)
     assert t["flags"] == [] and doc["status"] == "ok"
@@ -396,22 +318,8 @@ def test_seam_tower_handled_whole_is_not_flagged(tmp_path):
 
 def test_tower_at_the_zone_edge_or_a_failed_neighbour_is_flagged(tmp_path):
     pts, gdf, _ = seam_setup()
-    tiles, preds = metas()
     # no block east of b1 (zone edge), or its neighbour could not be read: the tower may be cut
-    doc = block_report(
-        tmp_path / "b.html",
-        tmp_path / "b.json",
-        BlockInputs(
-            block_name="b1",
-            block_bounds=BOUNDS,
-            tile_metas=tiles,
-            pred_metas=preds,
-            towers=gdf,
-            classified=pts,
-            data_bounds=[BOUNDS],
-        ),
-        qa_limits(),
-    )
+    doc = report(tmp_path, "b1", stem="b", towers=gdf, classified=pts, data_bounds=[BOUNDS])
     t = doc["towers"][0]
     assert t["data_edge_m"] == 0.0
     assert len(t["flags"]) == 1 and "may be cut" in t["flags"][0]
@@ -459,21 +367,7 @@ def test_side_views_see_a_seam_tower_whole(tmp_path):
     assert hood["tower"].sum() == is_tower.sum()
     assert hood["x"][hood["tower"]].max() > X0 + SIZE  # the neighbour's half of the tower is there
     assert len(hood["x"]) == len(np.unique(np.column_stack([hood["x"], hood["y"], hood["z"]]), axis=0))
-    tiles, preds = metas()
-    block_report(
-        tmp_path / "b.html",
-        tmp_path / "b.json",
-        BlockInputs(
-            block_name="b1",
-            block_bounds=BOUNDS,
-            tile_metas=tiles,
-            pred_metas=preds,
-            towers=gdf,
-            classified=pts,
-            neighbourhoods=hoods,
-        ),
-        qa_limits(),
-    )
+    report(tmp_path, "b1", stem="b", towers=gdf, classified=pts, neighbourhoods=hoods)
     page = (tmp_path / "b.html").read_text()
     assert 'id="tower-1"' in page and 'href="#tower-1"' in page and "Side views" in page
 
@@ -488,22 +382,10 @@ ATTRIBUTES = {
 
 
 def test_sensor_attributes_and_model_choice(tmp_path):
-    tiles, preds = metas()
+    _, preds = metas()
     preds[0]["model"] = dict(MODEL, choice={"mode": "auto", "reason": "the zone's return numbers are all 0"})
     summary = {"attributes": ATTRIBUTES, "degenerate_attributes": ["returns"], "crs_wkt": 'PROJCRS["x" ' * 80}
-    doc = block_report(
-        tmp_path / "b.html",
-        tmp_path / "b.json",
-        BlockInputs(
-            block_name="b1",
-            block_bounds=BOUNDS,
-            tile_metas=tiles,
-            pred_metas=preds,
-            classified=make_block(towers_at=()),
-            stats=summary,
-        ),
-        qa_limits(),
-    )
+    doc = report(tmp_path, "b1", stem="b", pred_metas=preds, classified=make_block(towers_at=()), stats=summary)
     assert {
         "code": "degenerate_attributes",
         "reason": "sensor attributes unusable: returns (return numbers all 0)",
@@ -518,37 +400,13 @@ def test_sensor_attributes_and_model_choice(tmp_path):
 
 
 def test_page_of_an_older_run_without_attributes_or_choice(tmp_path):
-    tiles, preds = metas()
-    doc = block_report(
-        tmp_path / "b.html",
-        tmp_path / "b.json",
-        BlockInputs(
-            block_name="b1",
-            block_bounds=BOUNDS,
-            tile_metas=tiles,
-            pred_metas=preds,
-            classified=make_block(towers_at=()),
-        ),
-        qa_limits(),
-    )
+    doc = report(tmp_path, "b1", stem="b", classified=make_block(towers_at=()))
     page = (tmp_path / "b.html").read_text()
     assert doc["attributes"] == {} and "Sensor attributes" not in page and "Model used and why" not in page
 
 
 def test_block_page_links_to_index_and_products(tmp_path):
-    tiles, preds = metas()
-    block_report(
-        tmp_path / "qa" / "b1.html",
-        tmp_path / "qa" / "b1.json",
-        BlockInputs(
-            block_name="b1",
-            block_bounds=BOUNDS,
-            tile_metas=tiles,
-            pred_metas=preds,
-            classified=make_block(towers_at=()),
-        ),
-        qa_limits(),
-    )
+    report(tmp_path / "qa", "b1", classified=make_block(towers_at=()))
     page = (tmp_path / "qa" / "b1.html").read_text()
     for href in ("index.html", "../blocks/b1.laz", "../towers/b1.gpkg", "../towers.gpkg"):
         assert f'href="{href}"' in page
@@ -562,22 +420,8 @@ def test_zone_index_map_with_lines_and_failed_block(tmp_path):
     from towerpipe.products.gpkg import write_towers_gpkg
 
     qa = tmp_path / "qa"
-    tiles, preds = metas()
     pts = make_block()
-    block_report(
-        qa / "a.html",
-        qa / "a.json",
-        BlockInputs(
-            block_name="a",
-            zone="z1",
-            block_bounds=BOUNDS,
-            tile_metas=tiles,
-            pred_metas=preds,
-            towers=towers_of(pts),
-            classified=pts,
-        ),
-        qa_limits(),
-    )
+    report(qa, "a", zone="z1", towers=towers_of(pts), classified=pts)
     gpkg = write_towers_gpkg(tmp_path / "towers.gpkg", towers_of(pts), crs_wkt="EPSG:25831")
     line = shapely.LineString([(X0 + 60, Y0 + 60), (X0 + 150, Y0 + 120)])
     gpd.GeoDataFrame({"line_id": ["L1"]}, geometry=[line], crs="EPSG:25831").to_file(gpkg, layer="lines")

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_qa import BOUNDS, SIZE, X0, Y0, make_block, metas, towers_of
+from test_qa import SIZE, X0, Y0, make_block, metas, report, towers_of
 
-from conftest import qa_limits
-from towerpipe.products.qa.block import BlockInputs, block_report
 from towerpipe.products.qa.browser import PAGE_WIDTH, Browser, find_chromium
 from towerpipe.products.qa.index import zone_index
 
@@ -34,7 +32,7 @@ def pages(tmp_path_factory):
         tid: {"x": pts["x"], "y": pts["y"], "z": pts["z"], "tower": pts["classification"] == 15}
         for tid in gdf["tower_id"]
     }
-    tiles, preds = metas()
+    _, preds = metas()
     preds[0]["model"] = {
         "name": "towerpipe-full",
         "version": "2",
@@ -49,24 +47,18 @@ def pages(tmp_path_factory):
         "attributes": {"returns": {"valid": False, "reason": "return numbers all 0"}},
         "degenerate_attributes": ["returns"],
     }
-    block_report(
-        qa / "b1.html",
-        qa / "b1.json",
-        BlockInputs(
-            block_name="b1",
-            zone="z1",
-            block_bounds=BOUNDS,
-            tile_metas=tiles,
-            pred_metas=preds,
-            towers=gdf,
-            classified=pts,
-            truth=pts["classification"].copy(),
-            stats=summary,
-            warnings=[f"tile 0_0: neighbour block {long_path} could not be read"],
-            neighbourhoods=hood,
-            timings={"infer_tile": 12.5},
-        ),
-        qa_limits(),
+    report(
+        qa,
+        "b1",
+        zone="z1",
+        pred_metas=preds,
+        towers=gdf,
+        classified=pts,
+        truth=pts["classification"].copy(),
+        stats=summary,
+        warnings=[f"tile 0_0: neighbour block {long_path} could not be read"],
+        neighbourhoods=hood,
+        timings={"infer_tile": 12.5},
     )
     index = zone_index(
         qa / "index.html",
