@@ -59,6 +59,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from towerpipe import classes
 from towerpipe.errors import ConfigError
 from towerpipe.inference.candidates import height_peaks
 from towerpipe.io.columns import read_meta
@@ -74,7 +75,7 @@ DEFAULT_DATASET_CONFIG: dict[str, Any] = {
     "n_points": 2048,
     "bands": [3.0, 8.0],
     "window_size": 40.0,
-    "tower_class": 15,
+    "tower_class": classes.TOWER,
     "tower_link_m": 2.5,
     "min_tower_points": 20,
     "shift_m": 10.0,
