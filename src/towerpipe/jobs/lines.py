@@ -38,8 +38,7 @@ def lines_across_zones(zone_dirs: list[str | Path], out_path: str | Path) -> dic
     from datetime import datetime
 
     from towerpipe.errors import InputError
-    from towerpipe.jobs.zone import zone_towers
-    from towerpipe.products.gpkg import write_towers_gpkg
+    from towerpipe.jobs.zone import write_zone_gpkg, zone_towers
     from towerpipe.towers.registry import empty_registry
 
     gpkgs = []
@@ -49,14 +48,11 @@ def lines_across_zones(zone_dirs: list[str | Path], out_path: str | Path) -> dic
             raise InputError(d, "holds no towers/<block>.gpkg: give published zone directories (results/<zone>)")
         gpkgs += found
     content = zone_towers(gpkgs, registry=empty_registry(), run_time=datetime.now(UTC))
-    crs = content["crs"]
-    write_towers_gpkg(
+    write_zone_gpkg(
         out_path,
-        content["towers"] if len(content["towers"]) else None,
-        crs_wkt=crs.to_wkt() if hasattr(crs, "to_wkt") else crs,
-        lines=content["lines"],
-        spans=content["spans"],
-        metadata={"zones": json.dumps([str(d) for d in zone_dirs]), **content["metadata"]},
+        content,
+        {"zones": json.dumps([str(d) for d in zone_dirs]), **content["metadata"]},
+        vanished=False,
     )
     return {k: 0 if content[k] is None else len(content[k]) for k in ("towers", "lines", "spans")}
 

@@ -86,6 +86,25 @@ def zone_towers(
     }
 
 
+def write_zone_gpkg(
+    path: str | os.PathLike[str], content: Mapping[str, Any], metadata: Mapping[str, str], *, vanished: bool
+) -> None:
+    """Write the towers, lines and spans of :func:`zone_towers`'s ``content`` to ``path``
+    (:func:`towerpipe.products.gpkg.write_towers_gpkg`), with the vanished towers if ``vanished``."""
+    from towerpipe.products.gpkg import write_towers_gpkg
+
+    crs = content["crs"]
+    write_towers_gpkg(
+        path,
+        content["towers"] if len(content["towers"]) else None,
+        crs_wkt=crs.to_wkt() if hasattr(crs, "to_wkt") else crs,
+        lines=content["lines"],
+        spans=content["spans"],
+        vanished=content["vanished"] if vanished else None,
+        metadata=metadata,
+    )
+
+
 def zone_step(
     zone: str,
     out_dir: str,
@@ -116,7 +135,6 @@ def zone_step(
     published GeoPackage), updated with this assembly's towers and written back once the
     directory is in place. Towers of ``failures`` blocks are left as they were.
     """
-    from towerpipe.products.gpkg import write_towers_gpkg
     from towerpipe.products.qa.index import zone_index
     from towerpipe.products.registry_file import read_registry, write_registry
 
@@ -150,15 +168,10 @@ def zone_step(
     def build(tmp: Path) -> None:
         gpkg = tmp / layout.ZONE_GPKG
         if content is not None:
-            crs = content["crs"]
-            write_towers_gpkg(
+            write_zone_gpkg(
                 gpkg,
-                content["towers"] if len(content["towers"]) else None,
-                crs_wkt=crs.to_wkt() if hasattr(crs, "to_wkt") else crs,
-                lines=content["lines"],
-                spans=content["spans"],
-                vanished=content["vanished"],
-                metadata={
+                content,
+                {
                     "zone": zone,
                     "towerpipe_version": __version__,
                     **content["metadata"],
@@ -168,6 +181,7 @@ def zone_step(
                     "n_towers": str(len(content["towers"])),
                     "n_lines": str(0 if content["lines"] is None else len(content["lines"])),
                 },
+                vanished=True,
             )
         index = tmp / layout.QA_INDEX
         index.parent.mkdir(parents=True, exist_ok=True)
