@@ -145,8 +145,11 @@ def _load_net(path: Path, feature_channels: int, kind: str) -> nn.Module:
     return model
 
 
-def load_bundle(path: str | os.PathLike[str]) -> ModelBundle:
+def load_bundle(path: str | os.PathLike[str], card: Mapping[str, Any] | None = None) -> ModelBundle:
     """Load and validate a checkpoint directory written by :func:`save_bundle`.
+
+    ``card``: its model card, already read (:func:`towerpipe.model.cards.read_card`, which
+    validates it and checks the weights' checksums); ``None``: read here.
 
     Raises
     ------
@@ -162,17 +165,8 @@ def load_bundle(path: str | os.PathLike[str]) -> ModelBundle:
             f"{p}: model directory not found; train one with `towerpipe train` or set "
             f"${MODELS_ENV} to the directory holding towerpipe-<feature_set>-v<release>/"
         )
-    card = modelcard.read_card(p)
+    card = dict(card) if card is not None else modelcard.read_card(p)
     n_feat = len(card["features"])
     clf = _load_net(p / "classifier.pt", n_feat, "classifier")
     seg = _load_net(p / "segmenter.pt", n_feat, "segmenter")
-    return ModelBundle(
-        name=card["name"],
-        version=str(card["version"]),
-        feature_set=card["feature_set"],
-        card=card,
-        n_points=int(card["sampling"]["n_points"]),
-        classifier=clf,
-        segmenter=seg,
-        path=p,
-    )
+    return ModelBundle(**modelcard.bundle_identity(card), card=card, classifier=clf, segmenter=seg, path=p)

@@ -169,6 +169,16 @@ def read_card(directory: str | os.PathLike[str]) -> dict[str, Any]:
     return card
 
 
+def bundle_identity(card: Mapping[str, Any]) -> dict[str, Any]:
+    """``name``, ``version``, ``feature_set`` and ``n_points`` of a bundle, from its model card."""
+    return {
+        "name": card["name"],
+        "version": str(card["version"]),
+        "feature_set": card["feature_set"],
+        "n_points": int(card["sampling"]["n_points"]),
+    }
+
+
 def _fmt(v: Any) -> str:
     if isinstance(v, float):
         return f"{v:.4g}"

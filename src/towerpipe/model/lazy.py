@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from towerpipe.model.cards import read_card
+from towerpipe.model.cards import bundle_identity, read_card
 
 
 class LazyBundle:
@@ -36,10 +36,11 @@ class LazyBundle:
 
             load_bundle(self.path)
         self.card: dict[str, Any] = read_card(self.path)
-        self.name = self.card["name"]
-        self.version = str(self.card["version"])
-        self.feature_set = self.card["feature_set"]
-        self.n_points = int(self.card["sampling"]["n_points"])
+        identity = bundle_identity(self.card)
+        self.name: str = identity["name"]
+        self.version: str = identity["version"]
+        self.feature_set: str = identity["feature_set"]
+        self.n_points: int = identity["n_points"]
         self._bundle = None
         #: Seconds spent loading the networks (0 until they are loaded).
         self.load_s = 0.0
@@ -54,7 +55,7 @@ class LazyBundle:
             t0 = time.perf_counter()
             from towerpipe.model.bundle import load_bundle
 
-            self._bundle = load_bundle(self.path)
+            self._bundle = load_bundle(self.path, self.card)  # the card and checksums are read once
             self.load_s = time.perf_counter() - t0
         return self._bundle
 
