@@ -175,12 +175,17 @@ def schema_config(**sections):
     return validate_config({"zones": {"z": {"input": "in"}}, **sections}, load_yaml(REPO / SCHEMA_FILE, "schema"))
 
 
+def section(cls, **values):
+    """The typed section ``cls`` (a :class:`towerpipe.config.Section`) of a config whose section
+    :attr:`~towerpipe.config.Section.SECTION` is ``values`` (the schema fills in the rest)."""
+    return cls.from_config(schema_config(**{cls.SECTION: values}))
+
+
 def tower_rules(**towers):
-    """:class:`towerpipe.config.TowersConfig` of a config whose ``towers`` section is ``towers``
-    (the schema fills in the rest)."""
+    """:class:`towerpipe.config.TowersConfig` over the schema's defaults."""
     from towerpipe.config import TowersConfig
 
-    return TowersConfig.from_config(schema_config(towers=towers))
+    return section(TowersConfig, **towers)
 
 
 def qa_limits(**overrides):
@@ -199,11 +204,10 @@ GRID_INFERENCE = {"windows": "grid", "gate": 0.5, "tta": 1, "min_height": None}
 
 
 def inference_settings(**inference):
-    """:class:`towerpipe.config.InferenceConfig` of a config whose ``inference`` section is
-    ``inference`` (the schema fills in the rest)."""
+    """:class:`towerpipe.config.InferenceConfig` over the schema's defaults."""
     from towerpipe.config import InferenceConfig
 
-    return InferenceConfig.from_config(schema_config(inference=inference))
+    return section(InferenceConfig, **inference)
 
 
 def grid_inference(**inference):
@@ -212,11 +216,10 @@ def grid_inference(**inference):
 
 
 def preprocess_settings(**preprocess):
-    """:class:`towerpipe.config.PreprocessConfig` of a config whose ``preprocess`` section is
-    ``preprocess`` (the schema fills in the rest)."""
+    """:class:`towerpipe.config.PreprocessConfig` over the schema's defaults."""
     from towerpipe.config import PreprocessConfig
 
-    return PreprocessConfig.from_config(schema_config(preprocess=preprocess))
+    return section(PreprocessConfig, **preprocess)
 
 
 def extract(preds, block_name, block_bounds, *, point_threshold=None, **kw):
