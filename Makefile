@@ -53,10 +53,12 @@ bench: setup
 # The shipped models (towerpipe.model.cards.MODEL_RELEASES): one per feature set, each trained by
 # the workflow from the windows of the training zones (config/models.yaml).
 MODELS := towerpipe-geometry-v3 towerpipe-shape-v3
+# The shape verifier of the tower rules (towerpipe.towers.shape.VERIFIER_RELEASE): one for every model.
+VERIFIER := towerpipe-verifier-v1
 
-# Train the shipped models (CPU, 2 cores).
+# Train the shipped models and the shape verifier (CPU, 2 cores).
 train: setup
-	$(BIN)/snakemake --cores $(CORES) $(foreach m,$(MODELS),results/models/$(m)/)
+	$(BIN)/snakemake --cores $(CORES) $(foreach m,$(MODELS),results/models/$(m)/) work/verifiers/$(VERIFIER)
 
 # The real-shape benchmark: every recipe trained without each real tower family and judged on it.
 benchmark-realshape: setup
@@ -68,6 +70,7 @@ ship-models:
 	for m in $(MODELS); do mkdir -p models/$$m && \
 	  cp results/models/$$m/{classifier.pt,segmenter.pt,model_card.json,MODEL_CARD.md,metrics.json,classifier_curves.png,segmenter_curves.png} models/$$m/; done
 	$(BIN)/towerpipe realshape-stamp --scores results/benchmark/realshape/scores.json
+	mkdir -p models/$(VERIFIER) && cp work/verifiers/$(VERIFIER)/{verifier.json,MODEL_CARD.md} models/$(VERIFIER)/
 
 # Screenshots of the QA pages in docs/img (after `make demo`), taken with headless Chromium at 1,280 px.
 docs-img: setup

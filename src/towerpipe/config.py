@@ -254,6 +254,10 @@ class TowersConfig(Section):
     wire_min_height: float
     #: Towers whose lowest point is above this share of their height are dropped.
     max_base_ratio: float
+    #: The shape verifier: ``shipped``, ``none`` or a directory (:mod:`towerpipe.towers.shape`).
+    verifier: str
+    #: Towers whose shape score is lower are dropped (0 keeps all).
+    min_shape_score: float
 
 
 @dataclass(frozen=True)

@@ -76,6 +76,8 @@ def test_benchmark_rows_auto_and_report(bare_zone, random_model_factory):
         "wire_min_height": 20.0,
         "wire_ring_coverage": 0.0,
         "max_base_ratio": 1.0,
+        "verifier": "shipped",
+        "min_shape_score": 0.0,
     }
     out = tmp / "out"
     result = run_benchmark(

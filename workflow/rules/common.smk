@@ -274,6 +274,15 @@ def model_files(zone):
     return [f"{d}/{f}" for d in dirs for f in ("classifier.pt", "segmenter.pt", "model_card.json")]
 
 
+def verifier_files():
+    """The shape verifier's file (``towers.verifier``): an input of the towers jobs, so a new
+    verifier reruns them; none with ``verifier: none``."""
+    from towerpipe.towers.shape import VERIFIER_FILE, resolve_verifier
+
+    path = resolve_verifier(TOWERS["verifier"])
+    return [] if path is None else [str(path / VERIFIER_FILE)]
+
+
 def pred_file(zone, block, tile):
     return PRED.format(zone=zone, block=block, tile=tile)
 
@@ -361,6 +370,27 @@ def realshape_zones():
         for z in config["zones"]
         if z.startswith("realshape_") and (not variants or any(z.endswith(f"_{v}") for v in variants))
     ]
+
+
+def verifier_name():
+    from towerpipe.towers.shape import VERIFIER_RELEASE
+
+    return f"towerpipe-verifier-v{VERIFIER_RELEASE}"
+
+
+def verifier_train_config(name):
+    """The shape verifier's recipe (``training.verifier``), without the family its name leaves out."""
+    base, _, family = name.partition(LOSO)
+    if base != verifier_name():
+        raise WorkflowError(f"verifier {name!r}: this towerpipe trains {verifier_name()}[{LOSO}<family>]")
+    return {**TRAIN.get("verifier", {}), "exclude_families": [family] if family else []}
+
+
+def loso_verifiers():
+    """Real family -> the shape verifier trained without it (the real-shape benchmark's)."""
+    from towerpipe.synth.real import FAMILIES
+
+    return {f: f"{WORK}/verifiers/{verifier_name()}{LOSO}{f}" for f in FAMILIES}
 
 
 def loso_models():

@@ -15,6 +15,8 @@ rule towers_block:
             for b in [wc.block, *block_neighbours(wc.zone, wc.block)]
             for t in tiles(wc.zone, b)
         ],
+        # the shape check of each tower (towers.verifier, towers.min_shape_score)
+        verifier=verifier_files(),
     output:
         gpkg=TOWERS_GPKG,
         neighbours=TOWERS_NEIGHBOURS,

@@ -10,5 +10,6 @@ run_step(
         inference=snakemake.params.inference,
         towers=snakemake.params.towers,
         out_dir=snakemake.output[0],
+        verifiers=snakemake.params.verifiers,
     ),
 )

@@ -42,9 +42,11 @@ Candidate = tuple[float, ...]
 
 _UNBOUNDED = (-1e18, -1e18, 1e18, 1e18)
 
-#: The subpackages whose code makes a tile's predictions: all of their modules are part of
-#: the key of the cached predictions (:func:`zone_predictions`).
-INFERENCE_PACKAGES = ("towerpipe.inference", "towerpipe.model", "towerpipe.towers")
+#: The subpackages and modules whose code makes a tile's predictions: all of their modules
+#: are part of the key of the cached predictions (:func:`zone_predictions`). Of the tower
+#: code only the wire detector (the peaks leave overhead wires out): the tower rules run
+#: after the predictions and never invalidate them.
+INFERENCE_PACKAGES = ("towerpipe.inference", "towerpipe.model", "towerpipe.towers.wires")
 
 
 def _survey(work: str | os.PathLike[str], zone: str) -> list[list[float]]:
@@ -114,17 +116,19 @@ def _inference_code() -> str:
     """SHA-256 of the code that turns a tile into predictions.
 
     Every module of :data:`INFERENCE_PACKAGES` (path and content, in sorted order): the
-    windows, the networks, their features and sampling, and the tower code (the peaks
+    windows, the networks, their features and sampling, and the wire detector (the peaks
     leave overhead wires out), wherever in those subpackages it lives.
     """
     import hashlib
     from importlib.util import find_spec
 
     h = hashlib.sha256()
+    package = Path(find_spec("towerpipe").origin).parent
     for name in INFERENCE_PACKAGES:
-        root = Path(find_spec(name).origin).parent
-        for path in sorted(root.rglob("*.py")):
-            h.update(path.relative_to(root.parent).as_posix().encode())
+        spec = find_spec(name)
+        origin = Path(spec.origin)
+        for path in sorted(origin.parent.rglob("*.py")) if spec.submodule_search_locations else [origin]:
+            h.update(path.relative_to(package).as_posix().encode())
             h.update(path.read_bytes())
     return h.hexdigest()[:16]
 

@@ -115,6 +115,7 @@ def run_benchmark(
     towers: Mapping[str, Any],
     out_dir: str | os.PathLike[str],
     reference: Mapping[str, str | os.PathLike[str]] | None = None,
+    verifiers: Mapping[str, str | os.PathLike[str]] | None = None,
 ) -> dict[str, Any]:
     """Run the benchmark and write ``report.md`` and ``scores.json`` into ``out_dir``.
 
@@ -134,6 +135,9 @@ def run_benchmark(
     reference
         Optional label -> model run on every zone too (e.g. the shipped models, which
         saw every family: a reference, not a transfer figure).
+    verifiers
+        Family -> the shape verifier trained without it (``towers.verifier`` on that
+        family's zones); default: ``towers.verifier`` everywhere.
 
     Returns
     -------
@@ -167,7 +171,9 @@ def run_benchmark(
                     "missing": missing,
                 }
                 if not missing:
-                    row.update(evaluate_model(model, zone, zones[zone], work=work, inference=inference, towers=towers))
+                    own = (verifiers or {}).get(family)
+                    rules = {**towers, **({"verifier": str(own)} if own else {})}
+                    row.update(evaluate_model(model, zone, zones[zone], work=work, inference=inference, towers=rules))
                 rows.append(row)
     transfer = {}
     for recipe in loso:
@@ -207,6 +213,7 @@ def run_benchmark(
         "bars": BARS,
         "inference": dict(inference),
         "towers": dict(towers),
+        "verifiers": {k: str(v) for k, v in (verifiers or {}).items()},
         "all_bars_met": bool(auto) and all(a["meets_bars"] for a in auto),
     }
     out = Path(out_dir)

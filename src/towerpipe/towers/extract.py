@@ -27,7 +27,11 @@ its cluster with ``prob >= point_threshold`` (a crown painted in one view is lef
    conductor support (:func:`towerpipe.towers.wires.wire_support`: the share of the 80-160 m
    ring reached by a wire pointing at its base), and towers at least ``wire_min_height``
    high with a support below ``min_wire_support`` are dropped: a transmission tower
-   carries conductors to the next tower, a crane or a mast does not.
+   carries conductors to the next tower, a crane or a mast does not;
+8. with a ``context``, each tower gets its shape score (:mod:`towerpipe.towers.shape`: the
+   verifier's judgement of the object under its footprint, from positions only), and towers
+   scoring below ``min_shape_score`` are dropped: the crowns of trees that the segmenter
+   paints, roofs, cranes.
 
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
@@ -53,6 +57,7 @@ from towerpipe.config import TowersConfig
 from towerpipe.io.fields import DATETIME, GEOMETRY_GRID, Field, conform, dtypes, empty_frame, join_values
 from towerpipe.towers.cluster import _as_pred, _footprint, cluster_towers, gather_points
 from towerpipe.towers.registry import REVIEW_STATUSES, assign_ids
+from towerpipe.towers.shape import load_verifier, object_points
 
 #: Fields of a tower record (besides the footprint geometry), in order: the GeoPackage
 #: layers ``towers`` and ``tower_points`` use exactly these.
@@ -93,6 +98,14 @@ TOWER_FIELDS: dict[str, Field] = {
     ),
     "prob_max": Field(
         "float64", "Max probability", "Highest single-view tower probability (0-1) of the points of its cluster", 3
+    ),
+    "shape_score": Field(
+        "float64",
+        "Shape score",
+        "How much the object under the footprint looks like a tower and not a tree, roof or crane "
+        "(0-1, towerpipe.towers.shape; towers below towers.min_shape_score are not reported); "
+        "NULL without the shape check",
+        3,
     ),
     "wire_support": Field(
         "float64",
@@ -216,7 +229,10 @@ def extract_towers(
           keeps every tower; an unknown, NaN, support never drops one);
         - ``max_base_ratio``: towers whose lowest point is higher than this share of their
           height above ground are dropped (1 keeps all): a tower stands on the ground, a
-          floating cluster is a piece of conductor or crossarm.
+          floating cluster is a piece of conductor or crossarm;
+        - ``verifier``, ``min_shape_score``: with a ``context``, towers whose shape score
+          (:class:`towerpipe.towers.shape.ShapeVerifier`) is below ``min_shape_score`` are
+          dropped (``verifier: none`` or 0 keeps all; without a context the score is NaN).
     zone
         Zone name (recorded in ``zone``; not part of the id).
     point_threshold
@@ -244,7 +260,8 @@ def extract_towers(
     context
         ``context(cx, cy)`` gives the points around a tower centre, ``({"x", "y", "z",
         "hag"} arrays, covered extent)``, or ``None``; then ``wire_support`` is
-        computed (:func:`towerpipe.towers.wires.wire_support`). Without it the column is NaN.
+        computed (:func:`towerpipe.towers.wires.wire_support`) and the shape score. Without it
+        both columns are NaN.
     registry
         The zone's tower registry (:func:`towerpipe.products.registry_file.read_registry`): a tower
         matching a registered one keeps its id, review status and ``first_seen``; others
@@ -269,6 +286,7 @@ def extract_towers(
         processed_at = datetime.now(UTC).replace(microsecond=0).isoformat()
     members: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     neighbours: list[dict[str, Any]] = []
+    verifier = load_verifier(rules.verifier) if context is not None else None
     pts = gather_points(preds, rules.threshold)
     xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
     labels = cluster_towers(
@@ -302,7 +320,7 @@ def extract_towers(
         if not owned and str(block_name) not in touched:
             continue  # a neighbour's tower that does not reach this block
         prob = pts["prob_single"][g].astype(np.float64)
-        support = float("nan")
+        support = shape = float("nan")
         ctx = context(float(c.x), float(c.y)) if context is not None else None
         if ctx is not None:
             from towerpipe.towers.wires import wire_support
@@ -315,16 +333,22 @@ def extract_towers(
             support = wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], float(bx), float(by), extent=extent)
             if hag.max() >= rules.wire_min_height and support < rules.min_wire_support:
                 continue
+            if verifier is not None:
+                obj = object_points(foot, arr["x"], arr["y"])
+                if len(obj):
+                    shape = verifier.score(arr["x"][obj], arr["y"][obj], arr["hag"][obj])
+                if shape < rules.min_shape_score:
+                    continue  # the object under it is shaped like a tree, a roof or a crane
         g_pts = g if point_threshold is None else g[pts["prob"][g] >= point_threshold]
         if len(g_pts) < rules.min_points:
             continue  # what would be reported is too few points for a tower (the paper's 20)
-        accepted.append((g, g_pts, foot, touched, owned, support, hag, prob))
+        accepted.append((g, g_pts, foot, touched, owned, support, shape, hag, prob))
     if not accepted:
         return ExtractedTowers(empty_towers(crs), members, neighbours)
     ids, first_seen, review = assign_ids([a[2] for a in accepted], registry)
     stamp = pd.Timestamp(processed_at)
     stamp = stamp.tz_localize("UTC") if stamp.tzinfo is None else stamp.tz_convert("UTC")
-    for (g, g_pts, foot, touched, owned, support, hag, prob), tid, first, rev in zip(
+    for (g, g_pts, foot, touched, owned, support, shape, hag, prob), tid, first, rev in zip(
         accepted, ids.tolist(), first_seen, review
     ):
         members[tid] = (pts["block"][g_pts], pts["point_index"][g_pts])
@@ -358,6 +382,7 @@ def extract_towers(
                 "n_points": int(len(g_pts)),
                 "prob_mean": float(prob.mean()),
                 "prob_max": float(prob.max()),
+                "shape_score": shape,
                 "wire_support": support,
                 "line_id": None,
                 "line_seq": None,

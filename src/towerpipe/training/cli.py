@@ -1,4 +1,5 @@
-"""``towerpipe train``: the command line of :func:`towerpipe.training.train.train_bundle`."""
+"""``towerpipe train`` and ``towerpipe train-verifier``: the command line of
+:func:`towerpipe.training.train.train_bundle` and :func:`towerpipe.training.verifier.train_verifier`."""
 
 from __future__ import annotations
 
@@ -13,13 +14,27 @@ from towerpipe.model.features import FEATURE_SETS
 from towerpipe.training.train import train_bundle
 
 
-def _cli(args: argparse.Namespace) -> int:
+def _paths(patterns: list[str]) -> list[str]:
     paths: list[str] = []
-    for pattern in args.tiles:
+    for pattern in patterns:
         hits = sorted(glob.glob(pattern, recursive=True))
         paths += hits if hits else ([pattern] if Path(pattern).exists() else [])
     if not paths:
-        raise ConfigError(f"--tiles {args.tiles}: no files match")
+        raise ConfigError(f"--tiles {patterns}: no files match")
+    return paths
+
+
+def _verifier_cli(args: argparse.Namespace) -> int:
+    from towerpipe.training.verifier import train_verifier
+
+    truth = dict(t.split("=", 1) for t in args.truth)
+    config = {"exclude_families": args.exclude_families}
+    print(train_verifier(_paths(args.tiles), args.out, config, truth=truth, threads=args.threads))
+    return 0
+
+
+def _cli(args: argparse.Namespace) -> int:
+    paths = _paths(args.tiles)
     config: dict[str, Any] = json.loads(Path(args.config).read_text()) if args.config else {}
     if args.config and args.config.endswith((".yaml", ".yml")):
         import yaml
@@ -51,3 +66,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--time-budget-s", dest="time_budget_s", type=float, help="per-network wall-clock budget")
     p.add_argument("--max-train-windows", dest="max_train_windows", type=int)
     p.set_defaults(func=_cli)
+
+    v = subparsers.add_parser("train-verifier", help="train the shape verifier of the tower rules from labelled tiles")
+    v.add_argument("--tiles", nargs="+", required=True, metavar="GLOB", help="labelled tile .npz files (globs allowed)")
+    v.add_argument("--out", required=True, help="verifier directory to write (verifier.json, MODEL_CARD.md)")
+    v.add_argument(
+        "--truth", nargs="*", default=[], metavar="ZONE=GPKG", help="tower truth of a generated zone (real families)"
+    )
+    v.add_argument(
+        "--exclude-families", nargs="*", default=[], help="real tower families left out (ts40k, uav, utility)"
+    )
+    v.add_argument("--threads", type=int, default=2)
+    v.set_defaults(func=_verifier_cli)

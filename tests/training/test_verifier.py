@@ -1,0 +1,56 @@
+"""Tests of towerpipe.training.verifier: the shape verifier's examples, training and files."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from test_dataset import make_tiles
+
+from towerpipe.errors import ConfigError
+from towerpipe.towers.shape import DESCRIPTOR_NAMES, VERIFIER_FILE, load_verifier
+from towerpipe.training.verifier import collect_objects, fit_verifier, train_verifier
+
+
+def test_objects_are_towers_and_tall_others_of_the_core(tmp_path):
+    paths = make_tiles(tmp_path, n_blocks=2)
+    objs = collect_objects(paths, {"copies": 1})
+    towers = [o for o in objs if o["label"] == 1]
+    others = [o for o in objs if o["label"] == 0]
+    assert len(towers) == 4  # two towers a tile, each seen once
+    assert {o["kind"] for o in towers} == {"synthetic"}  # no truth: no real family
+    assert others and {o["kind"] for o in others} <= {"tree", "building", "other"}
+    assert all(o["descriptor"].shape == (len(DESCRIPTOR_NAMES),) for o in objs)
+    assert {o["block"] for o in objs} == {"t/b0", "t/b1"}
+    # the same tiles and seed give the same examples, whatever the number of processes
+    again = collect_objects(paths, {"copies": 1}, threads=2)
+    np.testing.assert_array_equal(np.stack([o["descriptor"] for o in again]), np.stack([o["descriptor"] for o in objs]))
+
+
+def test_fit_separates_separable_descriptors():
+    rng = np.random.default_rng(0)
+    n = len(DESCRIPTOR_NAMES)
+    desc = np.r_[rng.normal(0, 1, (200, n)), rng.normal(3, 1, (40, n))]
+    label = np.r_[np.zeros(200, int), np.ones(40, int)]
+    from towerpipe.towers.shape import ShapeVerifier
+
+    v = ShapeVerifier(fit_verifier(desc, label, {"epochs": 100}))
+    score = v.score_descriptors(desc)
+    assert (score[label == 1] > 0.5).mean() > 0.95 and (score[label == 0] < 0.5).mean() > 0.95
+
+
+def test_train_verifier_writes_a_verifier_and_its_card(tmp_path):
+    paths = make_tiles(tmp_path / "tiles", n_blocks=5)
+    out = train_verifier(paths, tmp_path / "towerpipe-verifier-v9", {"epochs": 50})
+    data = json.loads((out / VERIFIER_FILE).read_text())
+    card = data["card"]
+    assert card["name"] == "towerpipe-verifier-v9" and card["descriptor"] == list(DESCRIPTOR_NAMES)
+    assert card["objects"]["towers_by_family"] == {"synthetic": 20}  # 10 towers x 2 copies
+    assert card["validation"]["towers"] > 0 and 0.0 <= card["validation"]["tower_recall"] <= 1.0
+    assert "Held-out blocks" in (out / "MODEL_CARD.md").read_text()
+    v = load_verifier(out)
+    assert v.name == "towerpipe-verifier-v9"
+    # leaving out the only family there is leaves no tower to learn from: said, not trained
+    with pytest.raises(ConfigError, match="not both towers"):
+        train_verifier(paths, tmp_path / "none", {"epochs": 5, "exclude_families": ["synthetic"]})
