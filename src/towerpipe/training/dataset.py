@@ -207,15 +207,23 @@ def split_blocks(
     return out
 
 
-def _point_families(xy: np.ndarray, truth: Any) -> np.ndarray:
-    """Family bit (:data:`FAMILY_BITS`) of tower points: that of the nearest true tower."""
+def nearest_families(xy: np.ndarray, truth: Any) -> np.ndarray:
+    """Family name (a key of :data:`FAMILY_BITS`) of the true tower nearest each ``(n, 2)`` xy:
+    its real family, else ``"synthetic"`` (also for every point without a truth)."""
     from towerpipe.synth.real import tower_family
 
     if truth is None or len(truth) == 0 or len(xy) == 0:
-        return np.zeros(len(xy), np.uint8)
-    bits = np.array([FAMILY_BITS[tower_family(d) or "synthetic"] for d in truth["design"]], np.uint8)
+        return np.full(len(xy), "synthetic", dtype=object)
+    names = np.array([tower_family(d) or "synthetic" for d in truth["design"]], dtype=object)
     _, i = cKDTree(np.c_[truth["x"], truth["y"]]).query(xy)
-    return bits[i]
+    return names[i]
+
+
+def _point_families(xy: np.ndarray, truth: Any) -> np.ndarray:
+    """Family bit (:data:`FAMILY_BITS`) of tower points: that of the nearest true tower (0 without a truth)."""
+    if truth is None or len(truth) == 0 or len(xy) == 0:
+        return np.zeros(len(xy), np.uint8)
+    return np.array([FAMILY_BITS[f] for f in nearest_families(xy, truth)], np.uint8)
 
 
 def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator, truth: Any = None) -> dict[str, Any]:
@@ -385,7 +393,7 @@ def build_windows(
     paths = sorted(str(p) for p in tile_paths)
     if not paths:
         raise ConfigError("dataset: no tile files given")
-    truths = {z: _read_truth(t) for z, t in (truth or {}).items()}
+    truths = {z: read_truth(t) for z, t in (truth or {}).items()}
     rng = np.random.default_rng(int(cfg["seed"]))
     per_tile = []
     for p in paths:
@@ -464,7 +472,8 @@ def build_windows(
     return ws
 
 
-def _read_truth(path: str | os.PathLike[str]) -> Any:
+def read_truth(path: str | os.PathLike[str]) -> Any:
+    """The ``design``, ``x`` and ``y`` of the towers of a zone's truth GeoPackage (layer ``towers``)."""
     import pyogrio
 
     return pyogrio.read_dataframe(path, layer="towers", columns=["design", "x", "y"], read_geometry=False)

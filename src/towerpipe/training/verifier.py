@@ -75,8 +75,7 @@ def _tile_objects(path: str, truth: Any, cfg: Mapping[str, Any], seed: Sequence[
     from towerpipe import classes
     from towerpipe.inference.candidates import height_peaks
     from towerpipe.io.tiles import load_tile
-    from towerpipe.synth.real import tower_family
-    from towerpipe.training.dataset import tower_instances
+    from towerpipe.training.dataset import nearest_families, tower_instances
 
     rng = np.random.default_rng(list(seed))
     tile = load_tile(path)
@@ -114,10 +113,7 @@ def _tile_objects(path: str, truth: Any, cfg: Mapping[str, Any], seed: Sequence[
         centres.append((cx, cy))
         if not in_core(cx, cy) or hag[idx].max() < float(cfg["min_height"]):
             continue
-        family = "synthetic"
-        if truth is not None and len(truth):
-            j = int(np.argmin(np.hypot(truth["x"].to_numpy() - cx, truth["y"].to_numpy() - cy)))
-            family = tower_family(truth["design"].iloc[j]) or "synthetic"
+        family = str(nearest_families(np.array([[cx, cy]]), truth)[0])
         for _ in range(int(cfg["copies"])):
             part = idx[rng.random(idx.size) < rng.uniform(*cfg["tower_keep"])]
             add(1, family, xy[part if part.size >= 5 else idx])
@@ -159,10 +155,10 @@ def collect_objects(
         Tiles read in parallel.
     """
     from towerpipe.io.columns import read_meta
-    from towerpipe.training.dataset import _read_truth
+    from towerpipe.training.dataset import read_truth
 
     cfg = {**DEFAULT_VERIFIER_CONFIG, **dict(config or {})}
-    truths = {z: _read_truth(t) for z, t in (truth or {}).items()}
+    truths = {z: read_truth(t) for z, t in (truth or {}).items()}
     paths = sorted(str(p) for p in tile_paths)
     jobs = [(p, truths.get(read_meta(p).get("zone")), cfg, (int(cfg["seed"]), i)) for i, p in enumerate(paths)]
     if threads > 1:
