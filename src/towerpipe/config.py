@@ -258,6 +258,9 @@ class TowersConfig(Section):
     verifier: str
     #: Towers whose shape score is lower are dropped (0 keeps all).
     min_shape_score: float
+    #: A cluster the shape check drops is clustered again from its points at or above each
+    #: of these probabilities in turn, and each part is judged (empty: never).
+    split_thresholds: Sequence[float]
 
 
 @dataclass(frozen=True)

@@ -131,6 +131,40 @@ def test_shape_rule_drops_what_the_verifier_rejects(tmp_path, monkeypatch):
     assert len(plain) == 1 and plain["shape_score"].isna().all()
 
 
+class _NarrowVerifier:
+    """Tower-like when the object is at most 9 m across in y (a stand-in for the network)."""
+
+    def score(self, x, y, hag):
+        return float(np.ptp(y) <= 9.0)
+
+
+def test_a_tower_among_painted_crowns_is_split_from_them(monkeypatch):
+    """A crown touching a tower, painted at 0.6 by the segmenter, makes one cluster with it and the
+    object under that cluster is rejected; clustered again from its points at or above 0.7, the
+    tower stands alone and passes. Without split thresholds the tower is lost."""
+    import towerpipe.towers.extract as ex
+
+    monkeypatch.setattr(ex, "load_verifier", lambda spec: _NarrowVerifier())
+    t_xyz, t_hag = synthetic_tower(X0 + 50, Y0 + 50, seed=2)
+    cx, cy, ch = tree(X0 + 50, Y0 + 50 + 7.4, height=12.0, seed=3)
+    c_xyz = np.c_[cx, cy, 100.0 + ch]
+    xyz, hag = np.r_[t_xyz, c_xyz], np.r_[t_hag, ch].astype(np.float32)
+    prob = np.r_[np.full(len(t_xyz), 0.95), np.full(len(c_xyz), 0.6)]
+    pair = pred_pair(xyz, hag, prob, ["b1"])
+    ctx = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "hag": hag.astype(np.float64)}
+
+    def context(cx, cy):
+        return ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)
+
+    lost = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_shape_score=0.5, split_thresholds=[])
+    assert len(lost.towers) == 0
+    found = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_shape_score=0.5, split_thresholds=[0.7])
+    assert len(found.towers) == 1
+    ((blocks, idx),) = found.members.values()
+    assert set(idx.tolist()) == set(range(len(t_xyz)))  # the tower's points, none of the crown's
+    assert found.towers["shape_score"].iloc[0] == 1.0
+
+
 @pytest.mark.shared
 def test_shipped_verifier_knows_real_towers_from_real_trees():
     """The shipped verifier as shipped, on real objects: real UAV lattice towers score high, the

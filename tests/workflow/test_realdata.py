@@ -72,7 +72,7 @@ def test_towers_found_and_named_with_the_model(corridor):
     tmp, truth, out = corridor
     rep = evaluate_zone(tmp / "in", out)
     assert rep["towers_true"] == len(truth.towers) >= 3
-    assert rep["tower_recall"] >= 2 / 3, rep
+    assert rep["tower_recall"] == 1.0, rep
     meta = pyogrio.read_info(out / "towers.gpkg", layer="towers")["dataset_metadata"]
     choice = json.loads(meta["model_choice"])
     assert choice["mode"] == "auto" and choice["reason"].startswith("auto:")

@@ -32,6 +32,10 @@ its cluster with ``prob >= point_threshold`` (a crown painted in one view is lef
    verifier's judgement of the object under its footprint, from positions only), and towers
    scoring below ``min_shape_score`` are dropped: the crowns of trees that the segmenter
    paints, roofs, cranes.
+   This check runs before rule 7 (it is cheap and drops most clusters). A cluster it drops
+   is clustered again from its points at or above each of ``split_thresholds`` in turn
+   (until one gives clusters) and each part judged by rules 4-8: a tower standing among the
+   crowns that the segmenter paints with it.
 
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
@@ -184,6 +188,35 @@ def _in_bounds(x: np.ndarray, y: np.ndarray, bounds: Sequence[float]) -> np.ndar
     return (x >= xmin) & (x < xmax) & (y >= ymin) & (y < ymax)
 
 
+def _split_by_confidence(
+    g: np.ndarray,
+    pts: Mapping[str, np.ndarray],
+    rules: TowersConfig,
+    thresholds: Sequence[float],
+    merge_gap: float,
+    max_extent: float,
+) -> list[tuple[np.ndarray, int]]:
+    """The clusters of ``g``'s points at or above the first of ``thresholds`` that makes any,
+    each with the index of the next threshold."""
+    for i, t in enumerate(thresholds):
+        sub = g[pts["prob_single"][g] >= t]
+        if len(sub) < rules.min_points:
+            return []
+        xyz = np.stack([pts["x"][sub], pts["y"][sub], pts["z"][sub]], axis=1)
+        lab = cluster_towers(
+            xyz,
+            pts["hag"][sub],
+            linkage=rules.linkage,
+            merge_gap=merge_gap,
+            max_extent=max_extent,
+            min_points=rules.min_points,
+            min_height=rules.min_height,
+        )
+        if (lab >= 0).any():
+            return [(sub[lab == k], i + 1) for k in range(int(lab.max()) + 1)]
+    return []
+
+
 def extract_towers(
     preds: Sequence[Any],
     block_name: str,
@@ -233,6 +266,8 @@ def extract_towers(
         - ``verifier``, ``min_shape_score``: with a ``context``, towers whose shape score
           (:class:`towerpipe.towers.shape.ShapeVerifier`) is below ``min_shape_score`` are
           dropped (``verifier: none`` or 0 keeps all; without a context the score is NaN).
+        - ``split_thresholds``: a cluster the shape check drops is clustered again from its
+          points at or above each of these in turn, and each part is judged (``()``: never).
     zone
         Zone name (recorded in ``zone``; not part of the id).
     point_threshold
@@ -306,7 +341,10 @@ def extract_towers(
     groups = np.split(order, np.flatnonzero(np.diff(labels[order])) + 1)
     xmin, ymin, xmax, ymax = (float(v) for v in block_bounds)
     rows, geoms, accepted = [], [], []
-    for g in groups:
+    queue = [(g, 0) for g in groups]
+    splits = tuple(float(t) for t in rules.split_thresholds)
+    while queue:
+        g, level = queue.pop(0)
         if rules.min_core_prob > 0 and np.quantile(pts["prob_single"][g], 0.9) < rules.min_core_prob:
             continue
         hag = pts["hag"][g].astype(np.float64)
@@ -319,29 +357,35 @@ def extract_towers(
         owned = bool(_in_bounds(np.array([c.x]), np.array([c.y]), block_bounds)[0])
         if not owned and str(block_name) not in touched:
             continue  # a neighbour's tower that does not reach this block
+        g_pts = g if point_threshold is None else g[pts["prob"][g] >= point_threshold]
+        if len(g_pts) < rules.min_points:
+            continue  # what would be reported is too few points for a tower (the paper's 20)
         prob = pts["prob_single"][g].astype(np.float64)
         support = shape = float("nan")
         ctx = context(float(c.x), float(c.y)) if context is not None else None
         if ctx is not None:
             from towerpipe.towers.wires import wire_support
 
-            # measured from the tower's base (median xy of its lowest third): a crane's
-            # footprint centroid lies out along its jib, its base is the mast
-            low = hag <= hag.min() + (hag.max() - hag.min()) / 3.0
-            bx, by = np.median(xy[low], axis=0)
             arr, extent = ctx
-            support = wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], float(bx), float(by), extent=extent)
-            if hag.max() >= rules.wire_min_height and support < rules.min_wire_support:
-                continue
+            # the shape check first: it is cheap, and it drops most clusters (crowns)
             if verifier is not None:
                 obj = object_points(foot, arr["x"], arr["y"])
                 if len(obj):
                     shape = verifier.score(arr["x"][obj], arr["y"][obj], arr["hag"][obj])
                 if shape < rules.min_shape_score:
-                    continue  # the object under it is shaped like a tree, a roof or a crane
-        g_pts = g if point_threshold is None else g[pts["prob"][g] >= point_threshold]
-        if len(g_pts) < rules.min_points:
-            continue  # what would be reported is too few points for a tower (the paper's 20)
+                    # the object under it is shaped like a tree, a roof or a crane; or it is a
+                    # tower standing in crowns the segmenter painted with it: its more
+                    # confident points are clustered again and each part judged
+                    parts = _split_by_confidence(g, pts, rules, splits[level:], merge_gap, max_extent)
+                    queue.extend((sub, level + nxt) for sub, nxt in parts)
+                    continue
+            # measured from the tower's base (median xy of its lowest third): a crane's
+            # footprint centroid lies out along its jib, its base is the mast
+            low = hag <= hag.min() + (hag.max() - hag.min()) / 3.0
+            bx, by = np.median(xy[low], axis=0)
+            support = wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], float(bx), float(by), extent=extent)
+            if hag.max() >= rules.wire_min_height and support < rules.min_wire_support:
+                continue
         accepted.append((g, g_pts, foot, touched, owned, support, shape, hag, prob))
     if not accepted:
         return ExtractedTowers(empty_towers(crs), members, neighbours)
