@@ -78,6 +78,7 @@ def test_benchmark_rows_auto_and_report(bare_zone, random_model_factory):
         "max_base_ratio": 1.0,
         "verifier": "shipped",
         "min_shape_score": 0.0,
+        "split_thresholds": [],
     }
     out = tmp / "out"
     result = run_benchmark(
