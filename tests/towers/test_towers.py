@@ -363,31 +363,20 @@ def test_tall_tower_without_conductors_is_dropped_and_support_recorded():
     def context(cx, cy):
         return ctx_arrays, (X0 - 40, Y0 - 40, X0 + 540, Y0 + 540)
 
-    # the context holds the wires only: the shape check (which judges the context's points
-    # under a tower) is not what this test is about
-    everything = extract([pair], "b1", BOUNDS, zone="z1", verifier="none", context=context, min_wire_support=0.0).towers
+    everything = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.0).towers
     assert len(everything) == 2
     sup = everything.sort_values("centroid_x")["wire_support"].to_numpy()
     assert sup[0] == 1.0 and sup[1] == 0.0
-    kept = extract([pair], "b1", BOUNDS, zone="z1", verifier="none", context=context, min_wire_support=0.5).towers
+    kept = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.5).towers
     assert len(kept) == 1 and abs(kept.iloc[0]["centroid_x"] - (X0 + 50)) < 1
     # exempt below wire_min_height, and no context means unknown support (NaN), never a drop
     assert (
         len(
-            extract(
-                [pair],
-                "b1",
-                BOUNDS,
-                zone="z1",
-                verifier="none",
-                context=context,
-                min_wire_support=0.5,
-                wire_min_height=50.0,
-            ).towers
+            extract([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.5, wire_min_height=50.0).towers
         )
         == 2
     )
-    plain = extract([pair], "b1", BOUNDS, zone="z1", verifier="none", min_wire_support=0.5).towers
+    plain = extract([pair], "b1", BOUNDS, zone="z1", min_wire_support=0.5).towers
     assert len(plain) == 2 and plain["wire_support"].isna().all()
 
 

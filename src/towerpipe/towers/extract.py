@@ -47,6 +47,7 @@ compares towers with ground truth (synthetic sidecar or towers built from class-
 from __future__ import annotations
 
 import os
+from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -190,30 +191,17 @@ def _in_bounds(x: np.ndarray, y: np.ndarray, bounds: Sequence[float]) -> np.ndar
 
 def _split_by_confidence(
     g: np.ndarray,
-    pts: Mapping[str, np.ndarray],
-    rules: TowersConfig,
+    prob: np.ndarray,
+    cluster: Callable[[np.ndarray], np.ndarray],
     thresholds: Sequence[float],
-    merge_gap: float,
-    max_extent: float,
-) -> list[tuple[np.ndarray, int]]:
+) -> list[tuple[np.ndarray, tuple[float, ...]]]:
     """The clusters of ``g``'s points at or above the first of ``thresholds`` that makes any,
-    each with the index of the next threshold."""
+    each with the thresholds left after it (``cluster(idx)`` labels the points ``idx``)."""
     for i, t in enumerate(thresholds):
-        sub = g[pts["prob_single"][g] >= t]
-        if len(sub) < rules.min_points:
-            return []
-        xyz = np.stack([pts["x"][sub], pts["y"][sub], pts["z"][sub]], axis=1)
-        lab = cluster_towers(
-            xyz,
-            pts["hag"][sub],
-            linkage=rules.linkage,
-            merge_gap=merge_gap,
-            max_extent=max_extent,
-            min_points=rules.min_points,
-            min_height=rules.min_height,
-        )
+        sub = g[prob[g] >= t]
+        lab = cluster(sub)
         if (lab >= 0).any():
-            return [(sub[lab == k], i + 1) for k in range(int(lab.max()) + 1)]
+            return [(sub[lab == k], tuple(thresholds[i + 1 :])) for k in range(int(lab.max()) + 1)]
     return []
 
 
@@ -324,15 +312,20 @@ def extract_towers(
     verifier = load_verifier(rules.verifier) if context is not None else None
     pts = gather_points(preds, rules.threshold)
     xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
-    labels = cluster_towers(
-        xyz,
-        pts["hag"],
-        linkage=rules.linkage,
-        merge_gap=merge_gap,
-        max_extent=max_extent,
-        min_points=rules.min_points,
-        min_height=rules.min_height,
-    )
+
+    def cluster(idx: np.ndarray | slice) -> np.ndarray:
+        """Tower labels of the points ``idx`` (the clustering of rules 1-4)."""
+        return cluster_towers(
+            xyz[idx],
+            pts["hag"][idx],
+            linkage=rules.linkage,
+            merge_gap=merge_gap,
+            max_extent=max_extent,
+            min_points=rules.min_points,
+            min_height=rules.min_height,
+        )
+
+    labels = cluster(slice(None))
     if not (labels >= 0).any():
         return ExtractedTowers(empty_towers(crs), members, neighbours)
     sources = dict(source_files or {})
@@ -341,10 +334,10 @@ def extract_towers(
     groups = np.split(order, np.flatnonzero(np.diff(labels[order])) + 1)
     xmin, ymin, xmax, ymax = (float(v) for v in block_bounds)
     rows, geoms, accepted = [], [], []
-    queue = [(g, 0) for g in groups]
-    splits = tuple(float(t) for t in rules.split_thresholds)
+    # each cluster with the split thresholds still to try on it (rule 8)
+    queue = deque((g, tuple(float(t) for t in rules.split_thresholds)) for g in groups)
     while queue:
-        g, level = queue.pop(0)
+        g, splits = queue.popleft()
         if rules.min_core_prob > 0 and np.quantile(pts["prob_single"][g], 0.9) < rules.min_core_prob:
             continue
         hag = pts["hag"][g].astype(np.float64)
@@ -376,8 +369,7 @@ def extract_towers(
                     # the object under it is shaped like a tree, a roof or a crane; or it is a
                     # tower standing in crowns the segmenter painted with it: its more
                     # confident points are clustered again and each part judged
-                    parts = _split_by_confidence(g, pts, rules, splits[level:], merge_gap, max_extent)
-                    queue.extend((sub, level + nxt) for sub, nxt in parts)
+                    queue.extend(_split_by_confidence(g, pts["prob_single"], cluster, splits))
                     continue
             # measured from the tower's base (median xy of its lowest third): a crane's
             # footprint centroid lies out along its jib, its base is the mast
