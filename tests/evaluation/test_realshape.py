@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from conftest import BACKGROUNDS, TOWERS, preprocess_settings
+from conftest import BACKGROUNDS, TOWERS, preprocess_settings, schema_config
 from towerpipe.evaluation.realshape import run_benchmark, stamp_cards, zone_name
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.shared]
@@ -54,32 +54,20 @@ def test_benchmark_rows_auto_and_report(bare_zone, random_model_factory):
     tmp, zone, truth = bare_zone
     assert len(truth.towers) >= 1
     loso = {"full": {"ts40k": random_model_factory("full")}, "shape": {"ts40k": random_model_factory("shape")}}
-    inference = {
-        "window": 40.0,
-        "stride": 20.0,
-        "gate": 0.5,
-        "combine": "max",
-        "batch_size": 8,
-        "min_points": 10,
-        "min_height": 10.0,
-        "tta": 1,
-        "windows": "grid",
-        "threshold": 0.5,
-    }
-    towers = {
-        "threshold": 0.5,
-        "linkage": 2.5,
-        "min_points": 20,
-        "min_height": 10.0,
-        "min_core_prob": 0.0,
-        "min_wire_support": 0.0,
-        "wire_min_height": 20.0,
-        "wire_ring_coverage": 0.0,
-        "max_base_ratio": 1.0,
-        "verifier": "shipped",
-        "min_shape_score": 0.0,
-        "split_thresholds": [],
-    }
+    # the schema's defaults, with a lenient gate and tower rules (random models)
+    cfg = schema_config(
+        inference={"gate": 0.5, "batch_size": 8, "tta": 1, "windows": "grid", "threshold": 0.5},
+        towers={
+            "threshold": 0.5,
+            "min_core_prob": 0.0,
+            "min_wire_support": 0.0,
+            "wire_ring_coverage": 0.0,
+            "max_base_ratio": 1.0,
+            "min_shape_score": 0.0,
+            "split_thresholds": [],
+        },
+    )
+    inference, towers = cfg["inference"], cfg["towers"]
     out = tmp / "out"
     result = run_benchmark(
         loso, {zone: tmp / "data" / zone}, work=tmp / "work", inference=inference, towers=towers, out_dir=out
