@@ -206,7 +206,7 @@ def stage_split(rows: list[dict]) -> dict[str, dict[str, float]]:
 def gate_stats(work: Path) -> dict[str, float]:
     """Windows total / passed the gate / segmented over all prediction files under ``work``, and
     the speed of the gate and the segmenter in windows per second of one job's thread."""
-    tot = {"windows_total": 0, "windows_passed_gate": 0, "windows_segmented": 0}
+    tot = {"windows_total": 0, "windows_shape_gated": 0, "windows_passed_gate": 0, "windows_segmented": 0}
     t = {"windows_classified": 0, "gate_s": 0.0, "segment_s": 0.0}
     for p in work.rglob("pred/*/*.npz"):
         meta = read_meta(p)
@@ -260,7 +260,8 @@ def bench_e2e(args: argparse.Namespace) -> int:
         f"(--cores 2) {res['e2e_s']:.1f} s  ratio {res['ratio']:.2f}  {n / res['e2e_s'] / 1e6:.2f} Mpts/s"
     )
     print(
-        f"gate: {g['windows_total']} windows, {g['windows_passed_gate']} passed, {g['windows_segmented']} segmented "
+        f"gate: {g['windows_total']} windows, {g['windows_shape_gated']} left out by the shape gate, "
+        f"{g['windows_passed_gate']} passed, {g['windows_segmented']} segmented "
         f"-> {100 * res['gate_skip_rate']:.1f} % skipped"
     )
     speed = [(k, g[f"{k}_windows_per_s_per_thread"]) for k in ("gate", "segment")]

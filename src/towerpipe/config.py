@@ -293,6 +293,9 @@ class InferenceConfig(Section):
     min_height: float | None
     #: Views of each segmented window averaged (1, 2, 4 or 8).
     tta: int
+    #: With candidate windows, windows whose peak object the shape verifier
+    #: (``towers.verifier``) scores below this are background without a classifier pass (0: none).
+    shape_gate: float
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,8 @@ combine rule is observable).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -131,6 +133,14 @@ def expected_probs(tile: Tile, passed_keys: list[tuple[int, int]], combine: str,
 def by_id(arrays):
     order = np.lexsort((arrays["point_index"], arrays["block_id"]))
     return {k: v[order] for k, v in arrays.items()}
+
+
+def assert_same(a, b):
+    """Two predictions hold the same points with the same values."""
+    a, b = by_id(a), by_id(b)
+    assert a.keys() == b.keys()
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
 
 
 # ----------------------------------------------------------------------------- gating
@@ -368,6 +378,38 @@ def test_candidate_windows_cover_every_tower_point_the_grid_segments():
         assert seg_grid and seg_grid <= seg_cand
 
 
+class ConstVerifier:
+    """A shape verifier giving every object the same score."""
+
+    name = "const"
+
+    def __init__(self, score: float):
+        self.value = score
+
+    def score_descriptors(self, desc):
+        return np.full(len(desc), self.value)
+
+
+def test_shape_gate_skips_windows_whose_peak_object_it_rejects():
+    tile = make_tile()
+    settings = grid_inference(windows="candidates", min_height=10.0, shape_gate=0.05)
+    ref, st_ref = predict_tile(tile, FakeBundle(), settings)  # no verifier: no shape gate
+    assert st_ref["windows_shape_gated"] == 0 and st_ref["shape_gate"] is None
+    kept, st_kept = predict_tile(tile, FakeBundle(), settings, verifier=ConstVerifier(1.0))
+    assert st_kept["windows_shape_gated"] == 0 and st_kept["shape_gate"] == 0.05
+    assert_same(kept, ref)
+    none, st_none = predict_tile(tile, FakeBundle(), settings, verifier=ConstVerifier(0.0))
+    assert st_none["windows_shape_gated"] == st_none["windows_total"] > 0
+    assert st_none["windows_classified"] == 0 and len(none["x"]) == 0
+    off, st_off = predict_tile(tile, FakeBundle(), replace(settings, shape_gate=0.0), verifier=ConstVerifier(0.0))
+    assert st_off["windows_shape_gated"] == 0
+    assert_same(off, ref)
+    # the grid's windows have no peak: the shape gate does not apply
+    grid = grid_inference(min_height=10.0, shape_gate=0.05)
+    _, st_grid = predict_tile(tile, FakeBundle(), grid, verifier=ConstVerifier(0.0))
+    assert st_grid["windows_shape_gated"] == 0 and st_grid["windows_classified"] > 0
+
+
 def test_candidate_windows_identical_from_adjacent_tiles():
     tile = make_tile(density=0.3)
     a = tile.arrays
@@ -384,8 +426,6 @@ def test_candidate_windows_identical_from_adjacent_tiles():
 
 def test_bad_config_rejected():
     """Settings built by hand (not from a validated config) are checked too."""
-    from dataclasses import replace
-
     tile = make_tile(density=0.1)
     with pytest.raises(ConfigError):
         predict_tile(tile, FakeBundle(), replace(grid_inference(), combine="median"))

@@ -18,6 +18,7 @@ from towerpipe.towers.shape import (
     ShapeVerifier,
     load_verifier,
     object_points,
+    peak_scores,
     resolve_verifier,
     shape_descriptor,
 )
@@ -200,3 +201,39 @@ def test_shipped_verifier_knows_real_towers_from_real_trees():
     assert len(towers) >= 16 and len(trees) >= 4
     assert np.mean(np.asarray(towers) >= 0.5) >= 0.75, towers
     assert np.mean(np.asarray(trees) >= 0.5) <= 0.1, trees
+
+
+@pytest.mark.shared
+def test_shape_gate_keeps_the_peak_of_a_real_tower_among_trees():
+    """The shape gate of the inference (:func:`peak_scores`, shipped verifier): the peak of a
+    real UAV lattice tower thinned as a flight sees it keeps its window at the default gate
+    of the schema, the peaks of a stand of trees beside it do not."""
+    from conftest import schema_config
+    from towerpipe.inference.candidates import height_peaks
+    from towerpipe.synth.real import airborne_resample, load_real_towers
+
+    gate = schema_config()["inference"]["shape_gate"]
+    v = load_verifier("shipped")
+    rng = np.random.default_rng(1)
+    name, xyz = next((n, p) for n, p in load_real_towers(UAV_TOWERS.parent) if n.startswith("uav:"))
+    p = airborne_resample(xyz, 10.0, rng)
+    xs, ys, hs = [p[:, 0] - p[:, 0].mean()], [p[:, 1] - p[:, 1].mean()], [p[:, 2] - p[:, 2].min()]
+    for k, (cx, cy) in enumerate([(30, 0), (45, 3), (30, 20), (55, -15), (-30, 25)]):
+        tx, ty, th = tree(cx, cy, height=14.0 + k, seed=k)
+        xs.append(tx), ys.append(ty), hs.append(th)
+    x, y, hag = np.concatenate(xs), np.concatenate(ys), np.concatenate(hs)
+    _, centres, _ = height_peaks(x, y, hag, min_height=10.0)
+    scores = peak_scores(v, centres, x, y, hag)
+    at_tower = np.hypot(centres[:, 0], centres[:, 1]) < 8.0
+    assert at_tower.sum() >= 1 and (~at_tower).sum() >= 4, centres
+    assert scores[at_tower].max() >= gate, (name, scores)
+    assert (scores[~at_tower] < gate).all(), scores
+
+
+def test_peak_scores_of_a_peak_without_an_object_are_zero():
+    v = _verifier(5.0)  # scores every object ~1
+    x, y, hag = tree(0.0, 0.0)
+    s = peak_scores(v, np.array([[0.0, 0.0], [100.0, 100.0]]), x, y, hag)
+    assert s[0] > 0.9 and s[1] == 0.0
+    exclude = np.ones(len(x), bool)  # every point an overhead wire: no object anywhere
+    assert (peak_scores(v, np.array([[0.0, 0.0]]), x, y, hag, exclude=exclude) == 0).all()

@@ -31,6 +31,8 @@ rule infer_tile:
         model=lambda wc: model_files(wc.zone),
         # after the zone's model is chosen; a rewritten choice alone reruns nothing
         choice=lambda wc: ancient(model_choice_file(wc.zone)),
+        # the shape gate's verifier (inference.shape_gate, towers.verifier)
+        verifier=verifier_files(),
     output:
         pred=PRED,
     log:
@@ -47,5 +49,6 @@ rule infer_tile:
         # the point threshold applies after the windows (towers, merge): changing it
         # does not rerun the inference
         inference={k: v for k, v in INFER.items() if k != "threshold"},
+        verifier=TOWERS["verifier"],
     script:
         "../scripts/infer_tile.py"

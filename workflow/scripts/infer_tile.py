@@ -10,5 +10,6 @@ run_step(
         snakemake.output.pred,
         InferenceConfig.from_config({"inference": snakemake.params.inference}),
         choice=snakemake.input.choice,
+        verifier=snakemake.params.verifier,
     ),
 )

@@ -68,7 +68,11 @@ def zone_tiles(work: str | os.PathLike[str], zone: str) -> list[Path]:
 
 
 def zone_predictions(
-    work: str | os.PathLike[str], zone: str, model: str | os.PathLike[str], settings: InferenceConfig
+    work: str | os.PathLike[str],
+    zone: str,
+    model: str | os.PathLike[str],
+    settings: InferenceConfig,
+    verifier: str | os.PathLike[str] = "none",
 ) -> list[str]:
     """Prediction files of every tile of a zone with ``settings.tta`` views, computed once and cached.
 
@@ -83,6 +87,8 @@ def zone_predictions(
     settings
         The inference settings (the config's ``inference`` section, with the candidate's
         views and gate).
+    verifier
+        The shape gate's verifier (``towers.verifier``; see :func:`towerpipe.inference.infer.infer_tile`).
 
     Returns
     -------
@@ -95,11 +101,21 @@ def zone_predictions(
     from towerpipe.model.cards import config_hash, read_card
 
     tiles = zone_tiles(work, zone)
-    keys = ("window", "windows", "stride", "gate", "combine", "batch_size", "min_points", "min_height")
+    from towerpipe.towers.shape import VERIFIER_FILE, resolve_verifier
+
+    keys = ("window", "windows", "stride", "gate", "combine", "batch_size", "min_points", "min_height", "shape_gate")
     kw = {k: getattr(settings, k) for k in keys}
-    # the weights' hashes and the inference code are part of the key: a retrained model or
-    # another way of placing windows never reuses old predictions
-    key = config_hash({"inference": kw, "weights": read_card(model).get("files"), "code": _inference_code()})
+    gate_by = resolve_verifier(str(verifier)) if settings.shape_gate > 0 else None
+    # the weights' hashes (the shape gate's too) and the inference code are part of the key: a
+    # retrained model or another way of placing windows never reuses old predictions
+    key = config_hash(
+        {
+            "inference": kw,
+            "weights": read_card(model).get("files"),
+            "verifier": _file_sha(gate_by / VERIFIER_FILE) if gate_by else None,
+            "code": _inference_code(),
+        }
+    )
     out_dir = Path(work, zone, "calibrate", f"{Path(model).name}_tta{settings.tta}_{key}")
     bundle = None
     paths = []
@@ -107,9 +123,15 @@ def zone_predictions(
         out = out_dir / f"{t.parent.name}_{t.stem}.npz"
         if not out.exists() or out.stat().st_mtime < t.stat().st_mtime:
             bundle = bundle or load_bundle(model)
-            infer_tile(t, bundle, out, settings)
+            infer_tile(t, bundle, out, settings, verifier=str(verifier))
         paths.append(str(out))
     return paths
+
+
+def _file_sha(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def _inference_code() -> str:
@@ -328,7 +350,9 @@ def sweep(
             if (zone, tta, gate) not in preds:
                 zm = model if isinstance(model, (str, os.PathLike)) else model[zone]
                 cand_settings = dataclasses.replace(settings, tta=tta, gate=gate)
-                preds[(zone, tta, gate)] = [load_pred(p) for p in zone_predictions(work, zone, zm, cand_settings)]
+                preds[(zone, tta, gate)] = [
+                    load_pred(p) for p in zone_predictions(work, zone, zm, cand_settings, towers["verifier"])
+                ]
             row[zone] = score_zone(
                 preds[(zone, tta, gate)],
                 tiles,

@@ -76,8 +76,8 @@ def evaluate_model(
 ) -> dict[str, Any]:
     """A model's figures on one preprocessed labelled zone (:func:`towerpipe.evaluation.calibrate.score_zone`).
 
-    Predictions are cached per model weights and inference settings
-    (:func:`towerpipe.evaluation.calibrate.zone_predictions`).
+    Predictions are cached per model weights, inference settings and shape-gate verifier
+    (``towers["verifier"]``: :func:`towerpipe.evaluation.calibrate.zone_predictions`).
     """
     import geopandas as gpd
 
@@ -86,7 +86,7 @@ def evaluate_model(
     from towerpipe.io.predictions import load_pred
 
     settings = InferenceConfig.from_config({"inference": inference})
-    preds = [load_pred(p) for p in zone_predictions(work, zone, model, settings)]
+    preds = [load_pred(p) for p in zone_predictions(work, zone, model, settings, towers["verifier"])]
     truth = gpd.read_file(Path(input_dir) / "towers_truth.gpkg", layer="towers")
     return score_zone(
         preds,

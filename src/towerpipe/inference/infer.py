@@ -6,6 +6,12 @@ constrained sampler, the classifier decides whether a tower is in it, and only
 windows at or above the gate threshold go through the segmenter, on **all** their
 points. Windows below the gate are background and cost one classifier pass.
 
+With ``windows: candidates`` and a shape verifier, a **shape gate** comes first: a window
+whose peak stands on an object the verifier scores below ``shape_gate``
+(:func:`towerpipe.towers.shape.peak_scores`: a crown, a roof) is background without a
+classifier pass. A forest gives a thousand peaks a km², and the classifier's gate, low
+enough to let real towers through, passed 40 % of them to the segmenter.
+
 Windows overlap (``stride < window``); the probabilities of a point from the
 segmented windows that contain it are combined with ``max`` (default) or ``mean``.
 A point that no segmented window contains has probability 0 and is not written.
@@ -39,7 +45,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -53,6 +59,9 @@ from towerpipe.inference.windows import TileWindows, sliding_windows
 from towerpipe.io.predictions import save_pred
 from towerpipe.io.tiles import Tile, load_tile
 from towerpipe.progress import Progress, peak_rss_mb
+
+if TYPE_CHECKING:
+    from towerpipe.towers.shape import ShapeVerifier
 
 __all__ = ["infer_tile", "predict_tile", "window_rng"]
 
@@ -99,12 +108,15 @@ def predict_tile(
     settings: InferenceConfig,
     *,
     seed: int = 0,
+    verifier: ShapeVerifier | None = None,
 ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Tower probabilities of a tile's core points (in memory; see :func:`infer_tile`).
 
     ``settings.windows``: ``"grid"`` slides windows on a ``stride`` grid and skips those whose
     highest point is below ``min_height`` (the paper's); ``"candidates"`` centres one window
-    on each height peak of at least ``min_height`` (:func:`towerpipe.inference.candidates.candidate_windows`).
+    on each height peak of at least ``min_height`` (:func:`towerpipe.inference.candidates.candidate_windows`)
+    and, with a ``verifier`` and ``settings.shape_gate`` > 0, skips those whose peak object
+    scores below it (:func:`towerpipe.towers.shape.peak_scores`).
 
     Returns
     -------
@@ -117,7 +129,8 @@ def predict_tile(
         ``windows_total``, ``windows_passed_gate``, ``windows_segmented``,
         ``windows_empty`` (windows with fewer than ``min_points`` points),
         ``windows_prefiltered`` (windows whose highest point is below ``min_height``,
-        background without a classifier pass),
+        background without a classifier pass), ``windows_shape_gated`` (windows whose peak
+        object the shape gate judged background),
         ``gate_threshold``, ``combine``, ``points_core``, ``points_model_input_core``,
         ``points_predicted``, ``timings`` (s) and ``window_probs`` (list of
         ``[kx, ky, p]`` for the windows that passed the gate).
@@ -156,8 +169,10 @@ def predict_tile(
     mi = np.flatnonzero(np.asarray(arrays["model_input"], dtype=bool))
     canon = np.lexsort((arrays["point_index"][mi], arrays["block_id"][mi]))
     hag = arrays["hag"]
+    wires = None
     if windows == "candidates":
         floor = 0.0 if min_height is None else min_height
+        wires = overhead_wires(arrays, mi, floor)
         ws: TileWindows | CandidateWindows = candidate_windows(
             arrays["x"][mi],
             arrays["y"][mi],
@@ -167,7 +182,7 @@ def predict_tile(
             min_height=floor,
             min_points=max(int(min_points), 1),
             canonical_order=canon,
-            exclude=overhead_wires(arrays, mi, floor),
+            exclude=wires,
         )
         n_all = len(ws)
     else:
@@ -193,6 +208,16 @@ def predict_tile(
         tall = np.ones(n_win, dtype=bool)
     todo = np.flatnonzero(tall)
     timings["prefilter"] = time.perf_counter() - t0 - timings["windows"]
+
+    # --- shape gate: the object at a candidate's peak is a crown or a roof -----------
+    n_tall = len(todo)
+    ts = time.perf_counter()
+    if wires is not None and verifier is not None and settings.shape_gate > 0 and n_tall:
+        from towerpipe.towers.shape import peak_scores
+
+        shape = peak_scores(verifier, ws.centers[todo], arrays["x"][mi], arrays["y"][mi], hag[mi], exclude=wires)
+        todo = todo[shape >= settings.shape_gate]
+    timings["shape_gate"] = time.perf_counter() - ts
 
     # --- classifier gate, one batch at a time ---------------------------------------
     n_pts = int(bundle.n_points)
@@ -280,7 +305,9 @@ def predict_tile(
         "windows_total": int(n_win),
         "windows_empty": int(n_all - n_win),
         "windows_mode": windows,
-        "windows_prefiltered": int(n_win - n_todo),
+        "windows_prefiltered": int(n_win - n_tall),
+        "windows_shape_gated": int(n_tall - n_todo),
+        "shape_gate": float(settings.shape_gate) if verifier is not None and wires is not None else None,
         "windows_classified": int(n_todo),
         "windows_passed_gate": int(len(passed)),
         "windows_segmented": int(len(passed)),
@@ -310,6 +337,7 @@ def infer_tile(
     *,
     seed: int = 0,
     choice: Mapping[str, Any] | str | os.PathLike[str] | None = None,
+    verifier: ShapeVerifier | str | os.PathLike[str] | None = None,
 ) -> dict[str, Any]:
     """Run gated window inference on one tile file and write its prediction file.
 
@@ -337,13 +365,18 @@ def infer_tile(
           vegetation at no model cost. ``None``: every window is classified;
         - ``tta``: views of each segmented window averaged (:func:`towerpipe.inference.views.segment_views`): 1, 2, 4 or 8;
         - ``windows``: ``"candidates"`` (windows centred on height peaks) or ``"grid"``
-          (:func:`predict_tile`).
+          (:func:`predict_tile`);
+        - ``shape_gate``: with candidate windows and a ``verifier``, windows whose peak
+          object scores below this are background without a classifier pass (0: none).
     seed
         Base seed of the per-window samplers.
     choice
         The zone's model choice (:func:`towerpipe.model.choice.choose_model`, or its JSON
         file): recorded as ``model.choice``; a block it lists as incompatible fails here
         with the message naming the config key.
+    verifier
+        The shape verifier of the shape gate, or its ``towers.verifier`` spec
+        (:func:`towerpipe.towers.shape.load_verifier`; ``"none"``: no shape gate).
 
     Returns
     -------
@@ -377,10 +410,15 @@ def infer_tile(
         msg = incompatibility_error(choice, str(tile.meta.get("block")))
         if msg:
             raise ModelError(msg)
-    arrays, stats = predict_tile(tile, bundle, settings, seed=seed)
+    if isinstance(verifier, (str, os.PathLike)):
+        from towerpipe.towers.shape import load_verifier
+
+        verifier = load_verifier(verifier) if settings.shape_gate > 0 else None
+    arrays, stats = predict_tile(tile, bundle, settings, seed=seed, verifier=verifier)
     timings = {"load_model": t_model, "load_tile": t_load, **stats.pop("timings")}
     meta = {k: tile.meta.get(k) for k in ("zone", "block", "tile", "blocks", "crs_wkt", "core_bounds")}
     meta["model"] = model_info(bundle, model_path)
+    meta["shape_verifier"] = verifier.name if verifier is not None else None
     if choice is not None:
         meta["model"]["choice"] = {k: choice.get(k) for k in ("mode", "key", "reason", "valid_attributes")}
     meta.update(stats)

@@ -39,6 +39,7 @@ links its towers into lines and measures the spans from them (:mod:`towerpipe.to
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Sequence
 
 import numpy as np
@@ -320,8 +321,10 @@ class TileContext:
     Tiles without points (a block whose split failed) are skipped, so they never hide the
     tile of a neighbour that holds the same place.
 
-    Tiles are read lazily (only ``x, y, z, hag, model_input``) and the last one is kept,
-    so towers of the same tile cost one read.
+    Tiles are read lazily (only ``x, y, z, hag, model_input``) and the ``keep_tiles`` read
+    last are kept: the towers job visits its clusters in label order, not tile by tile, and
+    keeping only the last tile read one tile again for nearly every cluster (240 reads of 4
+    tiles on the 1 km² benchmark block, 35 of its 58 s).
 
     Parameters
     ----------
@@ -330,38 +333,51 @@ class TileContext:
     survey, min_ring_share
         See :class:`Coverage`: a tower whose conductor ring lies mostly outside the
         surveyed boxes gets an unknown support (kept, and flagged by the QA).
+    keep_tiles
+        How many tiles are kept in memory (the least recently used is dropped): a block's
+        own tiles (4 for a 1 km block of 500 m tiles) are then read once.
     """
 
     _COLUMNS = ["x", "y", "z", "hag", "model_input"]
 
     def __init__(
-        self, tile_paths: Sequence[str], *, survey: Sequence[Sequence[float]] = (), min_ring_share: float = 0.0
+        self,
+        tile_paths: Sequence[str],
+        *,
+        survey: Sequence[Sequence[float]] = (),
+        min_ring_share: float = 0.0,
+        keep_tiles: int = 4,
     ):
         from towerpipe.io.columns import read_meta
 
         self._survey, self._min_ring_share = [b for b in survey if b], min_ring_share
+        self._keep = max(int(keep_tiles), 1)
+        self.reads = 0  # tile files read so far
         self._tiles = []
         for p in tile_paths:
             meta = read_meta(p)
             core = meta.get("core_bounds")
             if core and meta.get("failed") is None and (meta.get("counts") or {}).get("points", 1) > 0:
                 self._tiles.append((str(p), core))
-        self._cached: tuple[str, dict[str, np.ndarray], Coverage] | None = None
+        # path -> (model-input arrays, coverage), least recently used first
+        self._cached: OrderedDict[str, tuple[dict[str, np.ndarray], Coverage]] = OrderedDict()
 
     def __call__(self, cx: float, cy: float) -> tuple[dict[str, np.ndarray], Coverage] | None:
         from towerpipe.io.tiles import load_tile
 
         for path, (xmin, ymin, xmax, ymax) in self._tiles:
             if xmin <= cx < xmax and ymin <= cy < ymax:
-                if self._cached is None or self._cached[0] != path:
+                if path in self._cached:
+                    self._cached.move_to_end(path)
+                else:
                     arrays = load_tile(path, columns=self._COLUMNS).arrays
+                    self.reads += 1
                     keep = np.asarray(arrays.pop("model_input"), dtype=bool)
-                    self._cached = (
-                        path,
-                        {k: v[keep] for k, v in arrays.items()},
-                        Coverage(arrays["x"], arrays["y"], survey=self._survey, min_ring_share=self._min_ring_share),
-                    )
-                return self._cached[1], self._cached[2]
+                    cover = Coverage(arrays["x"], arrays["y"], survey=self._survey, min_ring_share=self._min_ring_share)
+                    self._cached[path] = ({k: v[keep] for k, v in arrays.items()}, cover)
+                    while len(self._cached) > self._keep:
+                        self._cached.popitem(last=False)
+                return self._cached[path]
         return None
 
 
