@@ -94,15 +94,14 @@ def zone_predictions(
     -------
     list of str
         ``<work>/<zone>/calibrate/<model>_tta<k>_<hash>/<block>_<tile>.npz``, one per tile;
-        the hash covers the inference settings and the model's weights.
+        the hash covers the inference settings, the model's weights and the shape gate's verifier.
     """
     from towerpipe.inference.infer import infer_tile
     from towerpipe.model.bundle import load_bundle
-    from towerpipe.model.cards import config_hash, read_card
-
-    tiles = zone_tiles(work, zone)
+    from towerpipe.model.cards import config_hash, read_card, sha256
     from towerpipe.towers.shape import VERIFIER_FILE, resolve_verifier
 
+    tiles = zone_tiles(work, zone)
     keys = ("window", "windows", "stride", "gate", "combine", "batch_size", "min_points", "min_height", "shape_gate")
     kw = {k: getattr(settings, k) for k in keys}
     gate_by = resolve_verifier(str(verifier)) if settings.shape_gate > 0 else None
@@ -112,7 +111,7 @@ def zone_predictions(
         {
             "inference": kw,
             "weights": read_card(model).get("files"),
-            "verifier": _file_sha(gate_by / VERIFIER_FILE) if gate_by else None,
+            "verifier": sha256(gate_by / VERIFIER_FILE) if gate_by else None,
             "code": _inference_code(),
         }
     )
@@ -126,12 +125,6 @@ def zone_predictions(
             infer_tile(t, bundle, out, settings, verifier=str(verifier))
         paths.append(str(out))
     return paths
-
-
-def _file_sha(path: Path) -> str:
-    import hashlib
-
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def _inference_code() -> str:

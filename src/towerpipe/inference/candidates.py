@@ -17,6 +17,7 @@ tiles that see it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -137,6 +138,7 @@ def candidate_windows(
     min_points: int = 1,
     canonical_order: np.ndarray | None = None,
     exclude: np.ndarray | None = None,
+    tree: Any = None,
 ) -> CandidateWindows:
     """Windows centred on the height peaks of a tile that hold a core point (see the module docstring).
 
@@ -159,6 +161,9 @@ def candidate_windows(
     exclude
         Bool mask of points that make no peak (still in the windows): overhead wires, which
         pass over or beside a tower as high as its top and would hide its peak.
+    tree
+        A ``scipy.spatial.cKDTree`` of ``(x, y)`` (built here if not given; the inference
+        shares one with the shape gate).
     """
     from scipy.spatial import cKDTree
 
@@ -172,7 +177,9 @@ def candidate_windows(
     n = len(x)
     rank = np.empty(n, np.int64)
     rank[np.arange(n) if canonical_order is None else np.asarray(canonical_order)] = np.arange(n)
-    lists = cKDTree(np.c_[x, y]).query_ball_point(centers, window / 2.0, p=np.inf) if len(keys) else []
+    if tree is None and len(keys):
+        tree = cKDTree(np.c_[x, y])
+    lists = tree.query_ball_point(centers, window / 2.0, p=np.inf) if len(keys) else []
     keep, parts = [], []
     for i, lst in enumerate(lists):
         idx = np.asarray(lst, np.int64)

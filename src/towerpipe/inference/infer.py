@@ -169,10 +169,13 @@ def predict_tile(
     mi = np.flatnonzero(np.asarray(arrays["model_input"], dtype=bool))
     canon = np.lexsort((arrays["point_index"][mi], arrays["block_id"][mi]))
     hag = arrays["hag"]
-    wires = None
+    wires = tree = None
     if windows == "candidates":
+        from scipy.spatial import cKDTree
+
         floor = 0.0 if min_height is None else min_height
         wires = overhead_wires(arrays, mi, floor)
+        tree = cKDTree(np.c_[arrays["x"][mi], arrays["y"][mi]])  # the windows' and the shape gate's
         ws: TileWindows | CandidateWindows = candidate_windows(
             arrays["x"][mi],
             arrays["y"][mi],
@@ -183,6 +186,7 @@ def predict_tile(
             min_points=max(int(min_points), 1),
             canonical_order=canon,
             exclude=wires,
+            tree=tree,
         )
         n_all = len(ws)
     else:
@@ -212,10 +216,13 @@ def predict_tile(
     # --- shape gate: the object at a candidate's peak is a crown or a roof -----------
     n_tall = len(todo)
     ts = time.perf_counter()
-    if wires is not None and verifier is not None and settings.shape_gate > 0 and n_tall:
+    by_shape = windows == "candidates" and verifier is not None  # the grid's windows have no peak
+    if by_shape and settings.shape_gate > 0 and n_tall:
         from towerpipe.towers.shape import peak_scores
 
-        shape = peak_scores(verifier, ws.centers[todo], arrays["x"][mi], arrays["y"][mi], hag[mi], exclude=wires)
+        shape = peak_scores(
+            verifier, ws.centers[todo], arrays["x"][mi], arrays["y"][mi], hag[mi], exclude=wires, tree=tree
+        )
         todo = todo[shape >= settings.shape_gate]
     timings["shape_gate"] = time.perf_counter() - ts
 
@@ -307,7 +314,7 @@ def predict_tile(
         "windows_mode": windows,
         "windows_prefiltered": int(n_win - n_tall),
         "windows_shape_gated": int(n_tall - n_todo),
-        "shape_gate": float(settings.shape_gate) if verifier is not None and wires is not None else None,
+        "shape_gate": float(settings.shape_gate) if by_shape else None,
         "windows_classified": int(n_todo),
         "windows_passed_gate": int(len(passed)),
         "windows_segmented": int(len(passed)),

@@ -33,6 +33,8 @@ import shapely
 __all__ = [
     "DESCRIPTOR_NAMES",
     "OBJECT_BUFFER_M",
+    "PEAK_OBJECT_MIN_HAG",
+    "PEAK_OBJECT_RADIUS",
     "VERIFIER_FILE",
     "VERIFIER_RELEASE",
     "ShapeVerifier",
@@ -173,6 +175,7 @@ def peak_scores(
     *,
     exclude: np.ndarray | None = None,
     radius: float = PEAK_OBJECT_RADIUS,
+    tree: Any = None,
 ) -> np.ndarray:
     """Shape scores of the objects at height peaks (the shape gate of the inference).
 
@@ -192,6 +195,8 @@ def peak_scores(
         Bool mask of points that are no part of an object (overhead wires).
     radius
         Plan radius (m) of the object around its peak.
+    tree
+        A ``scipy.spatial.cKDTree`` of ``(x, y)`` (built here if not given).
 
     Returns
     -------
@@ -209,7 +214,8 @@ def peak_scores(
     if len(centers) == 0 or not keep.any():
         return out
     # the object lies within radius + OBJECT_BUFFER_M of its peak: one tree of the tile's points
-    local_lists = cKDTree(np.c_[x, y]).query_ball_point(centers, radius + OBJECT_BUFFER_M)
+    tree = cKDTree(np.c_[x, y]) if tree is None else tree
+    local_lists = tree.query_ball_point(centers, radius + OBJECT_BUFFER_M)
     rows, desc = [], []
     for i, local in enumerate(local_lists):
         local = np.asarray(local, np.int64)

@@ -35,6 +35,7 @@ import numpy as np
 
 from towerpipe.towers.shape import (
     DESCRIPTOR_NAMES,
+    PEAK_OBJECT_MIN_HAG,
     VERIFIER_FILE,
     ShapeVerifier,
     object_points,
@@ -120,7 +121,7 @@ def _tile_objects(path: str, truth: Any, cfg: Mapping[str, Any], seed: Sequence[
     other = ~np.isin(cls, (classes.TOWER, *classes.WIRE))
     _, peaks, _ = height_peaks(x[other], y[other], hag[other], min_height=float(cfg["min_height"]))
     towers = cKDTree(np.asarray(centres)) if centres else None
-    low = np.flatnonzero(other & (hag >= 2.0))
+    low = np.flatnonzero(other & (hag >= PEAK_OBJECT_MIN_HAG))  # as the shape gate cuts a peak's object
     near_tree = cKDTree(xy[low]) if low.size else None
     for cx, cy in peaks:
         if not in_core(cx, cy) or near_tree is None:
