@@ -5,6 +5,11 @@
 #
 #   scripts/slurm_local.sh start    start (idempotent); exit 0 once the node takes jobs
 #   scripts/slurm_local.sh stop     stop the daemons this script started
+#   scripts/slurm_local.sh conf     only write /etc/slurm/slurm.conf (scripts/install_slurm.sh)
+#
+# MessageTimeout is 2 s (SLURM's default: 10 s): the SLURM executor plugin runs `scontrol show
+# config` whenever Snakemake starts, whatever the executor, and while no controller runs that
+# call waits out the timeout (9 s a Snakemake start with the default, 1 s with this one).
 #
 # Exit status 3 with a one-line reason on stderr when SLURM cannot start here.
 set -euo pipefail
@@ -14,16 +19,8 @@ why() { echo "slurm_local: $*" >&2; exit 3; }
 alive() { [ -s "$state/$1.pid" ] && kill -0 "$(cat "$state/$1.pid")" 2>/dev/null; }
 ready() { scontrol ping >/dev/null 2>&1 && sinfo -h -o %t 2>/dev/null | grep -qE '^(idle|mix|alloc)'; }
 
-start() {
-  for b in munged slurmctld slurmd sinfo; do command -v "$b" >/dev/null || why "$b is not installed (scripts/install_slurm.sh)"; done
-  [ "$(id -u)" = 0 ] || why "needs root to start munged, slurmctld and slurmd"
-  if alive slurmctld && alive slurmd && ready; then return 0; fi
-  mkdir -p "$state"/{ctld,d} /run/munge /var/log/munge /var/lib/munge
-  chown munge:munge /run/munge /var/log/munge /var/lib/munge
-  [ -s /etc/munge/munge.key ] || { mungekey -c -k /etc/munge/munge.key && chown munge:munge /etc/munge/munge.key; }
-  if ! pgrep -u munge -x munged >/dev/null; then
-    runuser -u munge -- /usr/sbin/munged || why "munged did not start"
-  fi
+write_conf() {
+  mkdir -p "$(dirname "$conf")"
   host=$(hostname -s)
   cpus=$(nproc)
   mem=$(awk '/MemTotal/ {printf "%d", $2 / 1024 * 0.8}' /proc/meminfo)
@@ -48,10 +45,24 @@ SchedulerType=sched/backfill
 SelectType=select/cons_tres
 SelectTypeParameters=CR_Core_Memory
 ReturnToService=2
+MessageTimeout=2
 MinJobAge=600
 NodeName=$host CPUs=$cpus RealMemory=$mem State=UNKNOWN
 PartitionName=cpu Nodes=$host Default=YES MaxTime=INFINITE State=UP
 CONF
+}
+
+start() {
+  for b in munged slurmctld slurmd sinfo; do command -v "$b" >/dev/null || why "$b is not installed (scripts/install_slurm.sh)"; done
+  [ "$(id -u)" = 0 ] || why "needs root to start munged, slurmctld and slurmd"
+  if alive slurmctld && alive slurmd && ready; then return 0; fi
+  mkdir -p "$state"/{ctld,d} /run/munge /var/log/munge /var/lib/munge
+  chown munge:munge /run/munge /var/log/munge /var/lib/munge
+  [ -s /etc/munge/munge.key ] || { mungekey -c -k /etc/munge/munge.key && chown munge:munge /etc/munge/munge.key; }
+  if ! pgrep -u munge -x munged >/dev/null; then
+    runuser -u munge -- /usr/sbin/munged || why "munged did not start"
+  fi
+  write_conf
   alive slurmctld || slurmctld || why "slurmctld did not start (see $state/slurmctld.log)"
   alive slurmd || slurmd || why "slurmd did not start (see $state/slurmd.log)"
   for _ in $(seq 60); do
@@ -68,5 +79,6 @@ stop() {
 case "${1:-}" in
   start) start ;;
   stop) stop ;;
-  *) echo "usage: scripts/slurm_local.sh start|stop" >&2; exit 2 ;;
+  conf) [ "$(id -u)" = 0 ] || why "needs root to write $conf"; write_conf ;;
+  *) echo "usage: scripts/slurm_local.sh start|stop|conf" >&2; exit 2 ;;
 esac

@@ -226,3 +226,37 @@ def test_conductor_points_of_a_block_with_clearance(tmp_path):
     low = c["z"][over] - 12.0  # a conductor's height over the crowns: the clearance is at most that
     assert (c["clearance_m"][over] >= low - 1e-9).all() and (c["clearance_m"][over] < low + 2.0).mean() > 0.9
     assert np.isnan(c["clearance_m"][np.abs(c["x"] - X0 - 250) > 40]).all()  # no vegetation below
+
+
+def test_conductor_points_of_a_block_are_those_its_inference_jobs_write(tmp_path):
+    """Each tile's conductor points, written per tile (infer jobs) and gathered (towers job), are the block's."""
+    from towerpipe.io.conductors import load_conductors, save_conductors
+    from towerpipe.io.tiles import Tile, empty_arrays, load_tile, save_tile
+    from towerpipe.towers.wires import CONDUCTOR_INPUT_COLUMNS, conductor_points, tile_conductor_points
+
+    rng = np.random.default_rng(6)
+    pts = np.concatenate(
+        [
+            line_through(X0 + 250, Y0 + 250, 0.3, rng=rng, length=400.0, z0=25.0),
+            canopy(X0 + 250, Y0 + 250, 30.0, 5_000, rng),
+        ]
+    )
+    tiles, wires = [], []
+    for k, x0 in enumerate((X0, X0 + 250)):
+        inside = (pts[:, 0] >= x0 - 40) & (pts[:, 0] < x0 + 290)
+        a = empty_arrays(int(inside.sum()))
+        a["x"][:], a["y"][:], a["z"][:], a["hag"][:] = pts[inside, 0], pts[inside, 1], pts[inside, 2], pts[inside, 2]
+        a["classification"][:] = 5
+        a["core"][:] = (pts[inside, 0] >= x0) & (pts[inside, 0] < x0 + 250)
+        a["model_input"][:] = True
+        tiles.append(str(tmp_path / f"t{k}.npz"))
+        save_tile(tiles[-1], Tile(a, {"block": "b", "core_bounds": [x0, Y0, x0 + 250, Y0 + 500], "buffer": 40}))
+        wires.append(str(tmp_path / "wires" / f"t{k}.npz"))
+        arrays = load_tile(tiles[-1], columns=list(CONDUCTOR_INPUT_COLUMNS)).arrays
+        save_conductors(wires[-1], tile_conductor_points(arrays), {"block": "b", "tile": f"t{k}"})
+    block, gathered = conductor_points(tiles, "b"), load_conductors(wires)
+    assert len(block["x"]) > 100
+    assert block.keys() == gathered.keys()
+    for k in block:
+        np.testing.assert_array_equal(block[k], gathered[k])
+        assert gathered[k].dtype == np.float64

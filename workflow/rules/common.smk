@@ -24,6 +24,7 @@ ZONE_DIR = f"{WORK}/{{zone}}"
 PREP_SUMMARY = f"{ZONE_DIR}/prep/{{block}}.json"
 TILE = f"{ZONE_DIR}/tiles/{{block}}/{{tile}}.npz"
 PRED = f"{ZONE_DIR}/pred/{{block}}/{{tile}}.npz"
+WIRES = f"{ZONE_DIR}/wires/{{block}}/{{tile}}.npz"
 TOWERS_GPKG = f"{ZONE_DIR}/towers/{{block}}.gpkg"
 TOWERS_NEIGHBOURS = f"{ZONE_DIR}/towers/{{block}}.neighbours.json"
 TOWER_MEMBERS = f"{ZONE_DIR}/towers/{{block}}.points.npz"
@@ -289,6 +290,10 @@ def pred_file(zone, block, tile):
 
 def block_preds(zone, block):
     return [pred_file(zone, block, t) for t in tiles(zone, block)]
+
+
+def block_wires(zone, block):
+    return [WIRES.format(zone=zone, block=block, tile=t) for t in tiles(zone, block)]
 
 
 def block_neighbours(zone, block):

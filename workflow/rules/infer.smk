@@ -35,6 +35,9 @@ rule infer_tile:
         verifier=verifier_files(),
     output:
         pred=PRED,
+        # the tile's conductor points (the wire search needs only the tile): the towers job's
+        # conductor_points layer
+        wires=WIRES,
     log:
         log_of("infer_tile", "tile"),
     benchmark:

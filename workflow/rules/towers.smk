@@ -15,6 +15,8 @@ rule towers_block:
             for b in [wc.block, *block_neighbours(wc.zone, wc.block)]
             for t in tiles(wc.zone, b)
         ],
+        # the block's conductor points, found by its infer_tile jobs: layer conductor_points
+        wires=lambda wc: block_wires(wc.zone, wc.block),
         # the shape check of each tower (towers.verifier, towers.min_shape_score)
         verifier=verifier_files(),
     output:
@@ -29,8 +31,7 @@ rule towers_block:
         "../envs/towerpipe.yaml"
     threads: 1
     resources:
-        # one tile at a time, with the wire search over its high points (the block's conductor
-        # points): 290 MB peak for the demo zone's 0.88 M-point tiles
+        # one tile at a time (the conductor support around each tower)
         mem_mb=tile_mem_mb(120, base_mb=600),
         runtime=10,
     params:

@@ -9,6 +9,7 @@ run_step(
         None,
         snakemake.output.pred,
         InferenceConfig.from_config({"inference": snakemake.params.inference}),
+        out_wires=snakemake.output.wires,
         choice=snakemake.input.choice,
         verifier=snakemake.params.verifier,
     ),

@@ -15,6 +15,7 @@ run_step(
         out_neighbours=snakemake.output.neighbours,
         point_threshold=snakemake.params.threshold,
         tile_files=list(snakemake.input.tiles),
+        wire_files=list(snakemake.input.wires),
         out_members=snakemake.output.members,
         survey=snakemake.params.survey,
         registry=snakemake.params.registry,

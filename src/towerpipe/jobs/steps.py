@@ -13,6 +13,7 @@ import json
 import logging
 import os
 import tempfile
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -48,6 +49,7 @@ def towers_step(
     point_threshold: float | None,
     out_neighbours: str | os.PathLike[str] | None = None,
     tile_files: Sequence[str] = (),
+    wire_files: Sequence[str] = (),
     out_members: str | os.PathLike[str] | None = None,
     survey: Sequence[Sequence[float]] = (),
     registry: Sequence[str] = (),
@@ -57,8 +59,9 @@ def towers_step(
     ``out_neighbours`` (JSON) receives the towers with points in the block that a
     neighbour owns (see :func:`towerpipe.towers.extract.extract_towers`), for the block's QA.
     ``tile_files`` (the block's and its neighbours' tiles) give the conductor support of
-    each tower (:class:`towerpipe.towers.wires.TileContext`) and the block's conductor points
-    (layer ``conductor_points``, from which the zone builds its lines); ``out_members``
+    each tower (:class:`towerpipe.towers.wires.TileContext`); ``wire_files`` (the block's
+    conductor-points files, :func:`infer_step`) its layer ``conductor_points``, from which
+    the zone builds its lines; ``out_members``
     receives the points of every accepted tower with points in the block, owned or not
     (:func:`towerpipe.io.members.save_members`): the merge classifies them 15 and writes
     their tower id. ``survey`` (measured bounds of the block and its neighbours) and
@@ -71,12 +74,13 @@ def towers_step(
 
     from towerpipe.config import TowersConfig
     from towerpipe.errors import ModelError
+    from towerpipe.io.conductors import load_conductors
     from towerpipe.io.members import save_members
     from towerpipe.io.predictions import load_pred
     from towerpipe.products.gpkg import run_metadata, write_towers_gpkg
     from towerpipe.products.registry_file import read_registry
     from towerpipe.towers.extract import extract_towers
-    from towerpipe.towers.wires import TileContext, conductor_points
+    from towerpipe.towers.wires import TileContext
 
     rules = TowersConfig.from_config({"towers": towers_cfg})
     ring_share = float(towers_cfg["wire_ring_coverage"])
@@ -105,7 +109,7 @@ def towers_step(
     gdf, neighbours = found.towers, found.neighbours
     if out_members is not None:
         save_members(out_members, found.members)
-    wires = conductor_points(tile_files, block)
+    wires = load_conductors(wire_files)
     conductors = gpd.GeoDataFrame(
         {"block": [block] * len(wires["x"]), **{k: wires[k] for k in ("z", "hag", "direction_deg", "clearance_m")}},
         geometry=gpd.points_from_xy(wires["x"], wires["y"]),
@@ -127,9 +131,16 @@ def infer_step(
     model: str | os.PathLike[str] | None,
     out_path: str | os.PathLike[str],
     settings: InferenceConfig,
+    *,
+    out_wires: str | os.PathLike[str] | None = None,
     **kw: Any,
 ) -> dict[str, Any]:
     """:func:`towerpipe.inference.infer.infer_tile`, a model that cannot run on the tile recorded, not raised.
+
+    ``out_wires`` receives the tile's conductor points
+    (:func:`towerpipe.towers.wires.tile_conductor_points`, :mod:`towerpipe.io.conductors`):
+    the wire search needs only the tile, so it runs here, in the parallel per-tile jobs,
+    rather than in the block's towers job; it does not depend on the model.
 
     A :class:`~towerpipe.errors.ModelError` (e.g. the model needs NIR and the block has
     none) becomes an empty prediction file whose ``meta["error"]`` says why: the
@@ -139,8 +150,18 @@ def infer_step(
     """
     from towerpipe.errors import ModelError
     from towerpipe.inference.infer import infer_tile
+    from towerpipe.io.conductors import save_conductors
     from towerpipe.io.predictions import PRED_ARRAYS, save_pred
+    from towerpipe.io.tiles import load_tile
+    from towerpipe.towers.wires import CONDUCTOR_INPUT_COLUMNS, tile_conductor_points
 
+    if out_wires is not None:
+        t0 = time.perf_counter()
+        tile = load_tile(tile_path, columns=list(CONDUCTOR_INPUT_COLUMNS))
+        wires = tile_conductor_points(tile.arrays)
+        save_conductors(out_wires, wires, {k: tile.meta.get(k) for k in ("zone", "block", "tile")})
+        log.info("conductor points: %d in %.1f s", len(wires["x"]), time.perf_counter() - t0)
+        del tile
     try:
         return infer_tile(tile_path, model, out_path, settings, **kw)
     except ModelError as exc:

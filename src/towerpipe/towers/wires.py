@@ -32,9 +32,10 @@ or at the edge of a survey, is not scored on the empty land beside it. A sector 
 On the `calib` zone, with the defaults, all 17 true towers score 1.0 and the cranes,
 masts, chimneys and turbines at most 0.38 (see ``towers.min_wire_support``).
 
-:func:`conductor_points` keeps the wire points of a block's tiles (each point once, from
-the tile whose core holds it) with the clearance to the vegetation below each: the zone
-links its towers into lines and measures the spans from them (:mod:`towerpipe.towers.lines`).
+:func:`tile_conductor_points` keeps the wire points of a tile's core with the clearance to
+the vegetation below each (each inference job writes its tile's, :mod:`towerpipe.io.conductors`;
+:func:`conductor_points` gathers a block's): the zone links its towers into lines and
+measures the spans from them (:mod:`towerpipe.towers.lines`).
 """
 
 from __future__ import annotations
@@ -47,9 +48,18 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 
 from towerpipe import classes
+from towerpipe.io.conductors import CONDUCTOR_ARRAYS
 from towerpipe.io.fields import Field
 
-__all__ = ["Coverage", "TileContext", "wire_points", "wire_support", "conductor_points", "CONDUCTOR_FIELDS"]
+__all__ = [
+    "Coverage",
+    "TileContext",
+    "wire_points",
+    "wire_support",
+    "tile_conductor_points",
+    "conductor_points",
+    "CONDUCTOR_FIELDS",
+]
 
 
 #: Fields of a conductor point (layer ``conductor_points`` of a block's GeoPackage; Point geometry).
@@ -400,22 +410,26 @@ def _clearance(
     return out
 
 
-def conductor_points(
-    tile_paths: Sequence[str], block: str, *, min_hag: float = 5.0, clearance_radius: float = 2.0
-) -> dict[str, np.ndarray]:
-    """The wire points of a block, from its tile files.
+#: Columns of a tile's model input that :func:`tile_conductor_points` reads.
+CONDUCTOR_INPUT_COLUMNS: tuple[str, ...] = ("x", "y", "z", "hag", "classification", "core", "model_input")
 
-    Each tile's model-input points at least ``min_hag`` above the ground, core and
-    buffer (so a point at the core's edge is judged with its neighbours), go through
-    :func:`wire_points`; the core's wire points are kept, so each point of the block is
-    considered once.
+
+def tile_conductor_points(
+    tile: dict[str, np.ndarray], *, min_hag: float = 5.0, clearance_radius: float = 2.0
+) -> dict[str, np.ndarray]:
+    """The wire points of one tile's core, with their wire's direction and their clearance.
+
+    The tile's model-input points at least ``min_hag`` above the ground, core and buffer
+    (so a point at the core's edge is judged with its neighbours), go through
+    :func:`wire_points`; the core's wire points are kept, so that over the tiles of a block
+    each point is considered once. Each point's clearance is its height above the highest
+    vegetation point below it within ``clearance_radius`` m in plan (nan: none).
 
     Parameters
     ----------
-    tile_paths
-        Tile files; those of other blocks (``meta["block"]``) are skipped.
-    block
-        The block.
+    tile
+        The tile's arrays (at least :data:`CONDUCTOR_INPUT_COLUMNS`, as
+        :func:`towerpipe.io.tiles.load_tile` gives them).
     min_hag
         Height floor (m) of a wire point.
     clearance_radius
@@ -424,32 +438,53 @@ def conductor_points(
     Returns
     -------
     dict
-        ``x, y, z, hag, direction_deg, clearance_m`` (float64) as in
-        :data:`CONDUCTOR_FIELDS`.
+        :data:`CONDUCTOR_ARRAYS` (float64): ``x, y, z, hag, direction_deg, clearance_m``,
+        as in :data:`CONDUCTOR_FIELDS`.
+    """
+    t = tile
+    inp = np.asarray(t["model_input"], dtype=bool)
+    high = np.flatnonzero(inp & (t["hag"] >= min_hag))
+    wire, direction = wire_points(t["x"][high], t["y"][high], t["z"][high])
+    keep = wire & np.asarray(t["core"], dtype=bool)[high]
+    idx = high[keep]
+    veg = np.flatnonzero(inp & np.isin(t["classification"], classes.VEGETATION))
+    veg = np.setdiff1d(veg, high[wire], assume_unique=True)
+    u = direction[keep]
+    x, y, z = (np.asarray(t[k], dtype=np.float64) for k in ("x", "y", "z"))
+    out = {
+        "x": x[idx],
+        "y": y[idx],
+        "z": z[idx],
+        "hag": t["hag"][idx],
+        "direction_deg": np.degrees(np.arctan2(u[:, 0], u[:, 1])) % 180.0,
+        "clearance_m": _clearance(x[idx], y[idx], z[idx], x[veg], y[veg], z[veg], clearance_radius),
+    }
+    return {k: np.asarray(out[k], dtype=np.float64) for k in CONDUCTOR_ARRAYS}
+
+
+def conductor_points(tile_paths: Sequence[str], block: str, **kw: float) -> dict[str, np.ndarray]:
+    """The wire points of a block, from its tile files (:func:`tile_conductor_points` of each).
+
+    Parameters
+    ----------
+    tile_paths
+        Tile files; those of other blocks (``meta["block"]``) are skipped.
+    block
+        The block.
+    **kw
+        ``min_hag``, ``clearance_radius`` of :func:`tile_conductor_points`.
+
+    Returns
+    -------
+    dict
+        :data:`CONDUCTOR_ARRAYS` (float64), the tiles' points one after the other.
     """
     from towerpipe.io.columns import read_meta
     from towerpipe.io.tiles import load_tile
 
-    keys = ("x", "y", "z", "hag", "direction_deg", "clearance_m")
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in keys}
-    for p in tile_paths:
-        if read_meta(p).get("block") != block:
-            continue
-        t = load_tile(p, columns=["x", "y", "z", "hag", "classification", "core", "model_input"]).arrays
-        inp = np.asarray(t["model_input"], dtype=bool)
-        high = np.flatnonzero(inp & (t["hag"] >= min_hag))
-        wire, direction = wire_points(t["x"][high], t["y"][high], t["z"][high])
-        keep = wire & np.asarray(t["core"], dtype=bool)[high]
-        idx = high[keep]
-        veg = np.flatnonzero(inp & np.isin(t["classification"], classes.VEGETATION))
-        veg = np.setdiff1d(veg, high[wire], assume_unique=True)
-        u = direction[keep]
-        parts["x"].append(t["x"][idx])
-        parts["y"].append(t["y"][idx])
-        parts["z"].append(t["z"][idx])
-        parts["hag"].append(t["hag"][idx].astype(np.float64))
-        parts["direction_deg"].append(np.degrees(np.arctan2(u[:, 0], u[:, 1])) % 180.0)
-        parts["clearance_m"].append(
-            _clearance(t["x"][idx], t["y"][idx], t["z"][idx], t["x"][veg], t["y"][veg], t["z"][veg], clearance_radius)
-        )
-    return {k: (np.concatenate(v) if v else np.empty(0)).astype(np.float64) for k, v in parts.items()}
+    parts = [
+        tile_conductor_points(load_tile(p, columns=list(CONDUCTOR_INPUT_COLUMNS)).arrays, **kw)
+        for p in tile_paths
+        if read_meta(p).get("block") == block
+    ]
+    return {k: np.concatenate([q[k] for q in parts]) if parts else np.empty(0) for k in CONDUCTOR_ARRAYS}
