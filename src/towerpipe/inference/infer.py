@@ -345,6 +345,7 @@ def infer_tile(
     seed: int = 0,
     choice: Mapping[str, Any] | str | os.PathLike[str] | None = None,
     verifier: ShapeVerifier | str | os.PathLike[str] | None = None,
+    tile: Tile | None = None,
 ) -> dict[str, Any]:
     """Run gated window inference on one tile file and write its prediction file.
 
@@ -384,6 +385,9 @@ def infer_tile(
     verifier
         The shape verifier of the shape gate, or its ``towers.verifier`` spec
         (:func:`towerpipe.towers.shape.load_verifier`; ``"none"``: no shape gate).
+    tile
+        The tile as :func:`towerpipe.io.tiles.load_tile` read it from ``tile_path``, every
+        column (a job that reads it for other work too); read here if not given.
 
     Returns
     -------
@@ -409,7 +413,7 @@ def infer_tile(
     else:
         bundle = model
     t_model = time.perf_counter() - t0
-    tile = load_tile(tile_path)
+    tile = load_tile(tile_path) if tile is None else tile
     t_load = time.perf_counter() - t0 - t_model
     if choice is not None and np.asarray(tile.arrays["model_input"], dtype=bool).any():
         from towerpipe.model.choice import incompatibility_error

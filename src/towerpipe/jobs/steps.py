@@ -153,15 +153,14 @@ def infer_step(
     from towerpipe.io.conductors import save_conductors
     from towerpipe.io.predictions import PRED_ARRAYS, save_pred
     from towerpipe.io.tiles import load_tile
-    from towerpipe.towers.wires import CONDUCTOR_INPUT_COLUMNS, tile_conductor_points
+    from towerpipe.towers.wires import tile_conductor_points
 
-    if out_wires is not None:
+    if out_wires is not None:  # the tile is read once, for the wire search and the inference
         t0 = time.perf_counter()
-        tile = load_tile(tile_path, columns=list(CONDUCTOR_INPUT_COLUMNS))
-        wires = tile_conductor_points(tile.arrays)
-        save_conductors(out_wires, wires, {k: tile.meta.get(k) for k in ("zone", "block", "tile")})
+        kw["tile"] = load_tile(tile_path)
+        wires = tile_conductor_points(kw["tile"].arrays)
+        save_conductors(out_wires, wires, {k: kw["tile"].meta.get(k) for k in ("zone", "block", "tile")})
         log.info("conductor points: %d in %.1f s", len(wires["x"]), time.perf_counter() - t0)
-        del tile
     try:
         return infer_tile(tile_path, model, out_path, settings, **kw)
     except ModelError as exc:
