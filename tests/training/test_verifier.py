@@ -10,12 +10,16 @@ from test_dataset import make_tiles
 
 from towerpipe.errors import ConfigError
 from towerpipe.towers.shape import DESCRIPTOR_NAMES, VERIFIER_FILE, load_verifier
-from towerpipe.training.verifier import collect_objects, fit_verifier, train_verifier
+from towerpipe.training.verifier import collect_objects, fit_verifier, occlude, train_verifier
+
+#: the footprint view alone, each object seen once, as delivered
+FOOTPRINT_ONLY = {"copies": 1, "peak_view": False, "occlusion": 0.0, "density_range": [1e6, 1e6]}
 
 
 def test_objects_are_towers_and_tall_others_of_the_core(tmp_path):
     paths = make_tiles(tmp_path, n_blocks=2)
-    objs = collect_objects(paths, {"copies": 1})
+    objs = collect_objects(paths, FOOTPRINT_ONLY)
+    assert {o["view"] for o in objs} == {"footprint"}
     towers = [o for o in objs if o["label"] == 1]
     others = [o for o in objs if o["label"] == 0]
     assert len(towers) == 4  # two towers a tile, each seen once
@@ -24,8 +28,38 @@ def test_objects_are_towers_and_tall_others_of_the_core(tmp_path):
     assert all(o["descriptor"].shape == (len(DESCRIPTOR_NAMES),) for o in objs)
     assert {o["block"] for o in objs} == {"t/b0", "t/b1"}
     # the same tiles and seed give the same examples, whatever the number of processes
-    again = collect_objects(paths, {"copies": 1}, threads=2)
+    again = collect_objects(paths, FOOTPRINT_ONLY, threads=2)
     np.testing.assert_array_equal(np.stack([o["descriptor"] for o in again]), np.stack([o["descriptor"] for o in objs]))
+
+
+def test_the_shape_gates_view_adds_the_object_at_each_towers_peak(tmp_path):
+    """Each tower also comes as the gate cuts it at its peak; a peak with a tower point that is
+    no counted tower gives no negative."""
+    paths = make_tiles(tmp_path, n_blocks=2)
+    objs = collect_objects(paths, {"copies": 1, "occlusion": 0.0, "density_range": [1e6, 1e6], "peak_view": True})
+    peak = [o for o in objs if o["view"] == "peak"]
+    # both towers of the first tile are the highest thing around them: a candidate peak on each
+    # (in the second, a crown 8 m from one tower is higher)
+    assert sum(o["label"] == 1 and o["block"] == "t/b0" for o in peak) == 2
+    footprint = collect_objects(paths, FOOTPRINT_ONLY)
+    assert len(objs) == len(footprint) + len(peak)  # the footprint view is unchanged
+    assert {o["kind"] for o in peak if o["label"] == 0} <= {"tree", "building", "other"}
+
+
+def test_occlusion_thins_the_foot_or_hides_a_side():
+    rng = np.random.default_rng(0)
+    n = 20000
+    x, y, hag = rng.uniform(-2, 2, n), rng.uniform(-2, 2, n), rng.uniform(0, 30, n)
+    low, high, west, east = hag < 5, hag > 25, x < -1, x > 1
+    lost_low = lost_high = lost_side = 0
+    for seed in range(40):
+        keep = occlude(x, y, hag, np.random.default_rng(seed))
+        assert keep.dtype == bool and keep.shape == (n,) and keep.any()
+        lost_low += 1 - keep[low].mean()
+        lost_high += 1 - keep[high].mean()
+        lost_side += abs(keep[west].mean() - keep[east].mean())
+    # the foot loses more than the top; some draws hide one side far more than the other
+    assert lost_low > 2 * lost_high and lost_side / 40 > 0.15
 
 
 def test_fit_separates_separable_descriptors():
@@ -42,7 +76,7 @@ def test_fit_separates_separable_descriptors():
 
 def test_train_verifier_writes_a_verifier_and_its_card(tmp_path):
     paths = make_tiles(tmp_path / "tiles", n_blocks=5)
-    out = train_verifier(paths, tmp_path / "towerpipe-verifier-v9", {"epochs": 50})
+    out = train_verifier(paths, tmp_path / "towerpipe-verifier-v9", {"epochs": 50, "peak_view": False})
     data = json.loads((out / VERIFIER_FILE).read_text())
     card = data["card"]
     assert card["name"] == "towerpipe-verifier-v9" and card["descriptor"] == list(DESCRIPTOR_NAMES)

@@ -40,6 +40,7 @@ __all__ = [
     "ShapeVerifier",
     "load_verifier",
     "object_points",
+    "peak_objects",
     "peak_scores",
     "resolve_verifier",
     "shape_descriptor",
@@ -166,8 +167,7 @@ def object_points(footprint: shapely.Geometry, x: np.ndarray, y: np.ndarray) -> 
     return near[shapely.contains_xy(region, x[near], y[near])]
 
 
-def peak_scores(
-    verifier: ShapeVerifier,
+def peak_objects(
     centers: np.ndarray,
     x: np.ndarray,
     y: np.ndarray,
@@ -176,17 +176,16 @@ def peak_scores(
     exclude: np.ndarray | None = None,
     radius: float = PEAK_OBJECT_RADIUS,
     tree: Any = None,
-) -> np.ndarray:
-    """Shape scores of the objects at height peaks (the shape gate of the inference).
+) -> list[np.ndarray | None]:
+    """The objects at height peaks, as the shape gate and the verifier's training cut them.
 
     The object at a peak is the convex hull of the points at least
-    :data:`PEAK_OBJECT_MIN_HAG` m high within ``radius`` of it (overhead wires left out),
-    described through :func:`object_points` as the towers step describes a tower.
+    :data:`PEAK_OBJECT_MIN_HAG` m high within ``radius`` of it (``exclude``: overhead wires
+    left out), and then every point within :data:`OBJECT_BUFFER_M` of that hull
+    (:func:`object_points`), as the towers step describes a tower.
 
     Parameters
     ----------
-    verifier
-        The shape verifier.
     centers
         ``(P, 2)`` peak locations.
     x, y, hag
@@ -200,14 +199,15 @@ def peak_scores(
 
     Returns
     -------
-    numpy.ndarray
-        ``(P,)`` scores in [0, 1]; 0 for a peak with fewer than 5 points around it.
+    list
+        Per peak, the indices of its object's points, or ``None`` for a peak with fewer
+        than 5 points around it.
     """
     from scipy.spatial import cKDTree
 
     x, y, hag = (np.asarray(a, np.float64) for a in (x, y, hag))
     centers = np.asarray(centers, np.float64).reshape(-1, 2)
-    out = np.zeros(len(centers))
+    out: list[np.ndarray | None] = [None] * len(centers)
     keep = hag >= PEAK_OBJECT_MIN_HAG
     if exclude is not None:
         keep &= ~np.asarray(exclude, dtype=bool)
@@ -215,20 +215,44 @@ def peak_scores(
         return out
     # the object lies within radius + OBJECT_BUFFER_M of its peak: one tree of the tile's points
     tree = cKDTree(np.c_[x, y]) if tree is None else tree
-    local_lists = tree.query_ball_point(centers, radius + OBJECT_BUFFER_M)
-    rows, desc = [], []
-    for i, local in enumerate(local_lists):
+    for i, local in enumerate(tree.query_ball_point(centers, radius + OBJECT_BUFFER_M)):
         local = np.asarray(local, np.int64)
         d = np.hypot(x[local] - centers[i, 0], y[local] - centers[i, 1])
         near = local[keep[local] & (d <= radius)]
         if len(near) < 5:
             continue
         hull = shapely.convex_hull(shapely.multipoints(np.c_[x[near], y[near]]))
-        obj = local[object_points(hull, x[local], y[local])]
-        rows.append(i)
-        desc.append(shape_descriptor(x[obj], y[obj], hag[obj]))
+        out[i] = local[object_points(hull, x[local], y[local])]
+    return out
+
+
+def peak_scores(
+    verifier: ShapeVerifier,
+    centers: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    hag: np.ndarray,
+    *,
+    exclude: np.ndarray | None = None,
+    radius: float = PEAK_OBJECT_RADIUS,
+    tree: Any = None,
+) -> np.ndarray:
+    """Shape scores of the objects at height peaks (the shape gate of the inference).
+
+    The objects are those of :func:`peak_objects` (same parameters).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(P,)`` scores in [0, 1]; 0 for a peak with fewer than 5 points around it.
+    """
+    x, y, hag = (np.asarray(a, np.float64) for a in (x, y, hag))
+    objects = peak_objects(centers, x, y, hag, exclude=exclude, radius=radius, tree=tree)
+    out = np.zeros(len(objects))
+    rows = [i for i, obj in enumerate(objects) if obj is not None]
     if rows:
-        out[rows] = verifier.score_descriptors(np.asarray(desc))
+        desc = np.stack([shape_descriptor(x[objects[i]], y[objects[i]], hag[objects[i]]) for i in rows])
+        out[rows] = verifier.score_descriptors(desc)
     return out
 
 
