@@ -33,8 +33,7 @@ def test_objects_are_towers_and_tall_others_of_the_core(tmp_path):
 
 
 def test_the_shape_gates_view_adds_the_object_at_each_towers_peak(tmp_path):
-    """Each tower also comes as the gate cuts it at its peak; a peak with a tower point that is
-    no counted tower gives no negative."""
+    """Each tower also comes as the gate cuts it at its peak; the footprint view stays as it is."""
     paths = make_tiles(tmp_path, n_blocks=2)
     objs = collect_objects(paths, {"copies": 1, "occlusion": 0.0, "density_range": [1e6, 1e6], "peak_view": True})
     peak = [o for o in objs if o["view"] == "peak"]

@@ -38,7 +38,7 @@ import json
 import logging
 import os
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -108,7 +108,7 @@ def occlude(x: np.ndarray, y: np.ndarray, hag: np.ndarray, rng: np.random.Genera
 
 
 def _tile_objects(path: str, truth: Any, cfg: Mapping[str, Any], seed: Sequence[int]) -> list[dict[str, Any]]:
-    """The objects of one tile: ``{"label", "kind", "block", "descriptor"}`` dicts."""
+    """The objects of one tile: ``{"label", "kind", "view", "block", "descriptor"}`` dicts."""
     import shapely
     from scipy.spatial import cKDTree
 
@@ -134,6 +134,8 @@ def _tile_objects(path: str, truth: Any, cfg: Mapping[str, Any], seed: Sequence[
     def add_points(label: int, kind: str, view: str, px: np.ndarray, py: np.ndarray, ph: np.ndarray) -> None:
         thin = min(1.0, float(np.exp(rng.uniform(np.log(lo), np.log(hi)))) / max(density, 1e-9))
         seen = rng.random(len(px)) < thin
+        # no draw at all without occlusion: the default recipe keeps the random stream (and the
+        # weights) of the shipped verifier
         if float(cfg["occlusion"]) > 0 and rng.random() < float(cfg["occlusion"]):
             seen &= occlude(px, py, ph, rng)
         if seen.sum() >= 10:
@@ -180,11 +182,14 @@ def _tile_objects(path: str, truth: Any, cfg: Mapping[str, Any], seed: Sequence[
 
 
 def _peak_view(
-    a: Mapping[str, np.ndarray], cfg: Mapping[str, Any], truth: Any, towers: Any, in_core: Any, add_points: Any
+    a: Mapping[str, np.ndarray],
+    cfg: Mapping[str, Any],
+    truth: Any,
+    towers: Any,
+    in_core: Callable[[float, float], bool],
+    add_points: Callable[..., None],
 ) -> None:
     """The objects the shape gate cuts at the tile's candidate peaks (see the module docstring)."""
-    from scipy.spatial import cKDTree
-
     from towerpipe import classes
     from towerpipe.inference.candidates import height_peaks
     from towerpipe.inference.infer import overhead_wires
@@ -202,7 +207,7 @@ def _peak_view(
     is_tower = dist <= float(cfg["peak_tower_m"])
     chosen = is_tower | (dist > float(cfg["peak_clearance_m"]))  # in between: part tower, part not
     peaks, is_tower = peaks[chosen], is_tower[chosen]
-    objects = peak_objects(peaks, x, y, hag, exclude=wires, tree=cKDTree(np.c_[x, y]))
+    objects = peak_objects(peaks, x, y, hag, exclude=wires)
     families = nearest_families(peaks, truth)
     for i, obj in enumerate(objects):
         if obj is None:
