@@ -100,8 +100,10 @@ def test_bundle_round_trip(tmp_path):
     out = save_bundle(tmp_path / "m", clf, seg, _card())
     assert sorted(p.name for p in out.iterdir()) == [
         "MODEL_CARD.md",
+        "classifier.folded.npz",
         "classifier.pt",
         "model_card.json",
+        "segmenter.folded.npz",
         "segmenter.pt",
     ]
     b = load_bundle(out)

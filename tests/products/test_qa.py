@@ -242,6 +242,12 @@ def test_read_benchmark_repeats_and_na(tmp_path):
     assert read_benchmark(p) == {"seconds": 15.0, "max_rss_mb": 300.0}
 
 
+def _benchmark(path, seconds: float, rss: float):
+    """A Snakemake benchmark TSV of one run."""
+    path.write_text(f"s\th:m:s\tmax_rss\n{seconds}\t0:00:03\t{rss}\n")
+    return path
+
+
 def test_zone_index(tmp_path):
     ok = report(tmp_path / "qa", "a", zone="z1", towers=towers_of(make_block()), classified=make_block())
     tiles2, preds2 = metas(ground_source="smrf")
@@ -255,13 +261,18 @@ def test_zone_index(tmp_path):
         failures={"c": "merge_block failed: see logs/z1/merge_block/c.log"},
         zone="z1",
         out_json=tmp_path / "index.json",
+        # the merge runs beside the block's QA page: the index reports it (b's was not recorded)
+        merge_benchmarks={"a": _benchmark(tmp_path / "merge_a.tsv", 3.25, 512.0), "b": tmp_path / "none.tsv"},
     )
     assert [b["block"] for b in doc["blocks"]] == ["c", "b", "a"]
+    merge = {b["block"]: (b.get("merge_s"), b.get("merge_rss_mb")) for b in doc["blocks"]}
+    assert merge == {"a": (3.25, 512.0), "b": (None, None), "c": (None, None)}
     t = doc["totals"]
     assert (t["blocks"], t["failed"], t["look"], t["ok"], t["towers"]) == (4 - 1, 1, 1, 1, 2)
     assert t["summary"] == "2 towers found in 3 blocks; 1 failed; 1 needs a look."
     page = (tmp_path / "index.html").read_text()
     assert 'href="qa/a.html"' in page and "merge_block failed" in page and "ground classified" in page
+    assert page.count("LAZ merged in") == 1 and "LAZ merged in 3.2 s, 512 MB" in page
     assert json.loads((tmp_path / "index.json").read_text())["totals"]["towers"] == 2
 
 

@@ -70,6 +70,35 @@ def test_wire_points_find_conductors_not_crowns():
     assert np.median(np.abs(d @ np.array([np.cos(0.3), np.sin(0.3)]))) > 0.99
 
 
+def test_judged_points_get_the_answer_of_a_full_search():
+    """``judge`` (a tile's core) leaves the others as neighbours only: same answers where judged."""
+    rng = np.random.default_rng(3)
+    pts = np.concatenate([line_through(X0, Y0, 0.7, rng=rng), canopy(X0 + 60, Y0, 50.0, 30_000, rng)])
+    judge = pts[:, 0] < X0 + 40
+    full, full_dir = wire_points(pts[:, 0], pts[:, 1], pts[:, 2])
+    part, part_dir = wire_points(pts[:, 0], pts[:, 1], pts[:, 2], judge=judge)
+    assert full[judge].sum() > 100 and full[~judge].any()  # wires on both sides, crowns next to them
+    np.testing.assert_array_equal(part[judge], full[judge])
+    np.testing.assert_array_equal(part_dir[judge], full_dir[judge])
+    assert not part[~judge].any()
+
+
+def test_clearance_is_the_brute_force_one():
+    """The cell pre-filter of the vegetation drops no point within the radius (negative coordinates too)."""
+    from towerpipe.towers.wires import _clearance
+
+    rng = np.random.default_rng(4)
+    for off in (0.0, -1e4, 4e6):
+        x, y, z = rng.uniform(-30, 30, (3, 400)) + np.array([[off], [off], [20.0]])
+        vx, vy, vz = rng.uniform(-40, 40, (3, 5_000)) + np.array([[off], [off], [10.0]])
+        d = np.hypot(x[:, None] - vx[None], y[:, None] - vy[None])
+        below = np.where((d <= 2.0) & (vz[None] < z[:, None]), vz[None], -np.inf).max(axis=1)
+        ref = np.where(np.isfinite(below), z - below, np.nan)
+        got = _clearance(x, y, z, vx, vy, vz, 2.0)
+        assert np.isfinite(got).sum() > 100
+        np.testing.assert_array_equal(got, ref)
+
+
 def test_stacked_conductors_are_wires():
     """Conductors one above the other (a vertical circuit) are several metres apart."""
     rng = np.random.default_rng(1)

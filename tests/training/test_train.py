@@ -91,7 +91,12 @@ def test_warm_start_continues_from_a_bundle(windows, tmp_path, random_model_fact
         [path], tmp_path / "warm", "full", dict(TINY, epochs=1, init_from=str(init), segmenter={"epochs": 1})
     )
     rec = json.loads((out / "model_card.json").read_text())["init_from"]
-    assert rec["name"] == "towerpipe-random-full" and set(rec["files_sha256"]) == {"classifier.pt", "segmenter.pt"}
+    assert rec["name"] == "towerpipe-random-full" and set(rec["files_sha256"]) == {
+        "classifier.pt",
+        "segmenter.pt",
+        "classifier.folded.npz",
+        "segmenter.folded.npz",
+    }
     with pytest.raises(ConfigError, match="geometry"):
         _initial("classifier", train_config(dict(TINY, init_from=str(init), feature_set="geometry")), 3)
 

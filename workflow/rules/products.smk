@@ -41,9 +41,6 @@ rule qa_block:
         towers=TOWERS_GPKG,
         neighbours=TOWERS_NEIGHBOURS,
         members=TOWER_MEMBERS,
-        # not read (the QA classifies from the cache as the merge does); it orders the
-        # QA after the merge, whose time and memory the page reports
-        classified=BLOCK_LAZ,
     output:
         html=report(
             QA_HTML,

@@ -27,6 +27,8 @@ rule assemble_zone:
         files=lambda wc: zone_products(wc.zone),
         gpkgs=lambda wc: [TOWERS_GPKG.format(zone=wc.zone, block=b) for b in blocks(wc.zone)],
         qa=lambda wc: [QA_JSON.format(zone=wc.zone, block=b) for b in blocks(wc.zone)],
+        # the merge runs beside the block's QA page: the zone's index reports its time
+        merge_benchmarks=lambda wc: merge_benchmarks(wc.zone),
         sources=lambda wc: {b: i.relpath for b, i in inputs(wc.zone).items()},
         run=run_params(),
         block_bounds=lambda wc: bounds(wc.zone),

@@ -10,6 +10,7 @@ run_step(
         p.files,
         tower_gpkgs=p.gpkgs,
         qa_jsons=p.qa,
+        merge_benchmarks=p.merge_benchmarks,
         run_cfg=p.run,
         stage_dir=p.stage,
         manifest=snakemake.output.manifest,

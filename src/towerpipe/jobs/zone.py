@@ -119,6 +119,7 @@ def zone_step(
     sources: Mapping[str, str] | None = None,
     block_bounds: Mapping[str, Sequence[float] | None] | None = None,
     registry: str | os.PathLike[str] | None = None,
+    merge_benchmarks: Mapping[str, str] | None = None,
 ) -> Path:
     """Publish ``results/<zone>/``: per-block links, zone GeoPackage, QA index (+ ``INCOMPLETE.txt``).
 
@@ -134,6 +135,8 @@ def zone_step(
     ``registry`` is the zone's tower registry file: read (or, when it is missing, the
     published GeoPackage), updated with this assembly's towers and written back once the
     directory is in place. Towers of ``failures`` blocks are left as they were.
+    ``merge_benchmarks`` (block → benchmark TSV of its merge, which runs beside its QA
+    page) gives the time and memory of each block's classified LAZ on the QA index.
     """
     from towerpipe.products.qa.index import zone_index
     from towerpipe.products.registry_file import read_registry, write_registry
@@ -194,6 +197,7 @@ def zone_step(
             gpkg=gpkg if content is not None else None,
             block_bounds=block_bounds,
             vanished=vanished_rows,
+            merge_benchmarks=merge_benchmarks,
         )
         if failures:
             (tmp / "INCOMPLETE.txt").write_text(

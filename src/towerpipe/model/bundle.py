@@ -2,7 +2,10 @@
 
 A :class:`ModelBundle` is the pair the pipeline ships: a directory with
 ``classifier.pt``, ``segmenter.pt`` (state dict + hyper-parameters, loaded with
-``weights_only=True``), ``model_card.json`` and ``MODEL_CARD.md``.
+``weights_only=True``), their batch-norm-folded copies for inference without PyTorch
+(``classifier.folded.npz``, ``segmenter.folded.npz``: :mod:`towerpipe.model.folded_numpy`;
+PointNet architectures only), ``model_card.json`` (with the checksum of every file) and
+``MODEL_CARD.md``.
 """
 
 from __future__ import annotations
@@ -19,8 +22,9 @@ from torch import nn
 
 from towerpipe.errors import ModelError
 from towerpipe.model.cards import BUNDLE_VERSION, MODELS_ENV
-from towerpipe.model.folded import DEFAULT_CHUNK, NetRunner
-from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter, build_model
+from towerpipe.model.folded import NetRunner, fold_pointnet
+from towerpipe.model.folded_numpy import DEFAULT_CHUNK, FOLDED_FILES, one_window, save_folded, window_batch
+from towerpipe.model.pointnet import EDGE_ARCHS, PointNetClassifier, PointNetSegmenter, build_model
 
 
 @dataclass
@@ -41,7 +45,7 @@ class ModelBundle:
         Points per window the classifier expects (2048).
     classifier, segmenter
         The networks (eval mode). :meth:`classify` and :meth:`segment` run their
-        batch-norm-folded copies (:class:`~towerpipe.model.folded.FoldedPointNet`), made when the bundle is built.
+        batch-norm-folded copies (:func:`~towerpipe.model.folded.fold_pointnet`), made when the bundle is built.
     path
         The checkpoint directory it was loaded from (if any).
     """
@@ -64,19 +68,14 @@ class ModelBundle:
 
     def classify(self, feats: np.ndarray) -> np.ndarray:
         """Tower probability of windows ``feats`` ``(B, n, C)`` float32 -> ``(B,)`` float32."""
-        feats = np.asarray(feats, dtype=np.float32)
-        if feats.ndim != 3:
-            raise ModelError(f"classify expects (B, n, C) features, got shape {feats.shape}")
+        feats = window_batch(feats)
         if feats.shape[0] == 0:
             return np.zeros(0, dtype=np.float32)
         return self._runners[0].classify(feats)
 
     def segment(self, feats: np.ndarray) -> np.ndarray:
         """Tower probability of every point of one window ``(N, C)`` -> ``(N,)``."""
-        feats = np.asarray(feats, dtype=np.float32)
-        if feats.ndim != 2:
-            raise ModelError(f"segment expects (N, C) features of one window, got shape {feats.shape}")
-        return self._runners[1].segment(feats)
+        return self._runners[1].segment(one_window(feats))
 
 
 def _state(model: nn.Module) -> dict[str, Any]:
@@ -89,7 +88,7 @@ def save_bundle(
     segmenter: PointNetSegmenter,
     card: Mapping[str, Any],
 ) -> Path:
-    """Write a checkpoint directory (``classifier.pt``, ``segmenter.pt``, model card json + md).
+    """Write a checkpoint directory (``classifier.pt``, ``segmenter.pt``, their folded copies, model card json + md).
 
     Parameters
     ----------
@@ -116,8 +115,42 @@ def save_bundle(
         torch.save(_state(model), tmp)
         os.replace(tmp, out / name)
     card["files"] = {n: modelcard.sha256(out / n) for n in ("classifier.pt", "segmenter.pt")}
+    card["files"].update(_save_folded(out, classifier, segmenter))
     modelcard.write_card(out, card)
     return out
+
+
+def _save_folded(out: Path, classifier: nn.Module, segmenter: nn.Module) -> dict[str, str]:
+    """Write the folded copies of a PointNet pair into ``out``: ``{file name: sha256}`` ({} for EdgeConv)."""
+    from towerpipe.model import cards as modelcard
+
+    if any(m.hparams.get("arch") in EDGE_ARCHS for m in (classifier, segmenter)):
+        return {}
+    files = {}
+    for kind, model in (("classifier", classifier), ("segmenter", segmenter)):
+        name = FOLDED_FILES[kind]
+        save_folded(fold_pointnet(model.eval()), out / name)
+        files[name] = modelcard.sha256(out / name)
+    return files
+
+
+def fold_bundle(path: str | os.PathLike[str]) -> dict[str, str]:
+    """Add the folded copies to a bundle saved without them (a bundle of towerpipe < 0.7).
+
+    Loads the checkpoints (checksums checked), writes ``classifier.folded.npz`` and
+    ``segmenter.folded.npz`` and lists them in ``model_card.json``; the weights and
+    ``MODEL_CARD.md`` are left as they are. Returns the files written with their checksums.
+    """
+    from towerpipe.model import cards as modelcard
+
+    bundle = load_bundle(path)
+    files = _save_folded(Path(path), bundle.classifier, bundle.segmenter)
+    if not files:
+        raise ModelError(f"{path}: an EdgeConv bundle has no folded copy; it runs through PyTorch")
+    card = dict(bundle.card)
+    card["files"] = {**card["files"], **files}
+    modelcard.write_card_json(path, card)
+    return files
 
 
 def _load_net(path: Path, feature_channels: int, kind: str) -> nn.Module:

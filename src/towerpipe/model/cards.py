@@ -220,6 +220,10 @@ def card_markdown(card: Mapping[str, Any]) -> str:
 
 def write_card(directory: str | os.PathLike[str], card: Mapping[str, Any]) -> None:
     """Write ``model_card.json`` and ``MODEL_CARD.md`` into ``directory``."""
-    d = Path(directory)
-    (d / "model_card.json").write_text(json.dumps(card, indent=2, sort_keys=True, default=str) + "\n")
-    (d / "MODEL_CARD.md").write_text(card_markdown(card))
+    write_card_json(directory, card)
+    (Path(directory) / "MODEL_CARD.md").write_text(card_markdown(card))
+
+
+def write_card_json(directory: str | os.PathLike[str], card: Mapping[str, Any]) -> None:
+    """Write ``model_card.json`` alone (the Markdown card does not list the files)."""
+    (Path(directory) / "model_card.json").write_text(json.dumps(card, indent=2, sort_keys=True, default=str) + "\n")

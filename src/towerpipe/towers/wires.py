@@ -10,9 +10,8 @@ points around a candidate, with no model:
    that are sparse in plan (at most ``max_neighbours`` points within ``radius`` m),
    with air above and below them (no neighbour there between ``max_dz`` and
    ``min_gap`` m higher or lower: a crown has points at every height, while stacked
-   conductors are several metres apart), and whose 3-D
-   neighbourhood (``line_radius`` m) is a nearly horizontal line (linearity
-   ``(l1 - l2) / l1 >= min_linearity`` of the local covariance).
+   conductors are several metres apart), and whose 3-D neighbourhood (``line_radius`` m)
+   is a nearly horizontal line (linearity ``(l1 - l2) / l1 >= min_linearity``).
 2. **Pointing at the candidate**: a wire point counts when the straight line through
    it, along its local direction, passes within ``max_offset`` m of the candidate's
    centre (conductors hang from crossarms at most ~12 m from the tower axis). A line
@@ -160,6 +159,7 @@ def wire_points(
     min_gap: float = 2.5,
     line_radius: float = 2.5,
     min_linearity: float = 0.9,
+    judge: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Which points look like overhead wire, and the plan direction of their wire.
 
@@ -167,6 +167,9 @@ def wire_points(
     ----------
     x, y, z
         Coordinates (m) of candidate points (already above the height floor).
+    judge
+        ``(n,)`` bool, the points to judge (default all; the others are neighbours only):
+        a judged point gets the answer it gets when all are judged.
     radius, max_neighbours, max_dz, min_gap
         Plan neighbourhood: at most ``max_neighbours`` points (the point included)
         within ``radius`` m, none of them between ``max_dz`` and ``min_gap`` m above or
@@ -190,8 +193,8 @@ def wire_points(
         return mask, direction
     xy = np.c_[x, y]
     tree = cKDTree(xy)
-    count = tree.query_ball_point(xy, radius, return_length=True)
-    ok = count <= max_neighbours
+    ok, judged = np.zeros(n, dtype=bool), np.arange(n) if judge is None else np.flatnonzero(judge)
+    ok[judged[tree.query_ball_point(xy[judged], radius, return_length=True) <= max_neighbours]] = True
     # a sparse point with a neighbour between max_dz and min_gap above or below is in a crown;
     # only the sparse points' neighbourhoods are looked at (in a forest most points are dense:
     # the pairs of all points would be ~15 per point)
@@ -398,6 +401,13 @@ def _clearance(
     out = np.full(len(x), np.nan)
     if len(x) == 0 or len(vx) == 0:
         return out
+    # only v points in a radius-sized cell beside a point's own cell can be within radius
+    key = [np.floor(a / radius).astype(np.int64) for a in (x, y, vx, vy)]
+    ring = np.array([(dx << 32) + dy for dx in (-1, 0, 1) for dy in (-1, 0, 1)], np.int64)
+    close = np.isin((key[2] << 32) + key[3], np.unique(((key[0] << 32) + key[1])[:, None] + ring))
+    if not close.any():
+        return out
+    vx, vy, vz = vx[close], vy[close], vz[close]
     near = cKDTree(np.c_[x, y]).sparse_distance_matrix(cKDTree(np.c_[vx, vy]), radius, output_type="coo_matrix")
     rows, cols = np.r_[near.row], np.r_[near.col]
     below = vz[cols] < z[rows]
@@ -419,11 +429,10 @@ def tile_conductor_points(
 ) -> dict[str, np.ndarray]:
     """The wire points of one tile's core, with their wire's direction and their clearance.
 
-    The tile's model-input points at least ``min_hag`` above the ground, core and buffer
-    (so a point at the core's edge is judged with its neighbours), go through
-    :func:`wire_points`; the core's wire points are kept, so that over the tiles of a block
-    each point is considered once. Each point's clearance is its height above the highest
-    vegetation point below it within ``clearance_radius`` m in plan (nan: none).
+    The tile's core model-input points at least ``min_hag`` above the ground are judged by
+    :func:`wire_points` among those of core and buffer (a point at the core's edge has its
+    neighbours): over the tiles of a block each point is judged once. A point's clearance:
+    its height above the highest vegetation below it within ``clearance_radius`` m (nan: none).
 
     Parameters
     ----------
@@ -444,8 +453,9 @@ def tile_conductor_points(
     t = tile
     inp = np.asarray(t["model_input"], dtype=bool)
     high = np.flatnonzero(inp & (t["hag"] >= min_hag))
-    wire, direction = wire_points(t["x"][high], t["y"][high], t["z"][high])
-    keep = wire & np.asarray(t["core"], dtype=bool)[high]
+    core = np.asarray(t["core"], dtype=bool)[high]
+    wire, direction = wire_points(t["x"][high], t["y"][high], t["z"][high], judge=core)
+    keep = wire & core
     idx = high[keep]
     veg = np.flatnonzero(inp & np.isin(t["classification"], classes.VEGETATION))
     veg = np.setdiff1d(veg, high[wire], assume_unique=True)

@@ -1,5 +1,6 @@
-"""``towerpipe train`` and ``towerpipe train-verifier``: the command line of
-:func:`towerpipe.training.train.train_bundle` and :func:`towerpipe.training.verifier.train_verifier`."""
+"""``towerpipe train``, ``towerpipe train-verifier`` and ``towerpipe fold-model``: the command
+line of :func:`towerpipe.training.train.train_bundle`, :func:`towerpipe.training.verifier.train_verifier`
+and :func:`towerpipe.model.bundle.fold_bundle`."""
 
 from __future__ import annotations
 
@@ -33,6 +34,15 @@ def _verifier_cli(args: argparse.Namespace) -> int:
     return 0
 
 
+def _fold_cli(args: argparse.Namespace) -> int:
+    from towerpipe.model.bundle import fold_bundle
+
+    for path in args.models:
+        for name, digest in fold_bundle(path).items():
+            print(f"{Path(path) / name}  sha256 {digest}")
+    return 0
+
+
 def _cli(args: argparse.Namespace) -> int:
     paths = _paths(args.tiles)
     config: dict[str, Any] = json.loads(Path(args.config).read_text()) if args.config else {}
@@ -49,7 +59,7 @@ def _cli(args: argparse.Namespace) -> int:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``towerpipe train`` to the command line."""
+    """Add ``towerpipe train``, ``train-verifier`` and ``fold-model`` to the command line."""
     p = subparsers.add_parser("train", help="train a classifier + segmenter bundle from labelled tile files")
     p.add_argument(
         "--tiles",
@@ -78,3 +88,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     v.add_argument("--threads", type=int, default=2)
     v.set_defaults(func=_verifier_cli)
+
+    f = subparsers.add_parser(
+        "fold-model", help="add the folded copies (inference without PyTorch) to a model bundle saved without them"
+    )
+    f.add_argument("models", nargs="+", metavar="DIR", help="model bundle directories")
+    f.set_defaults(func=_fold_cli)

@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from towerpipe.model.folded import DEFAULT_CHUNK, NetRunner
+from towerpipe.model.folded import NetRunner
+from towerpipe.model.folded_numpy import DEFAULT_CHUNK
 from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter
 from towerpipe.training.windowset import WindowSet
 

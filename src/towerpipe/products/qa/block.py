@@ -273,9 +273,12 @@ def block_report(
         import rasterio
 
         with rasterio.open(raster) as ds:
-            rows, cols = rasterio.transform.rowcol(ds.transform, pts["x"], pts["y"])
-            rows = np.clip(np.asarray(rows), 0, ds.height - 1)
-            cols = np.clip(np.asarray(cols), 0, ds.width - 1)
+            # rasterio.transform.rowcol's maths (floor of the inverse transform), without
+            # its (3, n) stacking: a tenth of its time on 10 M points
+            inv = ~ds.transform
+            x, y = np.asarray(pts["x"], dtype=np.float64), np.asarray(pts["y"], dtype=np.float64)
+            rows = np.clip(np.floor(inv.d * x + inv.e * y + inv.f), 0, ds.height - 1).astype(np.int64)
+            cols = np.clip(np.floor(inv.a * x + inv.b * y + inv.c), 0, ds.width - 1).astype(np.int64)
             dtm = ds.read(1, masked=True).astype(np.float64).filled(np.nan)
             hag, hag_source = pts["z"] - dtm[rows, cols], f"z − {Path(raster).name}"
     if hag is not None:

@@ -15,7 +15,7 @@ from markupsafe import Markup
 
 from towerpipe.io.atomic import write_text_atomic
 from towerpipe.products import layout
-from towerpipe.products.qa.metrics import jsonable
+from towerpipe.products.qa.metrics import jsonable, read_benchmark
 from towerpipe.products.qa.pages import render
 from towerpipe.products.qa.plots import zone_map
 
@@ -46,6 +46,15 @@ def _gpkg_lines(gpkg: str | os.PathLike[str] | None) -> list[np.ndarray]:
     return lines
 
 
+def _merge_cost(path: str | os.PathLike[str] | None) -> dict[str, float | None]:
+    """``merge_s`` and ``merge_rss_mb`` of a block from its merge's benchmark (None: not recorded)."""
+    try:
+        b = read_benchmark(path) if path else {}
+    except OSError:
+        b = {}
+    return {"merge_s": b.get("seconds"), "merge_rss_mb": b.get("max_rss_mb")}
+
+
 def zone_index(
     out_html: str | os.PathLike[str],
     block_jsons: Sequence[str | os.PathLike[str]],
@@ -56,6 +65,7 @@ def zone_index(
     gpkg: str | os.PathLike[str] | None = None,
     block_bounds: Mapping[str, Sequence[float] | None] | None = None,
     vanished: Sequence[Mapping[str, Any]] = (),
+    merge_benchmarks: Mapping[str, str | os.PathLike[str]] | None = None,
 ) -> dict[str, Any]:
     """Write the zone's QA index: every block, totals, a map, and the blocks that need a look.
 
@@ -84,6 +94,10 @@ def zone_index(
         Registered towers the run did not find again (``tower_id``, ``block``,
         ``centroid_x``, ``centroid_y``, ``height_m``, ``last_seen``, ``vanished_since``,
         ``review_status``; the zone's ``vanished_towers`` layer), listed under the blocks.
+    merge_benchmarks
+        Block → Snakemake benchmark TSV of its merge (the classified LAZ): its wall time
+        and peak memory are listed with the block (the merge runs beside the block's own
+        QA page, which reports the jobs before it). A missing file leaves them empty.
 
     Returns
     -------
@@ -138,6 +152,7 @@ def zone_index(
                 "tower_prob_mean": d.get("tower_prob_mean"),
                 "accuracy": d.get("accuracy"),
                 "bounds": d.get("bounds") or block_bounds.get(name),
+                **_merge_cost((merge_benchmarks or {}).get(name)),
             }
         )
     for b, reason in failures.items():
