@@ -18,6 +18,7 @@ from towerpipe.towers.shape import (
     ShapeVerifier,
     load_verifier,
     object_points,
+    peak_objects,
     peak_scores,
     resolve_verifier,
     shape_descriptor,
@@ -223,7 +224,7 @@ def test_shape_gate_keeps_the_peak_of_a_real_tower_among_trees():
         xs.append(tx), ys.append(ty), hs.append(th)
     x, y, hag = np.concatenate(xs), np.concatenate(ys), np.concatenate(hs)
     _, centres, _ = height_peaks(x, y, hag, min_height=10.0)
-    scores = peak_scores(v, centres, x, y, hag)
+    scores = peak_scores(v, peak_objects(centres, x, y, hag), x, y, hag)
     at_tower = np.hypot(centres[:, 0], centres[:, 1]) < 8.0
     assert at_tower.sum() >= 1 and (~at_tower).sum() >= 4, centres
     assert scores[at_tower].max() >= gate, (name, scores)
@@ -233,7 +234,8 @@ def test_shape_gate_keeps_the_peak_of_a_real_tower_among_trees():
 def test_peak_scores_of_a_peak_without_an_object_are_zero():
     v = _verifier(5.0)  # scores every object ~1
     x, y, hag = tree(0.0, 0.0)
-    s = peak_scores(v, np.array([[0.0, 0.0], [100.0, 100.0]]), x, y, hag)
+    s = peak_scores(v, peak_objects(np.array([[0.0, 0.0], [100.0, 100.0]]), x, y, hag), x, y, hag)
     assert s[0] > 0.9 and s[1] == 0.0
     exclude = np.ones(len(x), bool)  # every point an overhead wire: no object anywhere
-    assert (peak_scores(v, np.array([[0.0, 0.0]]), x, y, hag, exclude=exclude) == 0).all()
+    objects = peak_objects(np.array([[0.0, 0.0]]), x, y, hag, exclude=exclude)
+    assert (peak_scores(v, objects, x, y, hag) == 0).all()

@@ -218,11 +218,11 @@ def predict_tile(
     ts = time.perf_counter()
     by_shape = windows == "candidates" and verifier is not None  # the grid's windows have no peak
     if by_shape and settings.shape_gate > 0 and n_tall:
-        from towerpipe.towers.shape import peak_scores
+        from towerpipe.towers.shape import peak_objects, peak_scores
 
-        shape = peak_scores(
-            verifier, ws.centers[todo], arrays["x"][mi], arrays["y"][mi], hag[mi], exclude=wires, tree=tree
-        )
+        px, py, ph = arrays["x"][mi], arrays["y"][mi], hag[mi]
+        objects = peak_objects(ws.centers[todo], px, py, ph, exclude=wires, tree=tree)
+        shape = peak_scores(verifier, objects, px, py, ph)
         todo = todo[shape >= settings.shape_gate]
     timings["shape_gate"] = time.perf_counter() - ts
 

@@ -92,7 +92,7 @@ class FoldedNet:
     def _tnet(self, which: str, pooled: np.ndarray) -> np.ndarray:
         ((w, b),) = self.layers[f"{which}.out"]
         k = int(round(np.sqrt(w.shape[1])))
-        t = _relu_layers(self.layers[f"{which}.fc"], pooled[None].copy()) @ w + b
+        t = _relu_layers(self.layers[f"{which}.fc"], pooled[None]) @ w + b
         return t.reshape(k, k) + np.eye(k, dtype=np.float32)
 
     def _mlp1(self, x: np.ndarray, t_in: np.ndarray) -> np.ndarray:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -54,7 +55,7 @@ VERIFIER_FILE = "verifier.json"
 VOXEL_M = 0.5
 #: The object of a tower candidate: model-input points within this distance (m) of its footprint.
 OBJECT_BUFFER_M = 1.0
-#: The object at a height peak (:func:`peak_scores`): the points at least
+#: The object at a height peak (:func:`peak_objects`): the points at least
 #: :data:`PEAK_OBJECT_MIN_HAG` m high within :data:`PEAK_OBJECT_RADIUS` m of the peak, as
 #: the verifier's negatives are cut (2.5-8 m, :mod:`towerpipe.training.verifier`). 5 m keeps a
 #: lattice tower's body and most of its crossarms: of the calibration zones' candidates
@@ -227,27 +228,25 @@ def peak_objects(
 
 
 def peak_scores(
-    verifier: ShapeVerifier,
-    centers: np.ndarray,
-    x: np.ndarray,
-    y: np.ndarray,
-    hag: np.ndarray,
-    *,
-    exclude: np.ndarray | None = None,
-    radius: float = PEAK_OBJECT_RADIUS,
-    tree: Any = None,
+    verifier: ShapeVerifier, objects: Sequence[np.ndarray | None], x: np.ndarray, y: np.ndarray, hag: np.ndarray
 ) -> np.ndarray:
     """Shape scores of the objects at height peaks (the shape gate of the inference).
 
-    The objects are those of :func:`peak_objects` (same parameters).
+    Parameters
+    ----------
+    verifier
+        The shape verifier.
+    objects
+        Per peak, the indices of its object's points or ``None`` (:func:`peak_objects`).
+    x, y, hag
+        The points the indices refer to.
 
     Returns
     -------
     numpy.ndarray
-        ``(P,)`` scores in [0, 1]; 0 for a peak with fewer than 5 points around it.
+        ``(P,)`` scores in [0, 1]; 0 for a peak without an object.
     """
     x, y, hag = (np.asarray(a, np.float64) for a in (x, y, hag))
-    objects = peak_objects(centers, x, y, hag, exclude=exclude, radius=radius, tree=tree)
     out = np.zeros(len(objects))
     rows = [i for i, obj in enumerate(objects) if obj is not None]
     if rows:
