@@ -261,6 +261,9 @@ class TowersConfig(Section):
     #: A cluster the shape check drops is clustered again from its points at or above each
     #: of these probabilities in turn, and each part is judged (empty: never).
     split_thresholds: Sequence[float]
+    #: Rule 10: clusters no accepted tower holds, from the points at or above this
+    #: probability, are judged again (0: never; see :func:`towerpipe.towers.extract.extract_towers`).
+    rescue_threshold: float
 
 
 @dataclass(frozen=True)

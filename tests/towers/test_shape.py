@@ -167,6 +167,74 @@ def test_a_tower_among_painted_crowns_is_split_from_them(monkeypatch):
     assert found.towers["shape_score"].iloc[0] == 1.0
 
 
+def _faint_scene():
+    """A confident tower, a faint one (a thin lattice the segmenter paints at 0.15-0.25, its
+    halo at 0.12) and a faint crown, 100 m apart; (pair, context, index ranges)."""
+    a_xyz, a_hag = synthetic_tower(X0 + 50, Y0 + 50, seed=1)
+    b_xyz, b_hag = synthetic_tower(X0 + 150, Y0 + 50, half_base=1.0, half_top=0.4, arm=2.0, seed=2)
+    cx, cy, ch = tree(X0 + 250, Y0 + 50, height=14.0, crown=6.0, seed=3)
+    c_xyz = np.c_[cx, cy, 100.0 + ch]
+    rng = np.random.default_rng(4)
+    # the confident tower's halo: points around its legs the segmenter is unsure of
+    halo = a_xyz[::7] + np.r_[0.8, 0.0, 0.0]
+    xyz = np.r_[a_xyz, halo, b_xyz, c_xyz]
+    hag = np.r_[a_hag, halo[:, 2] - 100.0, b_hag, ch].astype(np.float32)
+    prob = np.r_[
+        np.full(len(a_xyz), 0.9),
+        np.full(len(halo), 0.12),
+        rng.uniform(0.15, 0.25, len(b_xyz)),
+        np.full(len(c_xyz), 0.2),
+    ]
+    ends = np.cumsum([len(a_xyz), len(halo), len(b_xyz), len(c_xyz)])
+    ctx = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "hag": hag.astype(np.float64)}
+
+    def context(x, y):
+        return ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)
+
+    return pred_pair(xyz, hag, prob, ["b1"]), context, ends
+
+
+def test_rescue_finds_a_faint_tower_and_outlines_it(monkeypatch):
+    """Rule 10: a tower painted below towers.threshold is found from the points at or above
+    towers.rescue_threshold when the object is shaped like a tower, and reported with those
+    points; a faint crown is not (the shape check decides), nor the halo of a tower already
+    found (no second tower), nor a cluster whose highest probability stays under
+    towers.min_core_prob, and without the shape check nothing is rescued."""
+    import towerpipe.towers.extract as ex
+
+    monkeypatch.setattr(ex, "load_verifier", lambda spec: _NarrowVerifier())
+    pair, context, (a, halo, b, c) = _faint_scene()
+    rules = {"context": context, "min_shape_score": 0.5, "threshold": 0.3, "split_thresholds": []}
+    plain = extract([pair], "b1", BOUNDS, zone="z1", rescue_threshold=0.0, **rules)
+    assert plain.towers["centroid_x"].round().tolist() == [X0 + 50]
+    found = extract([pair], "b1", BOUNDS, zone="z1", rescue_threshold=0.1, point_threshold=0.1, **rules)
+    assert sorted(found.towers["centroid_x"].round().tolist()) == [X0 + 50, X0 + 150]
+    faint = found.towers.loc[found.towers["centroid_x"].round() == X0 + 150].iloc[0]
+    ((_, idx),) = [m for tid, m in found.members.items() if tid == faint["tower_id"]]
+    assert set(idx.tolist()) == set(range(halo, b))  # the faint tower's points, all of them
+    assert faint["prob_max"] < 0.3 and faint["shape_score"] == 1.0
+    # its highest probability must reach min_core_prob: a cluster painted only faintly stays out
+    assert len(extract([pair], "b1", BOUNDS, zone="z1", rescue_threshold=0.1, min_core_prob=0.3, **rules).towers) == 1
+    arrays, meta = pair
+    arrays = {**arrays, "prob": arrays["prob"].copy()}
+    arrays["prob"][halo] = 0.5  # one confident point on the faint tower
+    seeded = extract([(arrays, meta)], "b1", BOUNDS, zone="z1", rescue_threshold=0.1, min_core_prob=0.3, **rules)
+    assert len(seeded.towers) == 2
+    # no shape check (no context): the rescue would only be a lower threshold, so it never runs
+    blind = extract([pair], "b1", BOUNDS, zone="z1", rescue_threshold=0.1, threshold=0.3, split_thresholds=[])
+    assert len(blind.towers) == 1
+
+
+def test_rescue_threshold_is_calibrated_and_bounded():
+    """The schema's default is the calibrated one; a value not below towers.threshold is off."""
+    from conftest import tower_rules
+    from towerpipe.errors import ConfigError
+
+    assert tower_rules().rescue_threshold == 0.1
+    with pytest.raises(ConfigError, match="towers.rescue_threshold"):
+        tower_rules(rescue_threshold=1.5)
+
+
 @pytest.mark.shared
 def test_shipped_verifier_knows_real_towers_from_real_trees():
     """The shipped verifier as shipped, on real objects: real UAV lattice towers score high, the

@@ -37,7 +37,7 @@ from towerpipe.errors import InputError
 __all__ = ["Candidate", "INFERENCE_PACKAGES", "score_zone", "sweep", "tower_labels", "zone_predictions", "zone_tiles"]
 
 #: One candidate: (views, towers.threshold, inference.threshold, towers.min_core_prob), optionally
-#: followed by inference.gate and towers.min_wire_support (default: the config's).
+#: followed by inference.gate, towers.min_wire_support and towers.rescue_threshold (default: the config's).
 Candidate = tuple[float, ...]
 
 _UNBOUNDED = (-1e18, -1e18, 1e18, 1e18)
@@ -298,15 +298,16 @@ def sweep(
         Zone name -> its input directory (labelled blocks and ``towers_truth.gpkg``).
     candidates
         ``(views, towers.threshold, inference.threshold, towers.min_core_prob[, inference.gate[,
-        towers.min_wire_support]])`` tuples (the last two default to the config's).
+        towers.min_wire_support[, towers.rescue_threshold]]])`` tuples (the last three default to
+        the config's).
     work, model, inference, towers
         Workdir, model bundle directory (or zone -> its model directory) and the config's sections.
 
     Returns
     -------
     list of dict
-        One row per candidate: the candidate, per-zone :func:`score_zone` figures and
-        ``mean_point_iou`` over the zones.
+        One row per candidate: the candidate, per-zone :func:`score_zone` figures,
+        ``mean_point_iou`` and ``mean_f1`` (tower F1, 0 where a zone has none) over the zones.
     """
     import geopandas as gpd
 
@@ -331,6 +332,7 @@ def sweep(
         tta = int(tta)
         gate = float(rest[0]) if rest else float(inference["gate"])
         wire = float(rest[1]) if len(rest) > 1 else float(towers["min_wire_support"])
+        rescue = float(rest[2]) if len(rest) > 2 else float(towers["rescue_threshold"])
         row: dict[str, Any] = {
             "tta": tta,
             "threshold": thr,
@@ -338,6 +340,7 @@ def sweep(
             "min_core_prob": mcp,
             "gate": gate,
             "min_wire_support": wire,
+            "rescue_threshold": rescue,
         }
         for zone, (truth, labels, tiles, survey) in data.items():
             if (zone, tta, gate) not in preds:
@@ -354,11 +357,12 @@ def sweep(
                 threshold=thr,
                 point_threshold=pthr,
                 min_core_prob=mcp,
-                towers={**towers, "min_wire_support": wire},
+                towers={**towers, "min_wire_support": wire, "rescue_threshold": rescue},
                 zone=zone,
                 survey=survey,
             )
         row["mean_point_iou"] = float(np.mean([row[z]["point_iou"] for z in data]))
+        row["mean_f1"] = float(np.mean([row[z]["f1"] or 0.0 for z in data]))
         rows.append(row)
     return rows
 
@@ -404,9 +408,10 @@ def _cli(args: argparse.Namespace) -> int:
     mcp = _floats(args.min_core_prob) if args.min_core_prob else [float(towers["min_core_prob"])]
     gates = _floats(args.gate) if args.gate else [float(inference["gate"])]
     wires = _floats(args.min_wire_support) if args.min_wire_support else [float(towers["min_wire_support"])]
+    rescues = _floats(args.rescue_threshold) if args.rescue_threshold else [float(towers["rescue_threshold"])]
     rows = sweep(
         zones,
-        list(itertools.product(tta, thr, pthr, mcp, gates, wires)),
+        list(itertools.product(tta, thr, pthr, mcp, gates, wires, rescues)),
         work=work,
         model=models,
         inference=inference,
@@ -420,15 +425,16 @@ def _cli(args: argparse.Namespace) -> int:
         return "  -  " if v is None else f"{v:.3f}"
 
     print(
-        "views  gate  threshold  points  min_core  wire | "
+        "views  gate  threshold  points  min_core  wire  rescue | "
         + " | ".join(f"{z}: P / R / IoU" for z in zones)
-        + " | mean IoU"
+        + " | mean F1 | mean IoU"
     )
     for r in rows:
         cells = " | ".join(f"{f(r[z]['precision'])} / {f(r[z]['recall'])} / {r[z]['point_iou']:.4f}" for z in zones)
         print(
             f"{r['tta']:5d}  {r['gate']:4.2f}  {r['threshold']:9.2f}  {r['point_threshold']:6.2f}  "
-            f"{r['min_core_prob']:8.2f}  {r['min_wire_support']:4.2f} | {cells} | {r['mean_point_iou']:.4f}"
+            f"{r['min_core_prob']:8.2f}  {r['min_wire_support']:4.2f}  {r['rescue_threshold']:6.2f} | {cells} | "
+            f"{r['mean_f1']:.4f} | {r['mean_point_iou']:.4f}"
         )
     return 0
 
@@ -448,6 +454,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--min-core-prob", help="towers.min_core_prob values (default: the config's)")
     p.add_argument("--gate", help="inference.gate values (default: the config's); each predicts the zones again")
     p.add_argument("--min-wire-support", help="towers.min_wire_support values (default: the config's)")
+    p.add_argument("--rescue-threshold", help="towers.rescue_threshold values (default: the config's)")
     p.add_argument("--model", help="model bundle directory (default: the config's inference.model)")
     p.add_argument("--workdir", help="workdir holding the zones' tiles (default: the config's)")
     p.add_argument("--json", help="also write the rows here")

@@ -37,6 +37,13 @@ its cluster with ``prob >= point_threshold`` (a crown painted in one view is lef
    (until one gives clusters) and each part judged by rules 4-8: a tower standing among the
    crowns that the segmenter paints with it.
 
+The split is rule 9. Rule 10, the rescue (``rescue_threshold``, with the shape check only):
+after the other rules, the points at or above ``rescue_threshold`` that no accepted tower
+holds are clustered and each cluster is judged by rules 4-8 (its highest probability, not its
+90th percentile, must reach ``min_core_prob``), its points those at or above
+``rescue_threshold``: a thin pole or a sparse real lattice that the segmenter paints mostly
+at 0.1-0.3 is found and outlined when its object is shaped like a tower.
+
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
 tower's points and the registry, never on file or processing order nor on the zone's
@@ -310,10 +317,13 @@ def extract_towers(
     members: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     neighbours: list[dict[str, Any]] = []
     verifier = load_verifier(rules.verifier) if context is not None else None
-    pts = gather_points(preds, rules.threshold)
+    # rule 10 needs the shape check: without it a rescue would only be a lower threshold
+    checked = verifier is not None and rules.min_shape_score > 0
+    rescue = float(rules.rescue_threshold) if checked and 0 < rules.rescue_threshold < rules.threshold else 0.0
+    pts = gather_points(preds, rescue or rules.threshold)
     xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
 
-    def cluster(idx: np.ndarray | slice) -> np.ndarray:
+    def cluster(idx: np.ndarray) -> np.ndarray:
         """Tower labels of the points ``idx`` (the clustering of rules 1-4)."""
         return cluster_towers(
             xyz[idx],
@@ -325,20 +335,40 @@ def extract_towers(
             min_height=rules.min_height,
         )
 
-    labels = cluster(slice(None))
-    if not (labels >= 0).any():
-        return ExtractedTowers(empty_towers(crs), members, neighbours)
+    def groups(idx: np.ndarray) -> list[np.ndarray]:
+        """The clusters of the points ``idx``, each as indices into ``pts``."""
+        labels = cluster(idx)
+        order = np.argsort(labels, kind="stable")
+        order = order[labels[order] >= 0]
+        return [idx[g] for g in np.split(order, np.flatnonzero(np.diff(labels[order])) + 1) if g.size]
+
     sources = dict(source_files or {})
-    order = np.argsort(labels, kind="stable")
-    order = order[labels[order] >= 0]
-    groups = np.split(order, np.flatnonzero(np.diff(labels[order])) + 1)
     xmin, ymin, xmax, ymax = (float(v) for v in block_bounds)
-    rows, geoms, accepted = [], [], []
-    # each cluster with the split thresholds still to try on it (rule 8)
-    queue = deque((g, tuple(float(t) for t in rules.split_thresholds)) for g in groups)
-    while queue:
-        g, splits = queue.popleft()
-        if rules.min_core_prob > 0 and np.quantile(pts["prob_single"][g], 0.9) < rules.min_core_prob:
+    accepted: list[tuple[Any, ...]] = []
+    main = np.flatnonzero(pts["prob_single"] >= rules.threshold)
+    # each cluster with the split thresholds still to try on it (rule 8), the probability its
+    # reported points reach and the quantile of its probabilities that must reach
+    # min_core_prob (rules 4 and 10)
+    rows, geoms, rescued = [], [], False
+    Job = tuple[np.ndarray, tuple[float, ...], float | None, float]
+    queue: deque[Job] = deque(
+        (g, tuple(float(t) for t in rules.split_thresholds), point_threshold, 0.9) for g in groups(main)
+    )
+    while queue or (rescue and not rescued):
+        if not queue:
+            # rule 10, the rescue: what the segmenter painted faintly (a thin pole, a sparse
+            # lattice) and no accepted tower holds, clustered from the points at or above
+            # towers.rescue_threshold and judged by the same rules (no split; its highest
+            # probability, not its 90th percentile, must reach min_core_prob), its points those
+            # at or above that threshold
+            rescued = True
+            held = np.zeros(len(pts["x"]), bool)
+            for a in accepted:
+                held[a[0]] = True
+            queue.extend((g, (), rescue, 1.0) for g in groups(np.arange(len(pts["x"]))) if not held[g].any())
+            continue
+        g, splits, g_threshold, core_q = queue.popleft()
+        if rules.min_core_prob > 0 and np.quantile(pts["prob_single"][g], core_q) < rules.min_core_prob:
             continue
         hag = pts["hag"][g].astype(np.float64)
         if hag.min() > rules.max_base_ratio * hag.max():
@@ -350,7 +380,7 @@ def extract_towers(
         owned = bool(_in_bounds(np.array([c.x]), np.array([c.y]), block_bounds)[0])
         if not owned and str(block_name) not in touched:
             continue  # a neighbour's tower that does not reach this block
-        g_pts = g if point_threshold is None else g[pts["prob"][g] >= point_threshold]
+        g_pts = g if g_threshold is None else g[pts["prob"][g] >= g_threshold]
         if len(g_pts) < rules.min_points:
             continue  # what would be reported is too few points for a tower (the paper's 20)
         prob = pts["prob_single"][g].astype(np.float64)
@@ -369,7 +399,10 @@ def extract_towers(
                     # the object under it is shaped like a tree, a roof or a crane; or it is a
                     # tower standing in crowns the segmenter painted with it: its more
                     # confident points are clustered again and each part judged
-                    queue.extend(_split_by_confidence(g, pts["prob_single"], cluster, splits))
+                    queue.extend(
+                        (part, rest, g_threshold, core_q)
+                        for part, rest in _split_by_confidence(g, pts["prob_single"], cluster, splits)
+                    )
                     continue
             # measured from the tower's base (median xy of its lowest third): a crane's
             # footprint centroid lies out along its jib, its base is the mast
