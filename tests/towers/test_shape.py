@@ -220,6 +220,9 @@ def test_rescue_finds_a_faint_tower_and_outlines_it(monkeypatch):
     arrays["prob"][halo] = 0.5  # one confident point on the faint tower
     seeded = extract([(arrays, meta)], "b1", BOUNDS, zone="z1", rescue_threshold=0.1, min_core_prob=0.3, **rules)
     assert len(seeded.towers) == 2
+    # no points around it to judge (the context knows nothing there): never rescued unjudged
+    unjudged = extract([pair], "b1", BOUNDS, zone="z1", rescue_threshold=0.1, **{**rules, "context": lambda x, y: None})
+    assert len(unjudged.towers) == 1
     # no shape check (no context): the rescue would only be a lower threshold, so it never runs
     blind = extract([pair], "b1", BOUNDS, zone="z1", rescue_threshold=0.1, threshold=0.3, split_thresholds=[])
     assert len(blind.towers) == 1

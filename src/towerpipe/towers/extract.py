@@ -346,28 +346,25 @@ def extract_towers(
     xmin, ymin, xmax, ymax = (float(v) for v in block_bounds)
     accepted: list[tuple[Any, ...]] = []
     main = np.flatnonzero(pts["prob_single"] >= rules.threshold)
-    # each cluster with the split thresholds still to try on it (rule 8), the probability its
-    # reported points reach and the quantile of its probabilities that must reach
-    # min_core_prob (rules 4 and 10)
+    # each cluster with the split thresholds still to try on it (rule 8) and whether the rescue
+    # found it (rule 10)
     rows, geoms, rescued = [], [], False
-    Job = tuple[np.ndarray, tuple[float, ...], float | None, float]
-    queue: deque[Job] = deque(
-        (g, tuple(float(t) for t in rules.split_thresholds), point_threshold, 0.9) for g in groups(main)
-    )
+    queue = deque((g, tuple(float(t) for t in rules.split_thresholds), False) for g in groups(main))
     while queue or (rescue and not rescued):
         if not queue:
             # rule 10, the rescue: what the segmenter painted faintly (a thin pole, a sparse
             # lattice) and no accepted tower holds, clustered from the points at or above
             # towers.rescue_threshold and judged by the same rules (no split; its highest
-            # probability, not its 90th percentile, must reach min_core_prob), its points those
-            # at or above that threshold
+            # probability, not its 90th percentile, must reach min_core_prob, and the shape check
+            # must have judged it), its points those at or above that threshold
             rescued = True
             held = np.zeros(len(pts["x"]), bool)
             for a in accepted:
                 held[a[0]] = True
-            queue.extend((g, (), rescue, 1.0) for g in groups(np.arange(len(pts["x"]))) if not held[g].any())
+            queue.extend((g, (), True) for g in groups(np.arange(len(pts["x"]))) if not held[g].any())
             continue
-        g, splits, g_threshold, core_q = queue.popleft()
+        g, splits, is_rescue = queue.popleft()
+        core_q, g_threshold = (1.0, rescue) if is_rescue else (0.9, point_threshold)
         if rules.min_core_prob > 0 and np.quantile(pts["prob_single"][g], core_q) < rules.min_core_prob:
             continue
         hag = pts["hag"][g].astype(np.float64)
@@ -386,6 +383,8 @@ def extract_towers(
         prob = pts["prob_single"][g].astype(np.float64)
         support = shape = float("nan")
         ctx = context(float(c.x), float(c.y)) if context is not None else None
+        if is_rescue and ctx is None:
+            continue  # a rescue stands on the shape check, which needs the points around it
         if ctx is not None:
             from towerpipe.towers.wires import wire_support
 
@@ -395,12 +394,12 @@ def extract_towers(
                 obj = object_points(foot, arr["x"], arr["y"])
                 if len(obj):
                     shape = verifier.score(arr["x"][obj], arr["y"][obj], arr["hag"][obj])
-                if shape < rules.min_shape_score:
+                if shape < rules.min_shape_score or (is_rescue and np.isnan(shape)):
                     # the object under it is shaped like a tree, a roof or a crane; or it is a
                     # tower standing in crowns the segmenter painted with it: its more
                     # confident points are clustered again and each part judged
                     queue.extend(
-                        (part, rest, g_threshold, core_q)
+                        (part, rest, is_rescue)
                         for part, rest in _split_by_confidence(g, pts["prob_single"], cluster, splits)
                     )
                     continue
