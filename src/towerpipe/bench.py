@@ -157,7 +157,7 @@ def bench_preprocess(args: argparse.Namespace) -> int:
         tr, wf, rss = [], [], []
         for r in range(args.repeat):
             tr.append(pdal_translate(block, tmp))
-            dt, rows = run_workflow(block, tmp, zone=f"bench{r}", target="{work}/{zone}/prep/{block}.json")
+            dt, rows = run_workflow(block, tmp, zone=f"bench{r}", target="{work}/{zone}/prepared.done")
             wf.append(dt)
             rss.append(max(row["max_rss_mb"] for row in rows))
         res = {

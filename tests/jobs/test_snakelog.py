@@ -221,9 +221,9 @@ def test_interrupted_run_has_no_failures(run_dir):
 
 def test_several_logs_first_reason_kept_and_missing_logs_ignored(run_dir):
     first = _write(run_dir / "1.log", HEADER + FAILED_SPLIT + FOOTER)
-    second = _write(run_dir / "2.log", HEADER + FAILED_SPLIT.replace("split_block", "preprocess_block") + FOOTER)
+    second = _write(run_dir / "2.log", HEADER + FAILED_SPLIT.replace("split_block", "towers_block") + FOOTER)
     _write(run_dir / "work/demo/logs/split_block/broken.log", SPLIT_LOG)
-    _write(run_dir / "work/demo/logs/preprocess_block/broken.log", "ValueError: later\n")
+    _write(run_dir / "work/demo/logs/towers_block/broken.log", "ValueError: later\n")
     out = failures_from_log([first, second, run_dir / "missing.log"], "work")
     assert out == {
         "demo": {"broken": "split_block: InputError: data/demo/broken.laz: not a LAS/LAZ file (bad signature)"}

@@ -94,7 +94,7 @@ def test_split_records_validity_of_a_real_tile(tmp_path):
     assert meta["attributes"]["rgb"]["valid"] and meta["attributes"]["intensity"]["valid"]
     assert meta["degenerate_attributes"] == ["nir"]
     assert meta["has_rgb"] and not meta["has_nir"]
-    summary = summarize_block(tmp_path / "cache", [], tmp_path / "summary.json")
+    summary = summarize_block(tmp_path / "cache", [])
     assert summary["degenerate_attributes"] == ["nir"]
     assert any("nir (all 0)" in w for w in summary["warnings"])
 

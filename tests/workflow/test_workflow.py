@@ -132,6 +132,17 @@ def test_zone_runs_and_adding_a_block_reruns_only_it(zone, random_model):
     assert not [j for j in jobs if j[1] == "b0" and j[0] in heavy], jobs
     assert len([j for j in jobs if j[0] == "assemble_zone"]) == 1
     assert planned_jobs(snakemake("-n", "--cores", "2", f"results/{name}/", f"--configfile={cfg}")) == 0
+    # a run that stopped between a split and the plan leaves the last publication without
+    # its plan: the zone is planned and published again (from its products, all up to date),
+    # never "done" with no results/<zone>/
+    (tmp / "work" / name / "plan.json").unlink()
+    shutil.rmtree(out)
+    assert "plans and publishes the zone again" in snakemake("-n", f"results/{name}/", f"--configfile={cfg}").stdout
+    proc = snakemake("--cores", "2", f"results/{name}/", f"--configfile={cfg}")
+    # (the plan is a checkpoint: the log names it apart from the rules)
+    assert sorted(r for r, _ in executed(proc)) == ["assemble_zone", "zone_results"], executed(proc)
+    assert (tmp / "work" / name / "plan.json").is_file()
+    assert sorted(p.name for p in (out / "blocks").iterdir()) == ["b0.laz", "b1.laz", "b2.laz"]
     # a changed model reprocesses every tile of every block
     (random_model / "segmenter.pt").touch()
     proc = snakemake("-n", "--cores", "2", f"results/{name}/", f"--configfile={cfg}")
@@ -159,11 +170,11 @@ def test_bad_block_costs_only_itself(zone, random_model):
     # the split records the error (neighbours go on without the block), the block's own
     # next step fails with it
     assert sorted(p.name for p in (work / "cache" / "broken").iterdir() if not p.name.startswith(".")) == ["meta.json"]
-    log = (work / "logs" / "preprocess_block" / "broken.log").read_text()
+    log = (work / "logs" / "towers_block" / "broken.log").read_text()
     assert re.search(r"InputError: .*broken\.laz: not a readable LAS/LAZ file", log), log
     # the zone directory is published as INCOMPLETE, its QA index naming the bad block and why
     out = REPO / "results" / name
-    assert "broken: preprocess_block: InputError" in (out / "INCOMPLETE.txt").read_text()
+    assert "broken: towers_block: InputError" in (out / "INCOMPLETE.txt").read_text()
     index = (out / "qa" / "index.html").read_text()
     assert "broken" in index and "not a readable LAS/LAZ file" in index
     assert sorted(p.name for p in (out / "blocks").iterdir()) == sorted(f"{b.stem}.laz" for b in blocks)

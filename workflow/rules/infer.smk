@@ -10,6 +10,9 @@ rule choose_model:
         log_of("choose_model"),
     benchmark:
         benchmark_of("choose_model")
+    # right after the splits (it reads only their metadata), beside the preprocessing: the
+    # inference jobs then start as soon as their tiles are done
+    priority: 20
     localrule: True
     conda:
         "../envs/towerpipe.yaml"

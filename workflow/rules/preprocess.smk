@@ -1,5 +1,5 @@
 # Preprocessing (paper 3.1): decode once per block (split), plan the zone's tiles from the
-# measured bounds, then ground/DTM/HAG/noise per tile, and the block's summary.
+# measured bounds, then ground/DTM/HAG/noise per tile (the QA page sums up the block).
 
 
 # The block file is a parameter, not an input: its fingerprint (towerpipe.io.inputs) reruns the
@@ -78,26 +78,6 @@ rule preprocess_tile:
         preprocess=PREP,
     script:
         "../scripts/preprocess_tile.py"
-
-
-rule preprocess_block:
-    input:
-        cache=lambda wc: cache_dir(wc.zone, wc.block),
-        tiles=lambda wc: [tile_file(wc.zone, wc.block, t) for t in tiles(wc.zone, wc.block)],
-    output:
-        summary=PREP_SUMMARY,
-    log:
-        log_of("preprocess_block", "block"),
-    benchmark:
-        benchmark_of("preprocess_block", "block")
-    conda:
-        "../envs/towerpipe.yaml"
-    threads: 1
-    resources:
-        mem_mb=500,
-        runtime=10,
-    script:
-        "../scripts/preprocess_block.py"
 
 
 rule prepared_zone:

@@ -7,7 +7,8 @@ rule towers_block:
     input:
         preds=lambda wc: block_preds(wc.zone, wc.block),
         neighbour_preds=lambda wc: [p for n in block_neighbours(wc.zone, wc.block) for p in block_preds(wc.zone, n)],
-        summary=PREP_SUMMARY,
+        # the block's split: a block that could not be read fails here, with its recorded error
+        cache=lambda wc: cache_dir(wc.zone, wc.block),
         # the points around each tower (this block's and its neighbours' tiles, for the
         # towers across an edge): its conductor support (towers.min_wire_support)
         tiles=lambda wc: [
@@ -38,7 +39,8 @@ rule towers_block:
         bounds=lambda wc: planned(wc.zone, wc.block)["bounds"],
         # where data exists around the block (a tower's ring outside it: support unknown)
         survey=lambda wc: [planned(wc.zone, b)["bounds"] for b in [wc.block, *block_neighbours(wc.zone, wc.block)]],
-        source_files=lambda wc: blocks(wc.zone),
+        # the input files of the blocks a tower may touch (the block's and its neighbours')
+        source_files=lambda wc: {b: block_path(wc.zone, b) for b in [wc.block, *block_neighbours(wc.zone, wc.block)]},
         towers=TOWERS,
         threshold=INFER["threshold"],
         run=run_params(),

@@ -9,7 +9,7 @@ rule assemble_zone:
     input:
         lambda wc: planned_products(wc.zone),
     output:
-        manifest=f"{WORK}/{{zone}}/published.json",
+        manifest=PUBLISHED,
     log:
         log_of("assemble_zone"),
     benchmark:
@@ -40,7 +40,8 @@ rule assemble_zone:
 
 rule zone_results:
     input:
-        ancient(f"{WORK}/{{zone}}/published.json"),
+        # a manifest without the zone's plan is removed first (drop_unplanned_publication)
+        lambda wc: ancient(publication(wc.zone)),
     output:
         # `snakemake --report` shows the zone's QA index and its GeoPackage
         report(

@@ -8,7 +8,6 @@ run_step(
     lambda: qa_step(
         snakemake.wildcards.zone,
         snakemake.wildcards.block,
-        summary_json=i.summary,
         cache_dir=i.cache,
         tile_files=i.tiles,
         pred_files=i.preds,

@@ -19,5 +19,6 @@ run_step(
         out_members=snakemake.output.members,
         survey=snakemake.params.survey,
         registry=snakemake.params.registry,
+        cache_dir=snakemake.input.cache,
     ),
 )

@@ -15,12 +15,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import geopandas as gpd
 import numpy as np
-import pandas as pd
-import shapely
+
+if TYPE_CHECKING:  # the frames' libraries load when a frame is built: declaring fields is free
+    import geopandas as gpd
+    import pandas as pd
 
 #: pandas dtype of DATETIME fields (GeoPackage DATETIME: ISO 8601, UTC).
 DATETIME = "datetime64[ms, UTC]"
@@ -60,11 +61,16 @@ def dtypes(fields: Mapping[str, Field]) -> dict[str, str]:
 
 
 def _empty(dtype: str) -> pd.Series:
+    import pandas as pd
+
     return pd.Series([], dtype=object if dtype == "str" else dtype)
 
 
 def empty_frame(fields: Mapping[str, Field], crs: Any = None, geometry: bool = True) -> gpd.GeoDataFrame | pd.DataFrame:
     """An empty table with the schema's columns and dtypes (and a geometry column)."""
+    import geopandas as gpd
+    import pandas as pd
+
     data = {k: _empty(f.dtype) for k, f in fields.items()}
     if not geometry:
         return pd.DataFrame(data)
@@ -72,6 +78,8 @@ def empty_frame(fields: Mapping[str, Field], crs: Any = None, geometry: bool = T
 
 
 def _cast(values: pd.Series, field: Field) -> pd.Series:
+    import pandas as pd
+
     if field.dtype == "str":
         return values.astype(object).where(values.notna(), None)
     if field.dtype == DATETIME:
@@ -88,6 +96,10 @@ def conform(frame: pd.DataFrame, fields: Mapping[str, Field], crs: Any = None) -
     Geometries (when ``frame`` has them) are snapped to :data:`GEOMETRY_GRID` and
     stay valid. Raises ``ValueError`` naming the missing columns.
     """
+    import geopandas as gpd
+    import pandas as pd
+    import shapely
+
     missing = [c for c in fields if c not in frame.columns]
     if missing:
         raise ValueError(f"table lacks columns {missing}")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import sys
 import traceback
 from collections.abc import Callable
@@ -34,6 +35,9 @@ def run_step(smk: Any, step: Callable[[], Any]) -> Any:
         level=logging.INFO, handlers=handlers, force=True, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
     threads = int(getattr(smk, "threads", 1) or 1)
+    # the LAZ codec's thread pool (lazrs, Rayon) would take every core of the machine: it gets
+    # the job's threads, as NumPy's and PyTorch's pools do (its pool starts on first use)
+    os.environ["RAYON_NUM_THREADS"] = str(threads)
     torch = sys.modules.get("torch")  # only jobs that use torch pay for importing it
     if torch is not None:
         torch.set_num_threads(threads)

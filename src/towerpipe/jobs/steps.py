@@ -53,9 +53,13 @@ def towers_step(
     out_members: str | os.PathLike[str] | None = None,
     survey: Sequence[Sequence[float]] = (),
     registry: Sequence[str] = (),
+    cache_dir: str | os.PathLike[str] | None = None,
 ) -> dict[str, Any]:
     """Towers owned by ``block`` (from its and its neighbours' predictions) → GeoPackage.
 
+    ``cache_dir`` is the block's split: a block that could not be read (its cache records the
+    error) raises that :class:`~towerpipe.errors.InputError` here, its first job after the
+    split (its neighbours went on without it).
     ``out_neighbours`` (JSON) receives the towers with points in the block that a
     neighbour owns (see :func:`towerpipe.towers.extract.extract_towers`), for the block's QA.
     ``tile_files`` (the block's and its neighbours' tiles) give the conductor support of
@@ -82,6 +86,8 @@ def towers_step(
     from towerpipe.towers.extract import extract_towers
     from towerpipe.towers.wires import TileContext
 
+    if cache_dir is not None:
+        BlockCache.open(cache_dir)
     rules = TowersConfig.from_config({"towers": towers_cfg})
     ring_share = float(towers_cfg["wire_ring_coverage"])
     loaded = [load_pred(p) for p in preds]
@@ -215,7 +221,6 @@ def qa_step(
     zone: str,
     block: str,
     *,
-    summary_json: str,
     cache_dir: str,
     tile_files: Sequence[str],
     pred_files: Sequence[str],
@@ -232,17 +237,20 @@ def qa_step(
 ) -> dict[str, Any]:
     """The block's QA page: preprocessing summary, gate counts, towers, side views, labels if any.
 
+    The preprocessing summary is summed from the metadata of the block's cache and tiles
+    (:func:`towerpipe.preprocess.tile.summarize_block`).
     ``limits`` (the config's ``qa`` section and three tower rules) flag the block or a tower
     for a look. ``block_bounds`` (block → header bounds, the block's and its neighbours') gives the
     edge of the data: a tower reaching it may be cut. Only the neighbours that gave
     points to the block's tiles count (a neighbour that failed did not).
     """
     from towerpipe.preprocess.ground import mosaic_dtm
+    from towerpipe.preprocess.tile import summarize_block
     from towerpipe.products.qa.block import BlockInputs, block_report
     from towerpipe.products.qa.metrics import read_benchmark, read_towers
     from towerpipe.products.qa.neighbourhoods import tower_neighbourhoods
 
-    summary = _json(summary_json)
+    summary = summarize_block(cache_dir, tile_files)
     truth = None
     cls = BlockCache(cache_dir).column("classification")
     if summary.get("class_counts", {}).get(str(classes.TOWER)):

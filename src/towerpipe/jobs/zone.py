@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from collections.abc import Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
@@ -200,7 +201,7 @@ def zone_step(
             merge_benchmarks=merge_benchmarks,
         )
         if failures:
-            (tmp / "INCOMPLETE.txt").write_text(
+            (tmp / layout.INCOMPLETE).write_text(
                 "This zone is INCOMPLETE: the run failed for these blocks (see qa/index.html):\n"
                 + "".join(f"  {b}: {r}\n" for b, r in sorted(failures.items()))
                 + "Fix the inputs (or remove them) and rerun the same snakemake command.\n"
@@ -329,3 +330,42 @@ def assemble_incomplete_zone(
         block_bounds=block_bounds,
         registry=registry,
     )
+
+
+def set_aside_unplanned(
+    plan: str | os.PathLike[str],
+    manifest: str | os.PathLike[str],
+    results_dir: str | os.PathLike[str],
+    aside: str | os.PathLike[str],
+    *,
+    dry_run: bool = False,
+) -> str | None:
+    """Set aside what a zone published without its plan, so that the run rebuilds it.
+
+    The plan is missing when a run stopped between a split and the plan, or the plan
+    failed. Snakemake then cannot see which products a publication depends on: it keeps
+    the manifest of the last assembly (or publishes from it) without rebuilding the zone,
+    and leaves an INCOMPLETE ``results_dir`` from such a run as it is. So ``manifest`` is
+    removed and an INCOMPLETE ``results_dir`` moved to ``aside`` (replacing one there): the
+    run plans the zone and publishes it again, the products still up to date kept. A
+    complete ``results_dir`` is never moved.
+
+    Returns
+    -------
+    str or None
+        What was (``dry_run``: would be) done, for the operator; None when the plan exists
+        or nothing was published.
+    """
+    if Path(plan).exists():
+        return None
+    incomplete = (Path(results_dir) / layout.INCOMPLETE).exists()
+    if not (Path(manifest).exists() or incomplete):
+        return None
+    if dry_run:
+        return f"{plan} is missing; a run plans and publishes the zone again"
+    Path(manifest).unlink(missing_ok=True)
+    if incomplete:
+        shutil.rmtree(aside, ignore_errors=True)
+        os.replace(results_dir, aside)
+    moved = f" (the INCOMPLETE {results_dir}/ is moved to {aside}/)" if incomplete else ""
+    return f"{plan} is missing; the zone is planned and published again{moved}"

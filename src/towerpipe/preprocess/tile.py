@@ -13,12 +13,11 @@ model input (``model_input`` flag); the merge step writes every point back.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import tempfile
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +26,6 @@ import rasterio
 
 from towerpipe import classes
 from towerpipe.config import PreprocessConfig
-from towerpipe.io.atomic import write_text_atomic
 from towerpipe.io.blockcache import BlockCache
 from towerpipe.io.columns import read_meta
 from towerpipe.io.las import BLOCK_COLUMNS
@@ -307,12 +305,11 @@ def preprocess_tile(
     return t.meta
 
 
-def summarize_block(
-    cache_dir: str | os.PathLike[str], tile_paths: list[str], out_json: str | os.PathLike[str]
-) -> dict[str, Any]:
+def summarize_block(cache_dir: str | os.PathLike[str], tile_paths: Sequence[str]) -> dict[str, Any]:
     """Per-block preprocessing summary (counts per stage, ground source, timings) for QA.
 
-    Reads only the metadata of the block cache and of each tile file.
+    Reads only the metadata of the block cache and of each tile file (milliseconds: the
+    QA job computes it, no job of its own). A block whose split failed raises its error.
     """
     cache = BlockCache.open(cache_dir)
     totals: dict[str, int] = {}
@@ -367,5 +364,4 @@ def summarize_block(
             "tiles": sum(t["timings"].get("total", 0.0) for t in tiles.values()),
         },
     }
-    write_text_atomic(out_json, json.dumps(summary, indent=1))
     return summary

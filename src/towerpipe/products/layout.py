@@ -19,6 +19,8 @@ QA_JSON = "qa/{block}.json"
 ZONE_GPKG = "towers.gpkg"
 QA_INDEX = "qa/index.html"
 QA_INDEX_JSON = "qa/index.json"
+#: Only in a zone published with failed blocks: which and why.
+INCOMPLETE = "INCOMPLETE.txt"
 
 
 def block_product(pattern: str, block: str) -> str:
