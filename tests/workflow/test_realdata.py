@@ -56,14 +56,16 @@ def corridor(tmp_path_factory):
 
 
 def test_attributes_recorded_and_a_usable_model_chosen(corridor):
-    tmp, _, _ = corridor
+    tmp, _, out = corridor
     choice = json.loads((tmp / "work" / ZONE / "model.json").read_text())
     assert choice["mode"] == "auto" and choice["key"] == "inference.model"
     assert choice["valid_attributes"] == ["rgb"]
     assert choice["feature_set"] == "shape" and "transfers best" in choice["reason"]
-    for summary in (tmp / "work" / ZONE / "prep").glob("*.json"):
-        s = json.loads(summary.read_text())
-        assert s["degenerate_attributes"] == ["intensity", "returns", "nir"]
+    # each block's preprocessing summary, as its QA page records it
+    pages = [p for p in (out / "qa").glob("*.json") if p.name != "index.json"]
+    assert pages
+    for page in pages:
+        assert json.loads(page.read_text())["stats"]["degenerate_attributes"] == ["intensity", "returns", "nir"]
 
 
 def test_towers_found_and_named_with_the_model(corridor):

@@ -60,9 +60,9 @@ def test_zone_on_slurm_equals_local_run(slurm, ci_scene, ci_reference, tmp_path)
         text = proc.stdout + proc.stderr
         assert proc.returncode == 0, text[-4000:]
         # every job but the local zone_results ran as a SLURM job: per block its split, tile,
-        # inference, summary, towers, merge and QA, plus the plan and the assembly
+        # inference, towers, merge and QA, plus the plan and the assembly
         submitted = re.findall(r"Job \d+ has been submitted with SLURM jobid \d+ \(log: .*/rule_(\w+)/", text)
-        assert len(submitted) == 7 * len(CI_BLOCKS) + 2, text[-4000:]
+        assert len(submitted) == 6 * len(CI_BLOCKS) + 2, text[-4000:]
         assert {"split_block", "plan_zone", "infer_tile", "merge_block", "assemble_zone"} <= set(submitted)
         for block in CI_BLOCKS:
             same_points(ci_reference / "blocks" / f"{block}.laz", out / "blocks" / f"{block}.laz")
