@@ -267,26 +267,19 @@ def planned_products(zone):
     return products
 
 
-def publication(zone):
-    """The zone's publication manifest (input of zone_results), a stale one removed first."""
-    drop_unplanned_publication(zone)
-    return PUBLISHED.format(zone=zone)
-
-
 @functools.cache
-def drop_unplanned_publication(zone):
-    """A publication without the zone's plan is set aside (towerpipe.jobs.zone.set_aside_unplanned)."""
+def publication(zone):
+    """The zone's publication manifest (input of zone_results). Once per run, first, a
+    publication without the zone's plan is set aside (towerpipe.jobs.zone.set_aside_unplanned)."""
     from towerpipe.jobs.zone import set_aside_unplanned
 
+    manifest = PUBLISHED.format(zone=zone)
     done = set_aside_unplanned(
-        plan_file(zone),
-        PUBLISHED.format(zone=zone),
-        f"results/{zone}",
-        f"{WORK}/{zone}/incomplete",
-        dry_run=not executes_jobs(),
+        plan_file(zone), manifest, f"results/{zone}", f"{WORK}/{zone}/incomplete", dry_run=not executes_jobs()
     )
     if done:
         print(f"towerpipe: zone {zone}: {done}")
+    return manifest
 
 
 INFER = config["inference"]

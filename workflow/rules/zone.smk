@@ -40,7 +40,7 @@ rule assemble_zone:
 
 rule zone_results:
     input:
-        # a manifest without the zone's plan is removed first (drop_unplanned_publication)
+        # a manifest without the zone's plan is removed first (publication)
         lambda wc: ancient(publication(wc.zone)),
     output:
         # `snakemake --report` shows the zone's QA index and its GeoPackage
