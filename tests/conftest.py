@@ -240,3 +240,40 @@ def extract(preds, block_name, block_bounds, *, point_threshold=None, **kw):
         point_threshold=point_threshold,
         **{k: v for k, v in kw.items() if k not in names},
     )
+
+
+def model_card(feature_set: str = "full") -> dict:
+    """A minimal valid model card of ``feature_set`` (for bundles the tests write)."""
+    from towerpipe.model.cards import code_version, config_hash
+    from towerpipe.model.features import FEATURE_SETS
+
+    return {
+        "name": f"towerpipe-{feature_set}",
+        "version": "1",
+        "bundle_version": 1,
+        "feature_set": feature_set,
+        "features": FEATURE_SETS[feature_set],
+        "normalisation": {"norm_radius_m": 57.45},
+        "sampling": {"n_points": 2048},
+        "training_data": {"tiles": []},
+        "metrics": {"classifier": {}},
+        "code": code_version(),
+        "config_hash": config_hash({"a": 1}),
+    }
+
+
+def trained_like(model, seed: int = 0):
+    """Perturb every parameter (T-Nets leave identity) and calibrate batch-norm statistics
+    on random data, so the tests do not pass on a trivial initial state."""
+    import torch
+
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(torch.randn(p.shape, generator=g) * 0.05)
+        for m in model.modules():
+            if isinstance(m, torch.nn.BatchNorm1d):
+                m.momentum = 1.0
+        model.train()
+        model(torch.randn(4, 512, model.hparams["in_channels"], generator=g))
+    return model.eval()

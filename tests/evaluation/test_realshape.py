@@ -7,7 +7,7 @@ import json
 import pytest
 
 from conftest import BACKGROUNDS, TOWERS, preprocess_settings, schema_config
-from towerpipe.evaluation.realshape import run_benchmark, stamp_cards, zone_name
+from towerpipe.evaluation.realshape import run_benchmark, score_resolution, stamp_cards, zone_name
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.shared]
 
@@ -94,7 +94,7 @@ def test_stamp_cards_writes_the_transfer_figures(tmp_path, random_model_factory)
     scores.write_text(
         json.dumps(
             {
-                "transfer": {"shape": {"score": 0.93, "point_iou": 0.71, "families": ["uav"]}},
+                "transfer": {"shape": {"score": 0.93, "point_iou": 0.71, "families": ["uav"], "resolution": 0.08}},
                 "rows": [
                     {
                         "recipe": "shape",
@@ -113,4 +113,14 @@ def test_stamp_cards_writes_the_transfer_figures(tmp_path, random_model_factory)
     stamp_cards(scores, {"shape": model})
     card = read_card(model)  # the weights' checksums still hold
     assert card["transfer"]["score"] == 0.93 and card["transfer"]["per_family"][0]["recall"] == 0.95
+    assert card["transfer"]["resolution"] == 0.08
     assert "## Transfer" in (model / "MODEL_CARD.md").read_text()
+
+
+@pytest.mark.parametrize(
+    ("sizes", "expected"),
+    [([(19, 0), (11, 1), (5, 4)], 1 / (19 * 3)), ([(3, 9)], 1 / 12), ([(0, 0)], None), ([], None)],
+)
+def test_score_resolution_is_one_tower_of_the_largest_family(sizes, expected):
+    rows = [{"towers_tp": tp, "towers_fn": fn} for tp, fn in sizes]
+    assert score_resolution(rows) == (pytest.approx(expected) if expected else None)

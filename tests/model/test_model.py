@@ -8,45 +8,14 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import model_card, trained_like
 from towerpipe.errors import ModelError
 from towerpipe.model.bundle import load_bundle, save_bundle
-from towerpipe.model.cards import MODEL_RELEASES, code_version, config_hash, default_model_path, validate_card
-from towerpipe.model.features import FEATURE_SETS
+from towerpipe.model.cards import MODEL_RELEASES, default_model_path, validate_card
 from towerpipe.model.folded import segment_points
-from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter, count_parameters
+from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter, count_parameters, max_pool
 
 torch.set_num_threads(2)
-
-
-def _card(feature_set: str = "full") -> dict:
-    return {
-        "name": f"towerpipe-{feature_set}",
-        "version": "1",
-        "bundle_version": 1,
-        "feature_set": feature_set,
-        "features": FEATURE_SETS[feature_set],
-        "normalisation": {"norm_radius_m": 57.45},
-        "sampling": {"n_points": 2048},
-        "training_data": {"tiles": []},
-        "metrics": {"classifier": {}},
-        "code": code_version(),
-        "config_hash": config_hash({"a": 1}),
-    }
-
-
-def _trained_like(model: torch.nn.Module, seed: int = 0) -> torch.nn.Module:
-    """Perturb every parameter (T-Nets leave identity) and calibrate batch-norm statistics
-    on random data, so the tests do not pass on a trivial initial state."""
-    g = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for p in model.parameters():
-            p.add_(torch.randn(p.shape, generator=g) * 0.05)
-        for m in model.modules():
-            if isinstance(m, torch.nn.BatchNorm1d):
-                m.momentum = 1.0
-        model.train()
-        model(torch.randn(4, 512, model.hparams["in_channels"], generator=g))
-    return model.eval()
 
 
 def test_parameter_counts_match_paper():
@@ -69,8 +38,8 @@ def test_permutation_invariance(arch):
     torch.manual_seed(0)
     x = torch.randn(3, 300, 7)
     perm = torch.randperm(300)
-    clf = _trained_like(PointNetClassifier(7, arch))
-    seg = _trained_like(PointNetSegmenter(7, arch), 1)
+    clf = trained_like(PointNetClassifier(7, arch))
+    seg = trained_like(PointNetSegmenter(7, arch), 1)
     with torch.no_grad():
         a, _ = clf(x)
         b, _ = clf(x[:, perm])
@@ -81,9 +50,29 @@ def test_permutation_invariance(arch):
         assert torch.allclose(a.exp().sum(-1), torch.ones(3))
 
 
+def test_max_pool_has_amax_values_and_gradient_sums():
+    """The pooling the networks train with: amax's values; the same gradient without ties, the same
+    sum over the tied points (duplicated sample points) with them."""
+    torch.manual_seed(0)
+    h = torch.relu(torch.randn(4, 64, 32))
+    h[:, 10] = h[:, 3]  # a duplicated point: ties for every channel where it holds the maximum
+    w = torch.randn(4, 32)
+    grads = []
+    for pool in (max_pool, lambda t: t.amax(dim=1)):
+        x = h.clone().requires_grad_(True)
+        (pool(x) * w).sum().backward()
+        grads.append(x.grad)
+    torch.testing.assert_close(max_pool(h), h.amax(dim=1), rtol=0, atol=0)
+    untied = torch.ones(4, 64, dtype=torch.bool)
+    untied[:, [3, 10]] = False
+    torch.testing.assert_close(grads[0][untied], grads[1][untied], rtol=0, atol=0)
+    torch.testing.assert_close(grads[0][:, [3, 10]].sum(1), grads[1][:, [3, 10]].sum(1))
+    assert grads[0].abs().sum() > 0
+
+
 def test_segment_chunked_equals_unchunked():
     torch.manual_seed(0)
-    seg = _trained_like(PointNetSegmenter(6, "light"), 2)
+    seg = trained_like(PointNetSegmenter(6, "light"), 2)
     x = np.random.default_rng(0).uniform(-0.5, 0.5, size=(5000, 6)).astype(np.float32)
     whole = segment_points(seg, x, chunk=10**6)
     chunked = segment_points(seg, x, chunk=777)
@@ -95,9 +84,9 @@ def test_segment_chunked_equals_unchunked():
 
 
 def test_bundle_round_trip(tmp_path):
-    clf = _trained_like(PointNetClassifier(7, "light"), 3)
-    seg = _trained_like(PointNetSegmenter(7, "light"), 4)
-    out = save_bundle(tmp_path / "m", clf, seg, _card())
+    clf = trained_like(PointNetClassifier(7, "light"), 3)
+    seg = trained_like(PointNetSegmenter(7, "light"), 4)
+    out = save_bundle(tmp_path / "m", clf, seg, model_card())
     assert sorted(p.name for p in out.iterdir()) == [
         "MODEL_CARD.md",
         "classifier.folded.npz",
@@ -119,18 +108,18 @@ def test_bundle_round_trip(tmp_path):
 def test_load_errors_name_file_and_fix(tmp_path):
     with pytest.raises(ModelError, match="not found"):
         load_bundle(tmp_path / "nope")
-    out = save_bundle(tmp_path / "m", PointNetClassifier(7), PointNetSegmenter(7), _card())
+    out = save_bundle(tmp_path / "m", PointNetClassifier(7), PointNetSegmenter(7), model_card())
     card = json.loads((out / "model_card.json").read_text())
     del card["features"]
     (out / "model_card.json").write_text(json.dumps(card))
     with pytest.raises(ModelError, match=r"model_card.json.*retrain"):
         load_bundle(out)
-    out2 = save_bundle(tmp_path / "m2", PointNetClassifier(7), PointNetSegmenter(7), _card())
+    out2 = save_bundle(tmp_path / "m2", PointNetClassifier(7), PointNetSegmenter(7), model_card())
     (out2 / "segmenter.pt").write_bytes(b"garbage")
     with pytest.raises(ModelError, match="segmenter.pt"):
         load_bundle(out2)
     with pytest.raises(ModelError, match="features"):
-        validate_card(dict(_card(), features=["x", "y"]))
+        validate_card(dict(model_card(), features=["x", "y"]))
 
 
 def test_default_model_path(monkeypatch, tmp_path):

@@ -33,7 +33,7 @@ def shipped(tmp_path, monkeypatch):
         if fs not in RELEASES:
             monkeypatch.delitem(modelcard.MODEL_RELEASES, fs)
 
-    def scores(**transfer):
+    def scores(resolution=None, **transfer):
         for fs, r in RELEASES.items():
             d = tmp_path / f"towerpipe-{fs}-v{r}"
             d.mkdir(exist_ok=True)
@@ -49,7 +49,7 @@ def shipped(tmp_path, monkeypatch):
                 "metrics": {},
                 "code": {},
                 "config_hash": "0",
-                "transfer": {"score": transfer.get(fs)},
+                "transfer": {"score": transfer.get(fs), "resolution": resolution},
             }
             (d / "model_card.json").write_text(json.dumps(card))
         return tmp_path
@@ -77,6 +77,25 @@ def test_richer_is_not_better(shipped):
     shipped(full=0.5, rgb=0.6, geometry=0.55, shape=0.9)
     c = choose_model("auto", {"a": _attrs("intensity", "returns", "rgb", "nir")}, zone="z")
     assert c["feature_set"] == "shape"
+
+
+def test_scores_within_one_benchmark_tower_tie_and_the_leaner_model_wins(shipped):
+    every = {"a": _attrs("intensity", "returns", "rgb", "nir")}
+    # geometry 0.009 above shape, one tower weighs 0.018: a tie, shape reads no sensor attribute
+    shipped(resolution=0.018, geometry=0.890, shape=0.881, full=0.5, rgb=0.6)
+    c = choose_model("auto", every, zone="z")
+    assert c["feature_set"] == "shape"
+    assert "tie" in c["reason"] and "0.018" in c["reason"] and "geometry 0.890" in c["reason"]
+    # more than one tower apart: the better score wins, however many columns it reads
+    shipped(resolution=0.018, geometry=0.920, shape=0.881, full=0.5, rgb=0.6)
+    c = choose_model("auto", every, zone="z")
+    assert c["feature_set"] == "geometry" and "transfers best" in c["reason"] and "tie" not in c["reason"]
+    # a card stamped without a resolution: strict order, as before the rule
+    shipped(geometry=0.890, shape=0.881, full=0.5, rgb=0.6)
+    assert choose_model("auto", every, zone="z")["feature_set"] == "geometry"
+    # the tie is among usable models only: without intensity, geometry is not a candidate
+    shipped(resolution=0.5, geometry=0.95, shape=0.2, rgb=0.6, full=0.1)
+    assert choose_model("auto", {"a": _attrs("rgb", "nir")}, zone="z")["feature_set"] == "shape"
 
 
 def test_failed_blocks_do_not_decide(shipped):

@@ -20,9 +20,11 @@ instead, leaving one *source* out:
   pts/m²) is neither a missed tower nor, when found, a false one.
 
 A recipe's **transfer score** is its mean tower F1 over the held-out families on the
-intact zones (all recipes are usable there); ``inference.model: auto``
-(:mod:`towerpipe.model.choice`) picks the usable shipped model with the highest score,
-recorded in each shipped card by :func:`stamp_cards`. The ``auto`` rows of the report
+intact zones (all recipes are usable there), and its **resolution** what one tower weighs
+in it (:func:`score_resolution`); ``inference.model: auto`` (:mod:`towerpipe.model.choice`)
+picks the usable shipped model with the highest score, scores closer than the resolution
+counting as a tie that the model reading fewer sensor attributes wins; both are recorded
+in each shipped card by :func:`stamp_cards`. The ``auto`` rows of the report
 are what a user gets: per family and variant, the recipe ``auto`` would choose.
 
 ``snakemake --cores 2 results/benchmark/realshape/`` trains what is missing and writes
@@ -106,6 +108,19 @@ def _f1(row: Mapping[str, Any]) -> float:
     return float(row["f1"]) if row.get("f1") is not None else 0.0
 
 
+def score_resolution(rows: list[Mapping[str, Any]]) -> float | None:
+    """What one tower weighs in a transfer score: ``1 / (n x families)`` for the family with most towers.
+
+    The score is a mean over the held-out families of their tower F1; one tower more or
+    less found in a family of ``n`` towers moves that family's recall by ``1 / n``. Two
+    scores closer than the smallest such step differ by less than one tower: the benchmark
+    cannot tell them apart (:func:`towerpipe.model.choice.best_transfer`).
+    """
+    sizes = [int(r.get("towers_tp") or 0) + int(r.get("towers_fn") or 0) for r in rows]
+    sizes = [n for n in sizes if n > 0]
+    return 1.0 / (max(sizes) * len(rows)) if sizes else None
+
+
 def run_benchmark(
     loso: Mapping[str, Mapping[str, str | os.PathLike[str]]],
     zones: Mapping[str, str | os.PathLike[str]],
@@ -147,6 +162,7 @@ def run_benchmark(
         the ``bars`` check.
     """
     from towerpipe.model.cards import read_card
+    from towerpipe.model.choice import best_transfer
     from towerpipe.model.features import required_attributes
 
     valid = {z: zone_valid_attributes(work, z) for z in zones}
@@ -182,13 +198,24 @@ def run_benchmark(
             "score": float(np.mean([_f1(r) for r in intact])) if intact else None,
             "point_iou": float(np.nanmean([r["point_iou"] for r in intact])) if intact else None,
             "families": sorted({r["family"] for r in intact}),
+            "resolution": score_resolution(intact),
         }
     auto = []
     for family in sorted({r["family"] for r in rows}):
         for variant in VARIANTS:
             usable = [r for r in rows if r["family"] == family and r["variant"] == variant and r["usable"]]
             if usable:
-                best = max(usable, key=lambda r: transfer[r["recipe"]]["score"] or -1.0)
+                best = best_transfer(
+                    [
+                        {
+                            "feature_set": r["feature_set"],
+                            "transfer": transfer[r["recipe"]]["score"],
+                            "resolution": transfer[r["recipe"]]["resolution"],
+                            "row": r,
+                        }
+                        for r in usable
+                    ]
+                )[0]["row"]
                 ok = all((best.get(k) or 0.0) >= v for k, v in BARS.items())
                 auto.append({**best, "meets_bars": ok})
     refs = []
@@ -315,6 +342,7 @@ def stamp_cards(scores_json: str | os.PathLike[str], models: Mapping[str, str | 
         card["transfer"] = {
             "benchmark": "real-shape, leave one source out (towerpipe.evaluation.realshape)",
             "score": t["score"],
+            "resolution": t.get("resolution"),
             "point_iou": t["point_iou"],
             "families": t["families"],
             "per_family": [

@@ -8,7 +8,10 @@
     (:mod:`towerpipe.preprocess.attributes`), the one that transfers best to real tower shapes: the
     highest ``transfer.score`` in its model card, measured by the leave-one-source-out
     real-shape benchmark (``docs/model.md``). Richer is not better: a column that only
-    carried the training generator's signature does not help on real data.
+    carried the training generator's signature does not help on real data. Scores closer
+    than one benchmark tower (the card's ``transfer.resolution``: a difference the benchmark
+    cannot tell from chance) are a tie, and the tie goes to the model that reads fewer
+    sensor attributes, the one a degenerate column can mislead least.
 a feature set (``full``, ``rgb``, ``geometry``, ``shape``)
     That shipped model.
 a path
@@ -62,6 +65,39 @@ def transfer_score(card: Mapping[str, Any] | None) -> float | None:
     """The card's real-shape transfer score (``transfer.score``), or ``None`` where not measured."""
     t = (card or {}).get("transfer") or {}
     return float(t["score"]) if isinstance(t, Mapping) and t.get("score") is not None else None
+
+
+def transfer_resolution(card: Mapping[str, Any] | None) -> float:
+    """The smallest score difference the card's benchmark can tell (``transfer.resolution``; 0 where not recorded)."""
+    t = (card or {}).get("transfer") or {}
+    return float(t.get("resolution") or 0.0) if isinstance(t, Mapping) else 0.0
+
+
+def best_transfer(usable: list[dict[str, Any]]) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The ``auto`` pick among usable candidates, and the candidates tied with the best score.
+
+    Candidates whose score is within the benchmark's resolution of the best (the largest
+    ``resolution`` among them) tie; the tie goes to the fewest required sensor attributes,
+    then to the order of :data:`~towerpipe.model.cards.MODEL_RELEASES`. Unmeasured models rank last.
+    """
+    from towerpipe.model.features import required_attributes
+
+    order = {fs: i for i, fs in enumerate(MODEL_RELEASES)}
+    measured = [c for c in usable if c["transfer"] is not None]
+    if not measured:
+        return min(usable, key=lambda c: order.get(c["feature_set"], len(order))), []
+    top = max(c["transfer"] for c in measured)
+    margin = max(c.get("resolution") or 0.0 for c in measured)
+    tied = [c for c in measured if top - c["transfer"] < margin or c["transfer"] == top]
+    best = min(
+        tied,
+        key=lambda c: (
+            len(required_attributes(c["feature_set"])),
+            -c["transfer"],
+            order.get(c["feature_set"], len(order)),
+        ),
+    )
+    return best, tied if len(tied) > 1 else []
 
 
 def zone_attributes(block_attributes: Mapping[str, Mapping[str, Any] | None]) -> set[str]:
@@ -118,6 +154,7 @@ def choose_model(
                     "version": None if card is None else str(card["version"]),
                     "path": str(path),
                     "transfer": transfer_score(card),
+                    "resolution": transfer_resolution(card),
                     "usable": card is not None and not missing,
                     "missing": missing,
                 }
@@ -128,21 +165,22 @@ def choose_model(
                 f"zone {zone!r}: no shipped model can be used ({why_not}; models in "
                 f"{default_model_path('shape').parent}); set `{key}` to a model directory"
             )
-        order = {fs: i for i, fs in enumerate(MODEL_RELEASES)}
-        best = max(
-            usable,
-            key=lambda c: (c["transfer"] if c["transfer"] is not None else float("-inf"), -order[c["feature_set"]]),
-        )
+        best, tied = best_transfer(usable)
         scores = ", ".join(
             f"{c['feature_set']} {c['transfer']:.3f}"
             if c["transfer"] is not None
             else f"{c['feature_set']} (not measured)"
             for c in usable
         )
-        reason = (
-            f"auto: {why_not}; {best['name']} v{best['version']} transfers best to real tower shapes "
-            f"among the usable models (benchmark score: {scores})"
-        )
+        if tied:
+            why = (
+                f"{best['name']} v{best['version']} transfers as well as any usable model to real tower shapes "
+                f"(scores within one benchmark tower, {max(c['resolution'] for c in tied):.3f}, tie; it reads "
+                "the fewest sensor attributes; "
+            )
+        else:
+            why = f"{best['name']} v{best['version']} transfers best to real tower shapes among the usable models ("
+        reason = f"auto: {why_not}; {why}benchmark score: {scores})"
         chosen = {
             "feature_set": best["feature_set"],
             "path": best["path"],

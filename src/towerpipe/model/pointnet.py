@@ -66,6 +66,19 @@ def _mlp(sizes: tuple[int, ...], in_dim: int) -> nn.ModuleList:
     return layers
 
 
+def max_pool(h: torch.Tensor) -> torch.Tensor:
+    """Max over the points of ``(B, N, C)`` features: ``(B, C)``.
+
+    ``max(dim).values`` rather than ``amax``: the forward values are the same, and so is the
+    gradient except where several points tie for the maximum (duplicated sample points),
+    where ``amax`` spreads it evenly over them and ``max`` gives it to one, the same sum.
+    ``amax``'s backward builds three ``(B, N, C)`` temporaries (equality mask, count,
+    product), ``max``'s scatters ``B x C`` values: training a shipped model takes about 7 %
+    less CPU time (CHANGELOG 0.8.2).
+    """
+    return h.max(dim=1).values
+
+
 def _run_mlp(layers: nn.ModuleList, x: torch.Tensor) -> torch.Tensor:
     """Apply Linear+BN+ReLU layers to ``(B, N, C)`` (BN over all B*N points)."""
     b, n, _ = x.shape
@@ -88,7 +101,7 @@ class TNet(nn.Module):
         nn.init.zeros_(self.out.bias)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, N, k) -> (B, k, k)
-        g = _run_mlp(self.conv, x).amax(dim=1)
+        g = max_pool(_run_mlp(self.conv, x))
         for layer in self.fc:
             g = torch.relu(layer["bn"](layer["fc"](g)))
         eye = torch.eye(self.k, dtype=x.dtype, device=x.device)
@@ -142,7 +155,7 @@ class PointNetBackbone(nn.Module):
         """Return ``(point_feat (B,N,64), global_feat (B,G), feature_transform (B,64,64))``."""
         t_in, t_feat = self.transforms(x)
         h, g = self.point_features(x, t_in, t_feat)
-        return h, g.amax(dim=1), t_feat
+        return h, max_pool(g), t_feat
 
 
 def _head(sizes: tuple[int, ...], in_dim: int, n_out: int, dropout: float) -> nn.Sequential:
