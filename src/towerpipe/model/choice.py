@@ -61,31 +61,37 @@ def _card(path: Path) -> dict[str, Any] | None:
         return None
 
 
+def _transfer(card: Mapping[str, Any] | None) -> Mapping[str, Any]:
+    """The card's ``transfer`` record (written by ``towerpipe realshape-stamp``), empty where absent."""
+    t = (card or {}).get("transfer") or {}
+    return t if isinstance(t, Mapping) else {}
+
+
 def transfer_score(card: Mapping[str, Any] | None) -> float | None:
     """The card's real-shape transfer score (``transfer.score``), or ``None`` where not measured."""
-    t = (card or {}).get("transfer") or {}
-    return float(t["score"]) if isinstance(t, Mapping) and t.get("score") is not None else None
+    score = _transfer(card).get("score")
+    return None if score is None else float(score)
 
 
 def transfer_resolution(card: Mapping[str, Any] | None) -> float:
     """The smallest score difference the card's benchmark can tell (``transfer.resolution``; 0 where not recorded)."""
-    t = (card or {}).get("transfer") or {}
-    return float(t.get("resolution") or 0.0) if isinstance(t, Mapping) else 0.0
+    return float(_transfer(card).get("resolution") or 0.0)
 
 
-def best_transfer(usable: list[dict[str, Any]]) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """The ``auto`` pick among usable candidates, and the candidates tied with the best score.
+def best_transfer(usable: list[dict[str, Any]]) -> tuple[dict[str, Any], bool, float]:
+    """The ``auto`` pick among usable candidates: ``(candidate, won a tie, the tie margin)``.
 
-    Candidates whose score is within the benchmark's resolution of the best (the largest
-    ``resolution`` among them) tie; the tie goes to the fewest required sensor attributes,
-    then to the order of :data:`~towerpipe.model.cards.MODEL_RELEASES`. Unmeasured models rank last.
+    Candidates whose score is within the benchmark's resolution of the best (the margin: the
+    largest ``resolution`` among them) tie; the tie goes to the fewest required sensor
+    attributes, then to the order of :data:`~towerpipe.model.cards.MODEL_RELEASES`.
+    Unmeasured models rank last.
     """
     from towerpipe.model.features import required_attributes
 
     order = {fs: i for i, fs in enumerate(MODEL_RELEASES)}
     measured = [c for c in usable if c["transfer"] is not None]
     if not measured:
-        return min(usable, key=lambda c: order.get(c["feature_set"], len(order))), []
+        return min(usable, key=lambda c: order.get(c["feature_set"], len(order))), False, 0.0
     top = max(c["transfer"] for c in measured)
     margin = max(c.get("resolution") or 0.0 for c in measured)
     tied = [c for c in measured if top - c["transfer"] < margin or c["transfer"] == top]
@@ -97,7 +103,7 @@ def best_transfer(usable: list[dict[str, Any]]) -> tuple[dict[str, Any], list[di
             order.get(c["feature_set"], len(order)),
         ),
     )
-    return best, tied if len(tied) > 1 else []
+    return best, len(tied) > 1, margin
 
 
 def zone_attributes(block_attributes: Mapping[str, Mapping[str, Any] | None]) -> set[str]:
@@ -165,22 +171,21 @@ def choose_model(
                 f"zone {zone!r}: no shipped model can be used ({why_not}; models in "
                 f"{default_model_path('shape').parent}); set `{key}` to a model directory"
             )
-        best, tied = best_transfer(usable)
+        best, tie, margin = best_transfer(usable)
         scores = ", ".join(
             f"{c['feature_set']} {c['transfer']:.3f}"
             if c["transfer"] is not None
             else f"{c['feature_set']} (not measured)"
             for c in usable
         )
-        if tied:
-            why = (
-                f"{best['name']} v{best['version']} transfers as well as any usable model to real tower shapes "
-                f"(scores within one benchmark tower, {max(c['resolution'] for c in tied):.3f}, tie; it reads "
-                "the fewest sensor attributes; "
-            )
+        model = f"{best['name']} v{best['version']}"
+        if tie:
+            why = f"{model} transfers as well as any usable model to real tower shapes and reads the fewest sensor attributes"
+            detail = f"scores within one benchmark tower, {margin:.3f}, tie; benchmark score: {scores}"
         else:
-            why = f"{best['name']} v{best['version']} transfers best to real tower shapes among the usable models ("
-        reason = f"auto: {why_not}; {why}benchmark score: {scores})"
+            why = f"{model} transfers best to real tower shapes among the usable models"
+            detail = f"benchmark score: {scores}"
+        reason = f"auto: {why_not}; {why} ({detail})"
         chosen = {
             "feature_set": best["feature_set"],
             "path": best["path"],
