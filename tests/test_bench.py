@@ -41,3 +41,23 @@ def test_a_cluster_is_bound_by_cores_or_by_submission():
     cores_s, submit_s = r["core_h"] * 3600 / 20, 1700 / 5.0
     assert r["wall_h_slurm"] * 3600 == pytest.approx(max(cores_s, submit_s))
     assert r["slurm_bound"] == ("submission" if submit_s > cores_s else "cores")
+
+
+def test_plan_bench_copies_a_block_on_a_grid(tmp_path):
+    """The planning benchmark's zone: copies of one block side by side, named by their corner."""
+    import laspy
+    import numpy as np
+
+    from towerpipe.bench import make_block
+    from towerpipe.bench_plan import copy_block
+
+    block = make_block(tmp_path / "one", size=16.0, density=8.0, seed=3)
+    paths = copy_block(block, tmp_path / "zone", 5, 16.0)
+    one = laspy.read(block)
+    assert [p.name for p in paths] == ["400000_4600000.laz", "400016_4600000.laz", "400032_4600000.laz",
+                                       "400000_4600016.laz", "400016_4600016.laz"]  # fmt: skip
+    for k, p in enumerate(paths):
+        las = laspy.read(p)
+        assert len(las.points) == len(one.points)
+        shift = np.array([(k % 3) * 16.0, (k // 3) * 16.0])
+        assert np.allclose(np.c_[las.x, las.y] - shift, np.c_[one.x, one.y])

@@ -8,6 +8,7 @@ seconds (the machines are shared and noisy)::
     python -m towerpipe.bench e2e --repeat 3 --json e2e.json        # raw block -> zone products
     python -m towerpipe.bench blocks --json blocks.json             # 50 blocks of ~2,000 points
     python -m towerpipe.bench scale --e2e e2e.json --blocks blocks.json   # a night, on paper
+    python -m towerpipe.bench plan --blocks 4000    # snakemake -n over 4,000 planned blocks
 
 For each block it times ``pdal translate in.laz out.laz`` (LAZ → LAZ, one
 process) and the Snakemake preprocessing of the same block (``--cores 2``,
@@ -460,6 +461,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     ps.add_argument("--submit-per-s", type=float, default=10.0, help="jobs Snakemake submits per second")
     ps.add_argument("--json")
     ps.set_defaults(func=bench_scale)
+    from towerpipe import bench_plan
+
+    bench_plan.register(bsub)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -263,6 +263,30 @@ def test_tower_points_per_tower_range(tmp_path):
     assert n.min() >= 10 and n.max() <= 3000
 
 
+def test_utility_poles_only_where_named(tmp_path):
+    """``utility_pole`` is drawn only by a zone that names it: single thin poles of 14-30 m
+    carrying conductors; the default and ``tower_variety`` designs never include it."""
+    from towerpipe.synth.params import TOWER_VARIETY
+    from towerpipe.synth.towers import DESIGNS, UTILITY
+
+    assert not set(UTILITY) & (set(DESIGNS) | set(TOWER_VARIETY["designs"]) | set(preset("catalonia").designs))
+    t = generate_zone(
+        tmp_path, seed=5, blocks=1, size=300.0, density=12.0, preset="test", lines_per_km2=20.0,
+        tower_variety=True, designs=["utility_pole"], design_weights=[1.0],
+    )  # fmt: skip
+    towers = t.towers
+    assert len(towers) >= 3 and set(towers["design"]) == {"utility_pole"}
+    assert towers["height"].between(14.0, 30.0).all()
+    assert (towers["base_width"] <= 0.55).all()
+    p = _all_points(t)
+    for row in towers[towers["n_points"] >= 20].itertuples():
+        sel = p["TowerId"] == row.tower_id
+        # a pole and its arms: the points spread at most an arm's length (2.4 m) from the axis
+        r = np.hypot(p["x"][sel] - row.x, p["y"][sel] - row.y)
+        assert r.max() <= 2.7
+    assert (p["classification"] == 14).sum() > 0  # the conductors between them
+
+
 def test_realism_report(zone, tmp_path):
     from towerpipe.cli import main
 

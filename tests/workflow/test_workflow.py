@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import REPO, RGBNIR_BLOCK
+from conftest import REPO, RGBNIR_BLOCK, write_zone_config
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow]
 
@@ -178,3 +178,22 @@ def test_bad_block_costs_only_itself(zone, random_model):
     index = (out / "qa" / "index.html").read_text()
     assert "broken" in index and "not a readable LAS/LAZ file" in index
     assert sorted(p.name for p in (out / "blocks").iterdir()) == sorted(f"{b.stem}.laz" for b in blocks)
+
+
+def test_a_new_training_zone_reruns_the_training(ci_scene, tmp_path):
+    """Snakemake does not rerun a job whose output exists for a checkpoint it waits on (a new
+    zone's plan): the training manifest's new parameters do rerun the windows and verifiers."""
+    work = tmp_path / "work"
+    uid = uuid.uuid4().hex[:6]
+    zones = {f"pytest_train_{k}_{uid}": {"input": str(ci_scene)} for k in "ab"}
+    a, b = zones
+    cfg = write_zone_config(tmp_path / "c.yaml", zones, work, training={"zones": [a]})
+    manifest, windows = work / "models" / "training_zones.json", work / "models" / "windows.npz"
+    snakemake("--cores", "1", str(manifest), f"--configfile={cfg}")
+    assert yaml.safe_load(manifest.read_text())["zones"] == [a]
+    windows.touch()  # the windows of zone a
+    assert "training_manifest" not in {r for r, _ in planned(snakemake("-n", str(windows), f"--configfile={cfg}"))}
+
+    write_zone_config(cfg, zones, work, training={"zones": [a, b]})
+    proc = snakemake("-n", str(windows), f"--configfile={cfg}")
+    assert {"training_manifest", "training_windows"} <= {r for r, _ in planned(proc)}, proc.stdout[-2000:]

@@ -21,6 +21,8 @@ PREP = config["preprocess"]
 # Patterns (wildcards zone, block, tile) of the per-block and per-tile intermediates, and of
 # the logs and benchmarks of the rules: work/<zone>/logs/<rule>[/<block>[/<tile>]].log
 ZONE_DIR = f"{WORK}/{{zone}}"
+#: the published zone (written by zone_results), what users open
+RESULTS = "results/{zone}"
 TILE = f"{ZONE_DIR}/tiles/{{block}}/{{tile}}.npz"
 PRED = f"{ZONE_DIR}/pred/{{block}}/{{tile}}.npz"
 WIRES = f"{ZONE_DIR}/wires/{{block}}/{{tile}}.npz"
@@ -83,12 +85,20 @@ def executes_jobs():
     return workflow.is_main_process and workflow.executor_plugin is not None and not workflow.dryrun
 
 
+#: Zone -> what a checkpoint of it returned once complete (zone_input, plan). Snakemake's
+#: completed checkpoints only grow during a run, so the answer holds; asked for every job's
+#: input, ``.get()`` expanded the rule's output each time (600,000 times for 4,000 blocks).
+_COMPLETE = {"input": {}, "plan": {}}
+
+
 def zone_input(zone):
     """The zone's input directory; generated first when the zone is synthetic.
 
     A run that will execute jobs (not a dry run, not a cluster job) holds the zone's run
     lock from here to its end: one run per zone, whatever started it.
     """
+    if zone in _COMPLETE["input"]:
+        return _COMPLETE["input"][zone]
     zc = zone_config(zone)
     path = zc["input"]
     if executes_jobs():
@@ -102,6 +112,7 @@ def zone_input(zone):
         checkpoints.synth_zone.get(zone=zone)
     elif not os.path.isdir(path):
         config_exit(f"zones.{zone}.input: directory {path!r} does not exist")
+    _COMPLETE["input"][zone] = path
     return path
 
 
@@ -175,7 +186,9 @@ def plan(zone):
     Nothing in the job graph comes from a block's header: until every block is split,
     the jobs after the split are not known (a dry run lists the splits and the plan).
     """
-    path = checkpoints.plan_zone.get(zone=zone).output[0]
+    path = _COMPLETE["plan"].get(zone)
+    if path is None:
+        path = _COMPLETE["plan"][zone] = checkpoints.plan_zone.get(zone=zone).output[0]
     return _read_plan(path, os.stat(path).st_mtime_ns)
 
 
@@ -243,7 +256,7 @@ def registry_file(zone):
 
 def registry_sources(zone):
     """Where the towers jobs look for the registry: the file, else the published towers.gpkg."""
-    return [registry_file(zone), f"results/{zone}/towers.gpkg"]
+    return [registry_file(zone), f"{RESULTS.format(zone=zone)}/towers.gpkg"]
 
 
 def zone_products(zone):
@@ -275,7 +288,7 @@ def publication(zone):
 
     manifest = PUBLISHED.format(zone=zone)
     done = set_aside_unplanned(
-        plan_file(zone), manifest, f"results/{zone}", f"{WORK}/{zone}/incomplete", dry_run=not executes_jobs()
+        plan_file(zone), manifest, RESULTS.format(zone=zone), f"{WORK}/{zone}/incomplete", dry_run=not executes_jobs()
     )
     if done:
         print(f"towerpipe: zone {zone}: {done}")
@@ -367,6 +380,10 @@ TRAIN = config["training"]
 #: ``<model>-without-<family>``: the model's recipe trained without one real tower family
 #: (the leave-one-source-out benchmark, towerpipe.evaluation.realshape)
 LOSO = "-without-"
+
+
+#: the training zones and window settings (written by training_manifest); a change reruns the training
+TRAINING_MANIFEST = f"{WORK}/models/training_zones.json"
 
 
 def training_tiles():

@@ -1,8 +1,31 @@
 # Training: results/models/<name>/ = checkpoint, model card, metrics, curves (+ ablation).
 
 
+# The training zones and window settings: new parameters (a zone added) rerun what reads it,
+# which a new zone's pending generation alone does not (its checkpoint)
+rule training_manifest:
+    output:
+        manifest=TRAINING_MANIFEST,
+    log:
+        f"{WORK}/models/logs/training_manifest.log",
+    benchmark:
+        f"{WORK}/models/benchmarks/training_manifest.tsv"
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 1
+    resources:
+        mem_mb=200,
+        runtime=5,
+    params:
+        zones=TRAIN["zones"],
+        dataset=TRAIN["dataset"],
+    script:
+        "../scripts/training_manifest.py"
+
+
 rule training_windows:
     input:
+        manifest=TRAINING_MANIFEST,
         tiles=training_tiles(),
     output:
         windows=f"{WORK}/models/windows.npz",
@@ -48,6 +71,7 @@ rule train_model:
 
 rule train_verifier:
     input:
+        manifest=TRAINING_MANIFEST,
         tiles=training_tiles(),
     output:
         verifier=directory(f"{WORK}/verifiers/{{name}}"),
@@ -70,6 +94,7 @@ rule train_verifier:
 
 rule ablation:
     input:
+        manifest=TRAINING_MANIFEST,
         tiles=training_tiles(),
     output:
         out=directory(f"{WORK}/ablation/{{name}}"),

@@ -21,7 +21,7 @@ rule assemble_zone:
         mem_mb=1000,
         runtime=10,
     params:
-        results="results/{zone}",
+        results=RESULTS,
         # the published zone is kept beside its manifest: work/<zone>/published/
         stage=lambda wc, output: os.path.splitext(output.manifest)[0],
         files=lambda wc: zone_products(wc.zone),
@@ -45,7 +45,7 @@ rule zone_results:
     output:
         # `snakemake --report` shows the zone's QA index and its GeoPackage
         report(
-            directory("results/{zone}/"),
+            directory(f"{RESULTS}/"),
             patterns=["qa/{page,index}.html", "{name,towers}.gpkg"],
             caption="../report/zone.rst",
             category="Zone",

@@ -9,8 +9,10 @@ one conductor each side above, two below), ``einebenen`` (one long arm level car
 three conductors each side), ``tonne`` (barrel: three levels, the middle arm longest),
 ``delta`` (a triangular head of two inclined members over a beam), ``portal`` (two
 lattice columns under a lattice beam) and ``wooden_hframe`` (two wooden poles, a cross
-beam and X-bracing). Every design carries insulator strings at its conductor
-attachments and an earth wire at its top.
+beam and X-bracing). :data:`UTILITY` holds ``utility_pole`` (one wooden or concrete pole
+of 14-30 m with one to three cross-arms), drawn only by a zone that names it in
+``designs``. Every design carries insulator strings at its conductor attachments and an
+earth wire at its top.
 """
 
 from __future__ import annotations
@@ -20,13 +22,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import shapely
 
-from towerpipe.synth.primitives import Primitives, patch, segments
+from towerpipe.synth.primitives import Primitives, patch, segment, segments
 
 #: The generator's first four designs (the default of :class:`~towerpipe.synth.params.SceneParams`).
 CLASSIC = ("lattice_waist", "double_circuit", "small_lattice", "monopole")
 #: European pylon types and wooden H-frames (training variety aimed at real towers).
 EUROPEAN = ("donau", "einebenen", "tonne", "delta", "portal", "wooden_hframe")
 DESIGNS = CLASSIC + EUROPEAN
+#: Single utility poles: towers of the real-shape benchmark's utility family are of this kind.
+#: Not in :data:`DESIGNS`, so no zone draws them unless its ``designs`` names them.
+UTILITY = ("utility_pole",)
 
 #: height range (m) per design, all within 10-60 m
 HEIGHTS = {
@@ -40,9 +45,10 @@ HEIGHTS = {
     "delta": (20.0, 40.0),
     "portal": (12.0, 28.0),
     "wooden_hframe": (10.0, 20.0),
+    "utility_pole": (14.0, 30.0),
 }
 #: designs of wood (coloured and reflecting as wood, not steel)
-WOODEN = ("wooden_hframe",)
+WOODEN = ("wooden_hframe", "utility_pole")
 
 _CORNERS = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], float)
 
@@ -134,7 +140,7 @@ def build_design(design: str, height: float, rng: np.random.Generator) -> tuple[
     Parameters
     ----------
     design
-        One of :data:`DESIGNS`.
+        One of :data:`DESIGNS` or :data:`UTILITY`.
     height
         Total height (m).
     rng
@@ -227,6 +233,24 @@ def build_design(design: str, height: float, rng: np.random.Generator) -> tuple[
         parts.append(segments(np.array(arms), 0.22, tube=True))
         parts.append(segments(np.array([[a, [a[0], 0, a[2] + 1.8]] for a in attach]), 0.22))
         parts.append(patch(0, 0, h, 0.3, 0.3))
+        attach.append([0, 0, h])
+        return Primitives.concat(parts), np.array(attach, float), d0
+    if design == "utility_pole":
+        # one pole and one to three cross-arms near its top, each with a pair of braces and pin
+        # insulators at its tips; the three conductors ride the top arm's tips and the pole top
+        # (the same three attachments on every pole: the wires join consecutive poles)
+        d0 = rng.uniform(0.3, 0.55)
+        parts = [segment([0, 0, 0], [0, 0, h], d0, tube=True)]
+        attach = []
+        for k in range(int(rng.integers(1, 4))):
+            za = h - 0.6 - k * rng.uniform(1.4, 2.2)
+            half = rng.uniform(1.0, 2.4)
+            parts.append(segment([-half, 0, za], [half, 0, za], 0.14))
+            parts.append(segments(np.array([[[0, 0, za - 0.9], [s * half * 0.5, 0, za]] for s in (-1, 1)]), 0.06))
+            for x in (-(half - 0.15), half - 0.15):
+                parts.append(segment([x, 0, za], [x, 0, za + 0.4], 0.15))
+                if k == 0:
+                    attach.append([x, 0, za + 0.4])
         attach.append([0, 0, h])
         return Primitives.concat(parts), np.array(attach, float), d0
     if design in EUROPEAN:

@@ -1,0 +1,127 @@
+"""Benchmark: planning a zone of many small blocks (``python -m towerpipe.bench plan``).
+
+What a nightly run of thousands of delivered tiles pays before any job runs: ``snakemake
+-n`` over a zone whose blocks are all split and planned, so the dry run lists every job.
+The zone is ``--blocks`` copies of one small generated block on a grid; the copies are
+split in this process by the library's :func:`towerpipe.preprocess.split.split_block` (as
+the workflow's split jobs would, without a process per block), the plan is made by the
+workflow's own rule, then the dry run is timed ``--repeat`` times (median). The baseline
+in the same run is the dry run of a zone of ``--blocks / 10`` blocks: planning should grow
+no faster than the jobs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from towerpipe.bench import REPO, make_block, time_cmd
+
+#: the block side of the small-blocks benchmark (m): 16 m at 8 pts/m² is about 2,000 points
+SMALL_BLOCK_M = 16.0
+
+
+def copy_block(block: Path, out_dir: Path, n: int, size: float) -> list[Path]:
+    """``n`` copies of ``block`` on a grid of ``size`` m, named by their corner as agencies name tiles."""
+    import laspy
+
+    las = laspy.read(block)
+    x, y = np.array(las.x), np.array(las.y)
+    x0, y0 = float(las.header.mins[0]), float(las.header.mins[1])
+    side = int(np.ceil(np.sqrt(n)))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for k in range(n):
+        dx, dy = (k % side) * size, (k // side) * size
+        las.x, las.y = x + dx, y + dy
+        path = out_dir / f"{x0 + dx:.0f}_{y0 + dy:.0f}.laz"
+        las.write(path)
+        paths.append(path)
+    return paths
+
+
+def planned_zone(tmp: Path, block: Path, n: int, size: float, zone: str) -> tuple[Path, int]:
+    """A zone of ``n`` copies of ``block``, split and planned (kept from an earlier run in the
+    same ``--workdir``); its config file and number of blocks."""
+    import yaml
+
+    from towerpipe.config import PreprocessConfig, effective_config
+    from towerpipe.preprocess.split import split_block
+
+    indir, work, cfg = tmp / f"in_{zone}", tmp / f"work_{zone}", tmp / f"{zone}.yaml"
+    plan = work / zone / "plan.json"
+    if cfg.is_file() and plan.is_file():
+        return cfg, len(json.loads(plan.read_text())["blocks"])
+    shutil.rmtree(indir, ignore_errors=True)
+    shutil.rmtree(work, ignore_errors=True)
+    paths = copy_block(block, indir, n, size)
+    settings = PreprocessConfig.from_config(effective_config())
+    for p in paths:
+        split_block(p, work / zone / "cache" / p.stem, block=p.stem, zone=zone, settings=settings)
+    cfg.write_text(yaml.safe_dump({"zones": {zone: {"input": str(indir)}}, "workdir": str(work)}))
+    smk = [sys.executable, "-m", "snakemake", "--cores", "1", "--quiet", "all", f"--configfile={cfg}", "--"]
+    time_cmd([*smk, str(plan)], cwd=REPO)
+    return cfg, len(json.loads(plan.read_text())["blocks"])
+
+
+def dry_run(cfg: Path, zone: str) -> tuple[float, int]:
+    """Wall time of ``snakemake -n results/<zone>/`` and the number of jobs it lists."""
+    import subprocess
+
+    cmd = [sys.executable, "-m", "snakemake", "-n", "--cores", "2", f"results/{zone}/", f"--configfile={cfg}"]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
+    dt = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {proc.stderr[-2000:]}")
+    totals = [int(line.split()[-1]) for line in proc.stdout.splitlines() if line.startswith("total ")]
+    return dt, max(totals, default=0)
+
+
+def bench_plan(args: argparse.Namespace) -> int:
+    tmp = Path(args.workdir or tempfile.mkdtemp(prefix="towerpipe-bench-"))
+    tmp.mkdir(parents=True, exist_ok=True)
+    block = next((tmp / "block_plan").glob("*.laz"), None) or make_block(
+        tmp / "block_plan", size=args.size, density=args.density, seed=args.seed
+    )
+    res = {}
+    for label, n in (("baseline", max(args.blocks // 10, 1)), ("zone", args.blocks)):
+        cfg, planned = planned_zone(tmp, block, n, args.size, f"plan{n}")
+        runs = [dry_run(cfg, f"plan{n}") for _ in range(args.repeat)]
+        walls = [dt for dt, _ in runs]
+        res[label] = {"blocks": planned, "jobs": runs[-1][1], "dry_run_s": statistics.median(walls), "runs": walls}
+        print(
+            f"plan: {planned} blocks, {runs[-1][1]:,} jobs: snakemake -n {res[label]['dry_run_s']:.1f} s "
+            f"({1e3 * res[label]['dry_run_s'] / max(runs[-1][1], 1):.2f} ms a job)"
+        )
+    res["ratio"] = res["zone"]["dry_run_s"] / res["baseline"]["dry_run_s"]
+    res["jobs_ratio"] = res["zone"]["jobs"] / max(res["baseline"]["jobs"], 1)
+    print(f"plan: {res['jobs_ratio']:.1f} × the jobs -> {res['ratio']:.1f} × the time of the dry run")
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=1))
+    for label in ("baseline", "zone"):
+        shutil.rmtree(REPO / "results" / f"plan{res[label]['blocks']}", ignore_errors=True)
+    if not args.keep and not args.workdir:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return 0
+
+
+def register(bsub: argparse._SubParsersAction) -> None:
+    p = bsub.add_parser("plan", help="snakemake -n over a zone of many small blocks, split and planned")
+    p.add_argument("--blocks", type=int, default=4000)
+    p.add_argument("--size", type=float, default=SMALL_BLOCK_M, help="block side (m)")
+    p.add_argument("--density", type=float, default=8.0)
+    p.add_argument("--seed", type=int, default=3)
+    p.add_argument("--repeat", type=int, default=1)
+    p.add_argument("--workdir")
+    p.add_argument("--keep", action="store_true")
+    p.add_argument("--json")
+    p.set_defaults(func=bench_plan)
