@@ -49,7 +49,7 @@ def test_plan_bench_copies_a_block_on_a_grid(tmp_path):
     import numpy as np
 
     from towerpipe.bench import make_block
-    from towerpipe.bench_plan import copy_block
+    from towerpipe.bench.plan import copy_block
 
     block = make_block(tmp_path / "one", size=16.0, density=8.0, seed=3)
     paths = copy_block(block, tmp_path / "zone", 5, 16.0)

@@ -35,7 +35,7 @@ import yaml
 from towerpipe.io.columns import read_meta
 from towerpipe.io.las import read_header
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 def time_cmd(cmd: list[str], *, cwd: Path | None = None, env: dict | None = None) -> float:
@@ -461,9 +461,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     ps.add_argument("--submit-per-s", type=float, default=10.0, help="jobs Snakemake submits per second")
     ps.add_argument("--json")
     ps.set_defaults(func=bench_scale)
-    from towerpipe import bench_plan
+    from towerpipe.bench import plan
 
-    bench_plan.register(bsub)
+    plan.register(bsub)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -472,7 +472,3 @@ def main(argv: list[str] | None = None) -> int:
     register(sub)
     args = parser.parse_args(["bench", *(argv if argv is not None else sys.argv[1:])])
     return args.func(args)
-
-
-if __name__ == "__main__":
-    sys.exit(main())
