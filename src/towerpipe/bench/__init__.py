@@ -29,6 +29,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -38,14 +39,50 @@ from towerpipe.io.las import read_header
 REPO = Path(__file__).resolve().parents[3]
 
 
-def time_cmd(cmd: list[str], *, cwd: Path | None = None, env: dict | None = None) -> float:
-    """Wall time of a command; raises ``RuntimeError`` with its stderr tail on failure."""
+def run_timed(
+    cmd: list[str], *, cwd: Path | None = None, env: dict | None = None
+) -> tuple[float, subprocess.CompletedProcess]:
+    """Wall time of a command and its completed process (output captured); raises
+    ``RuntimeError`` with its stderr tail on failure."""
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True)
     dt = time.perf_counter() - t0
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {proc.stderr[-2000:]}")
-    return dt
+    return dt, proc
+
+
+def time_cmd(cmd: list[str], *, cwd: Path | None = None, env: dict | None = None) -> float:
+    """Wall time of a command (:func:`run_timed`)."""
+    return run_timed(cmd, cwd=cwd, env=env)[0]
+
+
+def finish(args: argparse.Namespace, tmp: Path, res: Any) -> int:
+    """End of a benchmark: its figures to ``--json``, its temporary directory removed unless kept."""
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=1))
+    if not args.keep and not args.workdir:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return 0
+
+
+#: the block of the small-blocks benchmarks (side in m, pts/m², seed): about 2,000 points
+SMALL_BLOCK = {"size": 16.0, "density": 8.0, "seed": 3}
+
+
+def run_args(p: argparse.ArgumentParser) -> None:
+    """The options every benchmark that runs something takes: repeats, workdir, keep, JSON."""
+    p.add_argument("--repeat", type=int, default=1, help="runs per measurement; medians are reported")
+    p.add_argument("--workdir", help="keep everything here (default: a temporary directory)")
+    p.add_argument("--keep", action="store_true", help="keep the temporary directory")
+    p.add_argument("--json", help="also write the figures to this JSON file")
+
+
+def small_block_args(p: argparse.ArgumentParser) -> None:
+    """The block of the small-blocks benchmarks (:data:`SMALL_BLOCK`)."""
+    p.add_argument("--size", type=float, default=SMALL_BLOCK["size"], help="block side (m); 16 m ~ 2,000 points")
+    p.add_argument("--density", type=float, default=SMALL_BLOCK["density"])
+    p.add_argument("--seed", type=int, default=SMALL_BLOCK["seed"])
 
 
 def make_block(out_dir: Path, *, size: float, density: float, seed: int, one_line: bool = False) -> Path:
@@ -185,11 +222,7 @@ def bench_preprocess(args: argparse.Namespace) -> int:
             f"scaling: {b['points'] / a['points']:.2f}x points -> {b['preprocess_s'] / a['preprocess_s']:.2f}x time "
             f"(translate {b['translate_s'] / a['translate_s']:.2f}x)"
         )
-    if args.json:
-        Path(args.json).write_text(json.dumps(results, indent=1))
-    if not args.keep and not args.workdir:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return 0
+    return finish(args, tmp, results)
 
 
 def stage_split(rows: list[dict]) -> dict[str, dict[str, float]]:
@@ -269,13 +302,9 @@ def bench_e2e(args: argparse.Namespace) -> int:
     print("  ".join(f"{k}: {v:.1f} windows/s per thread" for k, v in speed if v is not None))
     for rule, d in sorted(res["stages"].items(), key=lambda kv: -kv[1]["s"]):
         print(f"  {rule:<16} {d['s']:7.1f} s over {d['jobs']:3d} job(s)   peak RSS {d['max_rss_mb']:6.0f} MiB")
-    if args.json:
-        Path(args.json).write_text(json.dumps(res, indent=1))
     for r in range(args.repeat):
         shutil.rmtree(REPO / "results" / f"e2e{r}", ignore_errors=True)
-    if not args.keep and not args.workdir:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return 0
+    return finish(args, tmp, res)
 
 
 def bench_blocks(args: argparse.Namespace) -> int:
@@ -321,11 +350,7 @@ def bench_blocks(args: argparse.Namespace) -> int:
         f"{args.cores}: {res['core_s_per_job']:.2f} core-s per job (job itself: median {res['job_s_median']:.2f} s; "
         f"outside the jobs: {res['scheduler_s_per_job']:.2f} core-s per job)"
     )
-    if args.json:
-        Path(args.json).write_text(json.dumps(res, indent=1))
-    if not args.keep and not args.workdir:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return 0
+    return finish(args, tmp, res)
 
 
 def project(
@@ -421,10 +446,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     pp.add_argument("--density", type=float, default=10.0, help="generated density at 1x (pts/m²)")
     pp.add_argument("--scales", type=float, nargs="+", default=[1.0, 2.0], help="point multipliers")
     pp.add_argument("--seed", type=int, default=1)
-    pp.add_argument("--repeat", type=int, default=1, help="runs per block; medians are reported")
-    pp.add_argument("--workdir", help="keep everything here (default: a temporary directory)")
-    pp.add_argument("--keep", action="store_true", help="keep the temporary directory")
-    pp.add_argument("--json", help="also write the figures to this JSON file")
+    run_args(pp)
     pp.set_defaults(func=bench_preprocess)
     pe = bsub.add_parser("e2e", help="raw block -> zone products through Snakemake vs pdal translate")
     pe.add_argument("--block", help="existing block (default: a generated 1 km² block with one power line)")
@@ -432,22 +454,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     pe.add_argument("--density", type=float, default=10.0)
     pe.add_argument("--seed", type=int, default=11)
     pe.add_argument("--model", help="model directory (default: the shipped full model)")
-    pe.add_argument("--repeat", type=int, default=1)
-    pe.add_argument("--workdir")
-    pe.add_argument("--keep", action="store_true")
-    pe.add_argument("--json")
+    run_args(pe)
     pe.set_defaults(func=bench_e2e)
     pb = bsub.add_parser("blocks", help="a zone of many small blocks: the fixed cost per job")
     pb.add_argument("--blocks", type=int, default=50)
-    pb.add_argument("--size", type=float, default=16.0, help="block side (m); 16 m at 8 pts/m² ~ 2,000 points")
-    pb.add_argument("--density", type=float, default=8.0)
-    pb.add_argument("--seed", type=int, default=3)
+    small_block_args(pb)
     pb.add_argument("--model", default="geometry", help="inference.model for the run")
     pb.add_argument("--cores", type=int, default=2)
-    pb.add_argument("--repeat", type=int, default=1)
-    pb.add_argument("--workdir")
-    pb.add_argument("--keep", action="store_true")
-    pb.add_argument("--json")
+    run_args(pb)
     pb.set_defaults(func=bench_blocks)
     ps = bsub.add_parser("scale", help="project a night's area from the e2e and blocks benchmarks' JSON")
     ps.add_argument("--e2e", required=True, help="JSON of `bench e2e --json`")

@@ -18,15 +18,11 @@ import shutil
 import statistics
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-from towerpipe.bench import REPO, make_block, time_cmd
-
-#: the block side of the small-blocks benchmark (m): 16 m at 8 pts/m² is about 2,000 points
-SMALL_BLOCK_M = 16.0
+from towerpipe.bench import REPO, finish, make_block, run_args, run_timed, small_block_args, time_cmd
 
 
 def copy_block(block: Path, out_dir: Path, n: int, size: float) -> list[Path]:
@@ -74,14 +70,8 @@ def planned_zone(tmp: Path, block: Path, n: int, size: float, zone: str) -> tupl
 
 def dry_run(cfg: Path, zone: str) -> tuple[float, int]:
     """Wall time of ``snakemake -n results/<zone>/`` and the number of jobs it lists."""
-    import subprocess
-
     cmd = [sys.executable, "-m", "snakemake", "-n", "--cores", "2", f"results/{zone}/", f"--configfile={cfg}"]
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
-    dt = time.perf_counter() - t0
-    if proc.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {proc.stderr[-2000:]}")
+    dt, proc = run_timed(cmd, cwd=REPO)
     totals = [int(line.split()[-1]) for line in proc.stdout.splitlines() if line.startswith("total ")]
     return dt, max(totals, default=0)
 
@@ -105,23 +95,12 @@ def bench_plan(args: argparse.Namespace) -> int:
     res["ratio"] = res["zone"]["dry_run_s"] / res["baseline"]["dry_run_s"]
     res["jobs_ratio"] = res["zone"]["jobs"] / max(res["baseline"]["jobs"], 1)
     print(f"plan: {res['jobs_ratio']:.1f} × the jobs -> {res['ratio']:.1f} × the time of the dry run")
-    if args.json:
-        Path(args.json).write_text(json.dumps(res, indent=1))
-    for label in ("baseline", "zone"):
-        shutil.rmtree(REPO / "results" / f"plan{res[label]['blocks']}", ignore_errors=True)
-    if not args.keep and not args.workdir:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return 0
+    return finish(args, tmp, res)
 
 
 def register(bsub: argparse._SubParsersAction) -> None:
     p = bsub.add_parser("plan", help="snakemake -n over a zone of many small blocks, split and planned")
     p.add_argument("--blocks", type=int, default=4000)
-    p.add_argument("--size", type=float, default=SMALL_BLOCK_M, help="block side (m)")
-    p.add_argument("--density", type=float, default=8.0)
-    p.add_argument("--seed", type=int, default=3)
-    p.add_argument("--repeat", type=int, default=1)
-    p.add_argument("--workdir")
-    p.add_argument("--keep", action="store_true")
-    p.add_argument("--json")
+    small_block_args(p)
+    run_args(p)
     p.set_defaults(func=bench_plan)
