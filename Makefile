@@ -54,7 +54,7 @@ bench: setup
 # the workflow from the windows of the training zones (config/models.yaml).
 MODELS := towerpipe-geometry-v3 towerpipe-shape-v3
 # The shape verifier of the tower rules (towerpipe.towers.shape.VERIFIER_RELEASE): one for every model.
-VERIFIER := towerpipe-verifier-v1
+VERIFIER := towerpipe-verifier-v2
 
 # Train the shipped models and the shape verifier (CPU, 2 cores).
 train: setup

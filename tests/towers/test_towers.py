@@ -363,16 +363,19 @@ def test_tall_tower_without_conductors_is_dropped_and_support_recorded():
     def context(cx, cy):
         return ctx_arrays, (X0 - 40, Y0 - 40, X0 + 540, Y0 + 540)
 
-    everything = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.0).towers
+    # the conductor rule alone: the context holds wires only, no object a shape check could judge
+    context_rules = {"context": context, "verifier": "none"}
+
+    everything = extract([pair], "b1", BOUNDS, zone="z1", **context_rules, min_wire_support=0.0).towers
     assert len(everything) == 2
     sup = everything.sort_values("centroid_x")["wire_support"].to_numpy()
     assert sup[0] == 1.0 and sup[1] == 0.0
-    kept = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.5).towers
+    kept = extract([pair], "b1", BOUNDS, zone="z1", **context_rules, min_wire_support=0.5).towers
     assert len(kept) == 1 and abs(kept.iloc[0]["centroid_x"] - (X0 + 50)) < 1
     # exempt below wire_min_height, and no context means unknown support (NaN), never a drop
     assert (
         len(
-            extract([pair], "b1", BOUNDS, zone="z1", context=context, min_wire_support=0.5, wire_min_height=50.0).towers
+            extract([pair], "b1", BOUNDS, zone="z1", **context_rules, min_wire_support=0.5, wire_min_height=50.0).towers
         )
         == 2
     )

@@ -197,3 +197,34 @@ def test_a_new_training_zone_reruns_the_training(ci_scene, tmp_path):
     write_zone_config(cfg, zones, work, training={"zones": [a, b]})
     proc = snakemake("-n", str(windows), f"--configfile={cfg}")
     assert {"training_manifest", "training_windows"} <= {r for r, _ in planned(proc)}, proc.stdout[-2000:]
+
+
+def test_a_verifier_zone_retrains_the_verifier(ci_scene, tmp_path):
+    """``training.verifier_zones``: the verifier's own manifest lists them, so a zone added
+    there reruns the verifier and leaves the networks' manifest as it is."""
+    work = tmp_path / "work"
+    uid = uuid.uuid4().hex[:6]
+    zones = {f"pytest_verify_{k}_{uid}": {"input": str(ci_scene)} for k in "ab"}
+    a, b = zones
+    cfg = write_zone_config(tmp_path / "c.yaml", zones, work, training={"zones": [a], "verifier_zones": []})
+    models = work / "models"
+    snakemake(
+        "--cores", "1", str(models / "training_zones.json"), str(models / "verifier_zones.json"), f"--configfile={cfg}"
+    )
+    assert yaml.safe_load((models / "verifier_zones.json").read_text())["zones"] == [a]
+    from towerpipe.towers.shape import VERIFIER_RELEASE
+
+    verifier = work / "verifiers" / f"towerpipe-verifier-v{VERIFIER_RELEASE}"
+    (models / "windows.npz").touch()
+    verifier.mkdir(parents=True)
+    (verifier / "verifier.json").touch()
+
+    targets = (str(models / "windows.npz"), str(verifier), f"--configfile={cfg}")
+    assert not {"training_manifest", "train_verifier"} & {r for r, _ in planned(snakemake("-n", *targets))}
+
+    write_zone_config(cfg, zones, work, training={"zones": [a], "verifier_zones": [b, a]})
+    proc = snakemake("-n", *targets)
+    assert "train_verifier" in {r for r, _ in planned(proc)}, proc.stdout[-2000:]
+    # the networks' manifest stays (the windows here wait on zone a's plan, never made)
+    manifests = re.findall(r"^rule training_manifest:\n\s+output: (\S+)", proc.stdout, re.M)
+    assert [m.rsplit("/", 1)[-1] for m in manifests] == ["verifier_zones.json"]

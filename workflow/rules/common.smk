@@ -61,6 +61,7 @@ wildcard_constraints:
     tile=r"-?\d+_-?\d+",
     # model names (training.models, -without-<family>): no dot, so never a file of work/models
     name=r"[A-Za-z0-9][A-Za-z0-9_-]*",
+    purpose=r"training|verifier",
 
 
 try:
@@ -382,18 +383,31 @@ TRAIN = config["training"]
 LOSO = "-without-"
 
 
-#: the training zones and window settings (written by training_manifest); a change reruns the training
-TRAINING_MANIFEST = f"{WORK}/models/training_zones.json"
+#: the zones and window settings of the networks' training and of the verifier's (written by
+#: training_manifest, {purpose}: training or verifier); a change reruns what reads it
+ZONES_MANIFEST = f"{WORK}/models/{{purpose}}_zones.json"
+TRAINING_MANIFEST = ZONES_MANIFEST.format(purpose="training")
+VERIFIER_MANIFEST = ZONES_MANIFEST.format(purpose="verifier")
 
 
-def training_tiles():
-    """Tile files of every training zone (their preprocessing runs first)."""
-    return lambda wc: [p for z in TRAIN["zones"] for p in tile_files(z)]
+def purpose_zones(purpose):
+    """The zones the networks train on (``training``), or the verifier (``verifier``: those and
+    ``training.verifier_zones``)."""
+    if purpose == "training":
+        return list(TRAIN["zones"])
+    if purpose == "verifier":
+        return [*TRAIN["zones"], *(z for z in TRAIN["verifier_zones"] if z not in TRAIN["zones"])]
+    raise WorkflowError(f"{ZONES_MANIFEST.format(purpose=purpose)}: no such manifest (training or verifier)")
 
 
-def training_truth():
-    """Zone -> tower truth of the generated training zones (tower families of the windows)."""
-    return {z: f"data/{z}/towers_truth.gpkg" for z in TRAIN["zones"] if "synth" in zone_config(z)}
+def training_tiles(purpose="training"):
+    """Tile files of every zone of ``purpose`` (their preprocessing runs first)."""
+    return lambda wc: [p for z in purpose_zones(purpose) for p in tile_files(z)]
+
+
+def training_truth(purpose="training"):
+    """Zone -> tower truth of the generated zones of ``purpose`` (tower families of the windows)."""
+    return {z: f"data/{z}/towers_truth.gpkg" for z in purpose_zones(purpose) if "synth" in zone_config(z)}
 
 
 def model_spec(name):

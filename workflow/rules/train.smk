@@ -1,15 +1,16 @@
 # Training: results/models/<name>/ = checkpoint, model card, metrics, curves (+ ablation).
 
 
-# The training zones and window settings: new parameters (a zone added) rerun what reads it,
-# which a new zone's pending generation alone does not (its checkpoint)
+# The zones and window settings of the networks' training (purpose training) and of the
+# verifier's (verifier): new parameters (a zone added) rerun what reads them, which a new
+# zone's pending generation alone does not (its checkpoint)
 rule training_manifest:
     output:
-        manifest=TRAINING_MANIFEST,
+        manifest=ZONES_MANIFEST,
     log:
-        f"{WORK}/models/logs/training_manifest.log",
+        f"{WORK}/models/logs/training_manifest/{{purpose}}.log",
     benchmark:
-        f"{WORK}/models/benchmarks/training_manifest.tsv"
+        f"{WORK}/models/benchmarks/training_manifest/{{purpose}}.tsv"
     conda:
         "../envs/towerpipe.yaml"
     threads: 1
@@ -17,7 +18,7 @@ rule training_manifest:
         mem_mb=200,
         runtime=5,
     params:
-        zones=TRAIN["zones"],
+        zones=lambda wc: purpose_zones(wc.purpose),
         dataset=TRAIN["dataset"],
     script:
         "../scripts/training_manifest.py"
@@ -71,8 +72,8 @@ rule train_model:
 
 rule train_verifier:
     input:
-        manifest=TRAINING_MANIFEST,
-        tiles=training_tiles(),
+        manifest=VERIFIER_MANIFEST,
+        tiles=training_tiles("verifier"),
     output:
         verifier=directory(f"{WORK}/verifiers/{{name}}"),
     log:
@@ -87,7 +88,7 @@ rule train_verifier:
         runtime=30,
     params:
         config=lambda wc: verifier_train_config(wc.name),
-        truth=training_truth(),
+        truth=training_truth("verifier"),
     script:
         "../scripts/train_verifier.py"
 

@@ -48,7 +48,7 @@ __all__ = [
 ]
 
 #: Release of the shipped shape verifier (``models/towerpipe-verifier-v<N>``).
-VERIFIER_RELEASE = 1
+VERIFIER_RELEASE = 2
 #: The verifier's weights and normalisation, in its directory.
 VERIFIER_FILE = "verifier.json"
 #: Voxel edge (m) the descriptor is computed on: density-robust, a tower member is ~0.2-0.5 m.

@@ -16,7 +16,6 @@ from typing import Any, ClassVar
 import numpy as np
 
 from towerpipe import classes
-from towerpipe.towers.matching import f1_score, match_towers
 
 
 @dataclass(frozen=True)
@@ -246,6 +245,8 @@ def with_neighbour_towers(
     import geopandas as gpd
     import shapely
 
+    from towerpipe.towers.matching import f1_score, match_towers
+
     nb = gpd.GeoDataFrame(
         {"tower_id": [t["tower_id"] for t in neighbour_towers]},
         geometry=shapely.from_wkt([t["footprint_wkt"] for t in neighbour_towers]),
@@ -276,7 +277,8 @@ def label_accuracy(
     neighbour_towers: Sequence[Mapping[str, Any]] | None = None,
 ) -> dict[str, Any] | None:
     """Tower precision/recall and point IoU against the input's class 15 labels (None without any)."""
-    from towerpipe.towers.matching import towers_from_labels
+    # the tower matching (scipy's graphs and trees) only for a block with labels to check
+    from towerpipe.towers.matching import match_towers, towers_from_labels
 
     truth = np.asarray(truth)
     t_mask = truth.astype(bool) if truth.dtype == bool else truth == classes.TOWER

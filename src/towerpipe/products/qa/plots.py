@@ -15,11 +15,9 @@ import re
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 
 #: Colours shared by every figure (and by the pages' CSS).
 TOWER_RED = "#e12d39"
@@ -31,11 +29,18 @@ STATUS_COLOURS = {"ok": "#c1eac5", "look": "#ffe08a", "failed": "#ff9b9b"}
 MAX_VIEW_POINTS = 60_000
 
 
+def _figure(*grid: int, **kw: Any) -> tuple[Any, Any]:
+    """A figure and its axes, as ``pyplot.subplots`` makes them, without pyplot: no figure
+    manager or global state to close, whatever fails while drawing."""
+    figsize = kw.pop("figsize", None)
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(*grid, **kw)
+
+
 def png(fig: Any, dpi: int = 100) -> str:
-    """The figure as a PNG data URI (the figure is closed)."""
+    """The figure as a PNG data URI."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
-    plt.close(fig)
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
 
 
@@ -43,7 +48,6 @@ def svg(fig: Any) -> str:
     """The figure as an inline ``<svg>`` element that scales with its container."""
     buf = io.StringIO()
     fig.savefig(buf, format="svg", bbox_inches="tight")
-    plt.close(fig)
     text = buf.getvalue()
     text = text[text.index("<svg") :]
     # inline in HTML the parser knows the SVG and XLink namespaces: no namespace URLs, and no
@@ -119,7 +123,7 @@ def block_map(
     source: str,
 ) -> str:
     """The block's towers (numbered as in the table) over a hillshade."""
-    fig, ax = plt.subplots(figsize=(7.6, 7.2))
+    fig, ax = _figure(figsize=(7.6, 7.2))
     if grid is not None and np.isfinite(grid).any():
         gb = grid_bounds
         ax.imshow(hillshade(grid, cell), cmap="gray", extent=(gb[0], gb[2], gb[1], gb[3]), vmin=0, vmax=1)
@@ -157,7 +161,7 @@ def density_map(dens: np.ndarray, bounds: Sequence[float], cell: float) -> str:
     xmin, ymin = bounds[0], bounds[1]
     ny, nx = dens.shape
     filled = dens[dens > 0]
-    fig, ax = plt.subplots(figsize=(5.4, 4.6))
+    fig, ax = _figure(figsize=(5.4, 4.6))
     vmax = max(1.0, float(np.percentile(filled, 98))) if filled.size else 1.0
     im = ax.imshow(dens, extent=(xmin, xmin + nx * cell, ymin, ymin + ny * cell), cmap="viridis", vmin=0, vmax=vmax)
     fig.colorbar(im, ax=ax, shrink=0.85, label="points / m²")
@@ -168,7 +172,7 @@ def density_map(dens: np.ndarray, bounds: Sequence[float], cell: float) -> str:
 
 def hag_histogram(hag: np.ndarray, tower: np.ndarray | None) -> str:
     """Histogram of heights above ground (log counts), the tower points' in red."""
-    fig, ax = plt.subplots(figsize=(5.4, 4.2))
+    fig, ax = _figure(figsize=(5.4, 4.2))
     ok = np.isfinite(hag)
     tower = tower[ok] if tower is not None and len(tower) == len(hag) else None
     hag = hag[ok]
@@ -232,7 +236,7 @@ def tower_elevations(hood: Mapping[str, np.ndarray], centre: Sequence[float], ti
     if len(other) > MAX_VIEW_POINTS:
         other = other[np.linspace(0, len(other) - 1, MAX_VIEW_POINTS).astype(np.int64)]
     bearing = math.degrees(math.atan2(axis[0], axis[1])) % 180.0
-    fig, axes = plt.subplots(1, 2, figsize=(10.0, 4.0), sharey=True)
+    fig, axes = _figure(1, 2, figsize=(10.0, 4.0), sharey=True)
     for ax, h, label in (
         (axes[0], u, f"along the crossarms (bearing {bearing:.0f}°), m"),
         (axes[1], v, f"across the crossarms (bearing {(bearing + 90) % 180:.0f}°), m"),
@@ -268,7 +272,7 @@ def zone_map(
     """
     from matplotlib.patches import Patch, Rectangle
 
-    fig, ax = plt.subplots(figsize=(7.0, 6.0))
+    fig, ax = _figure(figsize=(7.0, 6.0))
     drawn = [b for b in blocks if b.get("bounds")]
     for b in drawn:
         xmin, ymin, xmax, ymax = b["bounds"]
@@ -310,9 +314,9 @@ def zone_map(
         Patch(facecolor=STATUS_COLOURS[s], edgecolor=INK, hatch="//" if s == "failed" else None, label=lab)
         for s, lab in (("ok", "block: ok"), ("look", "block: needs a look"), ("failed", "block: failed"))
     ]
-    handles.append(plt.Line2D([], [], ls="none", marker="^", color=TOWER_DARK, mec="white", label="tower"))
+    handles.append(Line2D([], [], ls="none", marker="^", color=TOWER_DARK, mec="white", label="tower"))
     if len(lines):
-        handles.append(plt.Line2D([], [], color="#2680c2", lw=1.4, label="line"))
+        handles.append(Line2D([], [], color="#2680c2", lw=1.4, label="line"))
     ax.legend(handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     ax.set_title("Zone overview: click a block for its page", fontsize=10)
     return svg(fig)
