@@ -148,7 +148,10 @@ def test_header_contradicting_points_gives_same_towers_and_a_warning(headers_run
             w.startswith("header: header bounds") and "contradict the points" in w for w in summary["warnings"]
         ), summary["warnings"]
     fa, fb = tower_features(ref / "towers.gpkg"), tower_features(out / "towers.gpkg")
-    assert len(fa) >= 5 and fa.drop(columns="geometry").equals(fb.drop(columns="geometry"))
+    # the towers the zone's model found on the CI scene (recorded in its card): a comparison of something
+    model = json.loads((headers_run["work"] / headers_run["zone"] / "model.json").read_text())["path"]
+    found = json.loads((REPO / model / "model_card.json").read_text())["metrics"]["reference_zone"]["towers_predicted"]
+    assert len(fa) >= found and fa.drop(columns="geometry").equals(fb.drop(columns="geometry"))
 
 
 def test_truncated_block_between_two_good_ones_costs_only_itself(headers_run):
