@@ -14,6 +14,7 @@ import pytest
 import yaml
 
 from conftest import REPO, RGBNIR_BLOCK, write_zone_config
+from towerpipe.towers.shape import VERIFIER_RELEASE
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow]
 
@@ -212,8 +213,6 @@ def test_a_verifier_zone_retrains_the_verifier(ci_scene, tmp_path):
         "--cores", "1", str(models / "training_zones.json"), str(models / "verifier_zones.json"), f"--configfile={cfg}"
     )
     assert yaml.safe_load((models / "verifier_zones.json").read_text())["zones"] == [a]
-    from towerpipe.towers.shape import VERIFIER_RELEASE
-
     verifier = work / "verifiers" / f"towerpipe-verifier-v{VERIFIER_RELEASE}"
     (models / "windows.npz").touch()
     verifier.mkdir(parents=True)

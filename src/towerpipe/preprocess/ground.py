@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import laspy
 import numpy as np
 import rasterio
 from rasterio.fill import fillnodata
@@ -38,8 +39,6 @@ def _write_xyz_las(
     classification: np.ndarray | None = None,
 ) -> None:
     """Uncompressed LAS 1.2 point format 0 (xyz at mm precision) for PDAL to read fast."""
-    import laspy  # here, not at the top: the QA job's DTM mosaic needs no laspy
-
     header = laspy.LasHeader(point_format=0, version="1.2")
     header.scales = np.array([0.001, 0.001, 0.001])
     header.offsets = np.array(origin, dtype=np.float64)
@@ -54,8 +53,6 @@ def classify_ground(
     x: np.ndarray, y: np.ndarray, z: np.ndarray, workdir: Path, *, method: str = "smrf", what: str = "tile"
 ) -> np.ndarray:
     """Ground mask computed by PDAL (``filters.elm`` for low noise, then SMRF or CSF)."""
-    import laspy
-
     src, dst = workdir / "ground_in.las", workdir / "ground_out.las"
     origin = (float(np.floor(x.min())), float(np.floor(y.min())), float(np.floor(z.min())))
     _write_xyz_las(src, x, y, z, origin)
@@ -173,8 +170,6 @@ def height_above_ground(
     x: np.ndarray, y: np.ndarray, z: np.ndarray, dtm_tif: Path, workdir: Path, *, what: str = "tile"
 ) -> np.ndarray:
     """HAG of every point from the DTM with PDAL ``filters.hag_dem`` (point order kept)."""
-    import laspy
-
     src, dst = workdir / "points.las", workdir / "hag.las"
     origin = (float(np.floor(x.min())), float(np.floor(y.min())), float(np.floor(z.min())))
     _write_xyz_las(src, x, y, z, origin)
@@ -202,8 +197,6 @@ def statistical_outliers(
     x: np.ndarray, y: np.ndarray, z: np.ndarray, workdir: Path, *, mean_k: int, multiplier: float, what: str = "tile"
 ) -> np.ndarray:
     """Mask of statistical outliers (PDAL ``filters.outlier``; slow, off by default)."""
-    import laspy
-
     src, dst = workdir / "outlier_in.las", workdir / "outlier_out.las"
     origin = (float(np.floor(x.min())), float(np.floor(y.min())), float(np.floor(z.min())))
     _write_xyz_las(src, x, y, z, origin)

@@ -29,10 +29,9 @@ STATUS_COLOURS = {"ok": "#c1eac5", "look": "#ffe08a", "failed": "#ff9b9b"}
 MAX_VIEW_POINTS = 60_000
 
 
-def _figure(*grid: int, **kw: Any) -> tuple[Any, Any]:
+def _figure(*grid: int, figsize: tuple[float, float] | None = None, **kw: Any) -> tuple[Any, Any]:
     """A figure and its axes, as ``pyplot.subplots`` makes them, without pyplot: no figure
     manager or global state to close, whatever fails while drawing."""
-    figsize = kw.pop("figsize", None)
     fig = Figure(figsize=figsize)
     return fig, fig.subplots(*grid, **kw)
 
