@@ -264,6 +264,9 @@ class TowersConfig(Section):
     #: Rule 10: clusters no accepted tower holds, from the points at or above this
     #: probability, are judged again (0: never; see :func:`towerpipe.towers.extract.extract_towers`).
     rescue_threshold: float
+    #: The points of a tower's foot that are reported (``height``, ``band``, ``inside``,
+    #: ``outside``; :func:`towerpipe.towers.foot.foot_mask`).
+    foot: Mapping[str, float]
 
 
 @dataclass(frozen=True)

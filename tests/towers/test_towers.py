@@ -145,7 +145,13 @@ def test_tower_rules_are_the_config_schemas():
     schema = load_yaml(REPO / SCHEMA_FILE, "schema")["properties"]["towers"]["properties"]
     rules = tower_rules()
     assert isinstance(rules, TowersConfig)
-    assert {k: getattr(rules, k) for k in vars(rules)} == {k: schema[k]["default"] for k in vars(rules)}
+
+    def default(prop):  # an object's default is its properties' (the validator fills them in)
+        if prop.get("type") == "object":
+            return {k: default(v) for k, v in prop["properties"].items()}
+        return prop["default"]
+
+    assert {k: getattr(rules, k) for k in vars(rules)} == {k: default(schema[k]) for k in vars(rules)}
     assert tower_rules(min_core_prob=0.9).min_core_prob == 0.9
 
 
@@ -454,9 +460,28 @@ def test_a_tower_reports_at_least_min_points():
     arrays, meta = pred_pair(xyz, hag, 0.3, ["b1"])
     arrays["prob"][:12] = 0.9
     arrays["prob_single"] = np.full(len(xyz), 0.95, np.float32)
-    kw = dict(zone="z1", threshold=0.5, min_points=20, min_height=5.0)
+    # its 30 points are one splaying leg: no foot rule (tests/towers/test_foot.py) here
+    kw = dict(zone="z1", threshold=0.5, min_points=20, min_height=5.0, foot={"height": 0})
     assert len(extract([(arrays, meta)], "b1", BOUNDS, **kw).towers) == 1
     found = extract([(arrays, meta)], "b1", BOUNDS, point_threshold=0.4, **kw)
     assert len(found.towers) == 0 and found.members == {}
     arrays["prob"][:25] = 0.9
     assert len(extract([(arrays, meta)], "b1", BOUNDS, point_threshold=0.4, **kw).towers) == 1
+
+
+def test_the_shrubs_at_a_towers_foot_are_not_its_points():
+    """Painted with the tower, the bush between its legs is left out of what is reported
+    (towers.foot); the tower and its footprint are as without it."""
+    xyz, hag = synthetic_tower(X0 + 50, Y0 + 50, seed=9)
+    rng = np.random.default_rng(9)
+    bush = np.column_stack(
+        [X0 + 50 + rng.normal(0, 0.6, 80), Y0 + 50 + rng.normal(0, 0.6, 80), rng.uniform(100.5, 103, 80)]
+    )
+    pair = pred_pair(np.concatenate([xyz, bush]), np.concatenate([hag, bush[:, 2] - 100.0]), 0.9, ["b1"])
+    found = extract([pair], "b1", BOUNDS, zone="z1")
+    row = found.towers.iloc[0]
+    assert len(found.towers) == 1 and row["n_points"] == len(xyz)
+    assert set(found.members[row["tower_id"]][1].tolist()) == set(range(len(xyz)))
+    bare = extract([pair], "b1", BOUNDS, zone="z1", foot={"height": 0}).towers.iloc[0]
+    assert bare["n_points"] == len(xyz) + len(bush)
+    assert bare["footprint_area_m2"] == row["footprint_area_m2"]

@@ -6,7 +6,8 @@ The segmenter gives every point a tower probability, from the window as it is
 :func:`towerpipe.inference.views.segment_views`). :func:`extract_towers` turns the points of one
 block *and its neighbours* with ``prob_single >= threshold`` into towers (a tower the
 segmenter is unsure of in some views is still found), and a tower's points are those of
-its cluster with ``prob >= point_threshold`` (a crown painted in one view is left out):
+its cluster with ``prob >= point_threshold`` (a crown painted in one view is left out), of
+its foot those that ``rules.foot`` keeps (:mod:`towerpipe.towers.foot`):
 
 1. connected components of a 3-D ``cKDTree`` graph (points closer than ``linkage``);
 2. a component wider than ``max_extent`` (a chain of falsely predicted wire points
@@ -68,6 +69,7 @@ import shapely
 from towerpipe.config import TowersConfig
 from towerpipe.io.fields import DATETIME, GEOMETRY_GRID, Field, conform, dtypes, empty_frame, join_values
 from towerpipe.towers.cluster import _as_pred, _footprint, cluster_towers, gather_points
+from towerpipe.towers.foot import foot_mask
 from towerpipe.towers.registry import REVIEW_STATUSES, assign_ids
 from towerpipe.towers.shape import load_verifier, object_points
 
@@ -268,7 +270,9 @@ def extract_towers(
     point_threshold
         The points of a tower are its cluster's points whose view-averaged probability
         (``prob``) is at or above this (``n_points`` and ``members``); ``None``: all of
-        them. A tower with fewer than ``rules.min_points`` such points is dropped. This trims
+        them; below ``rules.foot["height"]``, those near the outline of the tower above
+        (:func:`towerpipe.towers.foot.foot_mask`). A tower with fewer than
+        ``rules.min_points`` such points is dropped. This trims
         the uncertain edge of each tower (crowns next to it) without splitting off the pieces
         of conductor that a higher clustering threshold leaves as false towers, and without
         losing a tower the segmenter is unsure of.
@@ -378,6 +382,8 @@ def extract_towers(
         if not owned and str(block_name) not in touched:
             continue  # a neighbour's tower that does not reach this block
         g_pts = g if g_threshold is None else g[pts["prob"][g] >= g_threshold]
+        # its foot: the low points off the outline of the tower above are the vegetation's
+        g_pts = g_pts[foot_mask(xyz[g_pts, 0], xyz[g_pts, 1], pts["hag"][g_pts], rules.foot)]
         if len(g_pts) < rules.min_points:
             continue  # what would be reported is too few points for a tower (the paper's 20)
         prob = pts["prob_single"][g].astype(np.float64)
