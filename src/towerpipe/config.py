@@ -265,8 +265,8 @@ class TowersConfig(Section):
     #: probability, are judged again (0: never; see :func:`towerpipe.towers.extract.extract_towers`).
     rescue_threshold: float
     #: The points of a tower's foot that are reported (``height``, ``band``, ``inside``,
-    #: ``outside``; :func:`towerpipe.towers.foot.foot_mask`).
-    foot: Mapping[str, float]
+    #: ``outside``, ``outline_points``; :func:`towerpipe.towers.foot.foot_mask`).
+    foot: Mapping[str, float | int]
 
 
 @dataclass(frozen=True)

@@ -469,19 +469,64 @@ def test_a_tower_reports_at_least_min_points():
     assert len(extract([(arrays, meta)], "b1", BOUNDS, point_threshold=0.4, **kw).towers) == 1
 
 
+def tower_with_shrubs(cx: float, cy: float, seed: int = 9) -> tuple[np.ndarray, np.ndarray, int]:
+    """A lattice tower with a bush between its legs and one beside a leg (within the linkage,
+    beyond the outline of its legs above 8 m): xyz, hag and the tower's own point count."""
+    xyz, hag = synthetic_tower(cx, cy, seed=seed)
+    rng = np.random.default_rng(seed)
+    bushes = [
+        np.column_stack([cx + rng.normal(0, 0.6, 80), cy + rng.normal(0, 0.6, 80), rng.uniform(100.5, 103, 80)]),
+        np.column_stack(
+            [cx + 3 + rng.normal(0, 0.3, 60), cy + 4.8 + rng.normal(0, 0.2, 60), rng.uniform(100.5, 103, 60)]
+        ),
+    ]
+    bush = np.concatenate(bushes)
+    return np.concatenate([xyz, bush]), np.concatenate([hag, bush[:, 2] - 100.0]), len(xyz)
+
+
 def test_the_shrubs_at_a_towers_foot_are_not_its_points():
-    """Painted with the tower, the bush between its legs is left out of what is reported
-    (towers.foot); the tower and its footprint are as without it."""
-    xyz, hag = synthetic_tower(X0 + 50, Y0 + 50, seed=9)
-    rng = np.random.default_rng(9)
-    bush = np.column_stack(
-        [X0 + 50 + rng.normal(0, 0.6, 80), Y0 + 50 + rng.normal(0, 0.6, 80), rng.uniform(100.5, 103, 80)]
-    )
-    pair = pred_pair(np.concatenate([xyz, bush]), np.concatenate([hag, bush[:, 2] - 100.0]), 0.9, ["b1"])
+    """Painted with the tower, the bushes between and beside its legs are left out of what is
+    reported (towers.foot); the tower and its footprint are as without the rule, and the
+    footprint still takes in the bush beside it."""
+    xyz, hag, n = tower_with_shrubs(X0 + 50, Y0 + 50)
+    pair = pred_pair(xyz, hag, 0.9, ["b1"])
     found = extract([pair], "b1", BOUNDS, zone="z1")
     row = found.towers.iloc[0]
-    assert len(found.towers) == 1 and row["n_points"] == len(xyz)
-    assert set(found.members[row["tower_id"]][1].tolist()) == set(range(len(xyz)))
+    assert len(found.towers) == 1 and row["n_points"] == n
+    assert set(found.members[row["tower_id"]][1].tolist()) == set(range(n))
     bare = extract([pair], "b1", BOUNDS, zone="z1", foot={"height": 0}).towers.iloc[0]
-    assert bare["n_points"] == len(xyz) + len(bush)
+    assert bare["n_points"] == len(xyz)
     assert bare["footprint_area_m2"] == row["footprint_area_m2"]
+    alone = extract([pred_pair(xyz[:n], hag[:n], 0.9, ["b1"])], "b1", BOUNDS, zone="z1").towers.iloc[0]
+    assert row["footprint_area_m2"] > alone["footprint_area_m2"] + 1.0
+
+
+def test_the_foot_rule_never_drops_a_tower():
+    """A tower that the trimming would leave with fewer than towers.min_points points keeps
+    them all: the rule picks points, not towers."""
+    xyz, hag, n = tower_with_shrubs(X0 + 50, Y0 + 50)
+    pair = pred_pair(xyz, hag, 0.9, ["b1"])
+    found = extract([pair], "b1", BOUNDS, zone="z1", min_points=n + 10)
+    assert len(found.towers) == 1 and found.towers.iloc[0]["n_points"] == len(xyz)
+
+
+def test_a_towers_foot_is_judged_alike_by_both_blocks_it_touches():
+    """Across a block edge, each block's job trims the tower's foot to the same points,
+    whatever the order of the prediction files."""
+    edge = X0 + 250.0
+    xyz, hag, n = tower_with_shrubs(edge + 0.6, Y0 + 100)
+    west = xyz[:, 0] < edge
+    pw = pred_pair(xyz[west], hag[west], 0.95, ["bw"], tile="w")
+    pe = pred_pair(xyz[~west], hag[~west], 0.95, ["be"], tile="e")
+    bw, be = (X0, Y0, edge, Y0 + 500), (edge, Y0, X0 + 500, Y0 + 500)
+    a = extract([pw, pe], "bw", bw, zone="z1", processed_at=STAMP).members
+    b = extract([pe, pw], "be", be, zone="z1", processed_at=STAMP).members
+    assert a.keys() == b.keys() and len(a) == 1
+    (tid,) = a
+
+    def points(members):
+        blocks, idx = members[tid]
+        return sorted(zip(np.asarray(blocks).astype(str).tolist(), np.asarray(idx).tolist(), strict=True))
+
+    assert points(a) == points(b)
+    assert len(points(a)) == n

@@ -264,15 +264,19 @@ def extract_towers(
           (:class:`towerpipe.towers.shape.ShapeVerifier`) is below ``min_shape_score`` are
           dropped (``verifier: none`` or 0 keeps all; without a context the score is NaN).
         - ``split_thresholds``: a cluster the shape check drops is clustered again from its
-          points at or above each of these in turn, and each part is judged (``()``: never).
+          points at or above each of these in turn, and each part is judged (``()``: never);
+        - ``rescue_threshold``: rule 10 (module docstring; 0 never rescues);
+        - ``foot``: which of a tower's points below ``foot["height"]`` are reported
+          (:func:`towerpipe.towers.foot.foot_mask`); never whether the tower is.
     zone
         Zone name (recorded in ``zone``; not part of the id).
     point_threshold
         The points of a tower are its cluster's points whose view-averaged probability
         (``prob``) is at or above this (``n_points`` and ``members``); ``None``: all of
-        them; below ``rules.foot["height"]``, those near the outline of the tower above
-        (:func:`towerpipe.towers.foot.foot_mask`). A tower with fewer than
-        ``rules.min_points`` such points is dropped. This trims
+        them. A tower with fewer than ``rules.min_points`` such points is dropped; of the
+        others, below ``rules.foot["height"]``, only those near the outline of the tower above
+        are reported (:func:`towerpipe.towers.foot.foot_mask`; all of them where fewer than
+        ``rules.min_points`` would remain). This trims
         the uncertain edge of each tower (crowns next to it) without splitting off the pieces
         of conductor that a higher clustering threshold leaves as false towers, and without
         losing a tower the segmenter is unsure of.
@@ -375,17 +379,19 @@ def extract_towers(
         if hag.min() > rules.max_base_ratio * hag.max():
             continue  # floating: a piece of conductor or crossarm, not a tower standing on the ground
         xy = xyz[g, :2]
-        foot = shapely.set_precision(_footprint(xy, min_width), GEOMETRY_GRID)  # as written: 1 cm
-        c = foot.centroid
+        footprint = shapely.set_precision(_footprint(xy, min_width), GEOMETRY_GRID)  # as written: 1 cm
+        c = footprint.centroid
         touched = sorted(set(pts["block"][g].tolist()))
         owned = bool(_in_bounds(np.array([c.x]), np.array([c.y]), block_bounds)[0])
         if not owned and str(block_name) not in touched:
             continue  # a neighbour's tower that does not reach this block
         g_pts = g if g_threshold is None else g[pts["prob"][g] >= g_threshold]
-        # its foot: the low points off the outline of the tower above are the vegetation's
-        g_pts = g_pts[foot_mask(xyz[g_pts, 0], xyz[g_pts, 1], pts["hag"][g_pts], rules.foot)]
         if len(g_pts) < rules.min_points:
             continue  # what would be reported is too few points for a tower (the paper's 20)
+        # its foot: the low points off the outline of the tower above are the vegetation's (a
+        # rule on which points are reported, never on whether the tower is)
+        trimmed = g_pts[foot_mask(xyz[g_pts, 0], xyz[g_pts, 1], pts["hag"][g_pts], rules.foot)]
+        g_pts = trimmed if len(trimmed) >= rules.min_points else g_pts
         prob = pts["prob_single"][g].astype(np.float64)
         support = shape = float("nan")
         ctx = context(float(c.x), float(c.y)) if context is not None else None
@@ -397,7 +403,7 @@ def extract_towers(
             arr, extent = ctx
             # the shape check first: it is cheap, and it drops most clusters (crowns)
             if verifier is not None:
-                obj = object_points(foot, arr["x"], arr["y"])
+                obj = object_points(footprint, arr["x"], arr["y"])
                 if len(obj):
                     shape = verifier.score(arr["x"][obj], arr["y"][obj], arr["hag"][obj])
                 if shape < rules.min_shape_score or (is_rescue and np.isnan(shape)):
@@ -416,23 +422,23 @@ def extract_towers(
             support = wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], float(bx), float(by), extent=extent)
             if hag.max() >= rules.wire_min_height and support < rules.min_wire_support:
                 continue
-        accepted.append((g, g_pts, foot, touched, owned, support, shape, hag, prob))
+        accepted.append((g, g_pts, footprint, touched, owned, support, shape, hag, prob))
     if not accepted:
         return ExtractedTowers(empty_towers(crs), members, neighbours)
     ids, first_seen, review = assign_ids([a[2] for a in accepted], registry)
     stamp = pd.Timestamp(processed_at)
     stamp = stamp.tz_localize("UTC") if stamp.tzinfo is None else stamp.tz_convert("UTC")
-    for (g, g_pts, foot, touched, owned, support, shape, hag, prob), tid, first, rev in zip(
+    for (g, g_pts, footprint, touched, owned, support, shape, hag, prob), tid, first, rev in zip(
         accepted, ids.tolist(), first_seen, review
     ):
         members[tid] = (pts["block"][g_pts], pts["point_index"][g_pts])
         if not owned:
             # reported by the neighbour that holds its centroid (the same rules on the same
             # points and tiles decide there); listed for this block's QA
-            neighbours.append({"tower_id": tid, "footprint_wkt": foot.wkt, "blocks": join_values(touched)})
+            neighbours.append({"tower_id": tid, "footprint_wkt": footprint.wkt, "blocks": join_values(touched)})
             continue
-        c = foot.centroid
-        rect = shapely.oriented_envelope(foot)
+        c = footprint.centroid
+        rect = shapely.oriented_envelope(footprint)
         ring = np.asarray(rect.exterior.coords) if isinstance(rect, shapely.Polygon) else np.zeros((2, 2))
         sides = np.hypot(*np.diff(ring[:3], axis=0).T) if len(ring) >= 3 else np.zeros(2)
         # top and base to the cm, and the height their difference: height_m = top_z - base_z exactly
@@ -449,7 +455,7 @@ def extract_towers(
                 "height_m": round(top - base, 2),
                 "base_z": base,
                 "top_z": top,
-                "footprint_area_m2": float(foot.area),
+                "footprint_area_m2": float(footprint.area),
                 "footprint_width_m": float(np.min(sides)),
                 "footprint_length_m": float(np.max(sides)),
                 "edge_distance_m": float(min(c.x - xmin, xmax - c.x, c.y - ymin, ymax - c.y)),
@@ -471,7 +477,7 @@ def extract_towers(
                 "processed_at": stamp,
             }
         )
-        geoms.append(foot)
+        geoms.append(footprint)
     if not rows:
         return ExtractedTowers(empty_towers(crs), members, neighbours)
     gdf = gpd.GeoDataFrame(rows, geometry=geoms, crs=crs)

@@ -1,8 +1,8 @@
 """The foot of a tower: which of its lowest points are the tower and which stand around it.
 
 A tower's lowest metres are where the segmenter is least sure: shrubs, grass and young trees
-grow between and beside the legs, and at 1-8 m above the ground they look to a window of
-40 m much like the legs themselves, so the points the segmenter paints there are often the
+grow between and beside the legs, and at 1-8 m above the ground they look to a window much
+like the legs themselves, so many of the points the segmenter paints there are the
 vegetation's. The tower above is easy to read: its points a few metres higher outline it
 (the legs and the faces of a lattice, the shaft of a pole, the posts of an H-frame). A
 tower is hollow and its legs run down along its outline, splaying a little outward; the
@@ -12,8 +12,11 @@ band``: no more than ``inside`` within it, no more than ``outside`` beyond it (m
 horizontally). Fewer than ``outline_points`` points there do not outline a tower (a sparse
 or a low one, where the band is its top): then every point stays.
 
-Set on the calibration zones only (``towerpipe calibrate``; docs/model.md, the foot):
-the tower's points that are reported, never which towers are.
+Set on the calibration zones only (``towerpipe calibrate``, one run per setting given as an
+extra config file; docs/model.md, "A tower's foot"). It picks the points a tower reports,
+never which towers are: :func:`towerpipe.towers.extract.extract_towers` keeps every point
+of a tower that trimming would leave with fewer than ``towers.min_points``. Points without
+a height (NaN) are kept.
 """
 
 from __future__ import annotations
@@ -51,7 +54,7 @@ def foot_mask(x: np.ndarray, y: np.ndarray, hag: np.ndarray, foot: Mapping[str, 
     height, band = float(foot["height"]), float(foot["band"])
     low = hag < height
     above = (hag >= height) & (hag < height + band)
-    if height <= 0 or not low.any() or above.sum() < max(int(foot["outline_points"]), 3):
+    if height <= 0 or not low.any() or above.sum() < int(foot["outline_points"]):
         return keep
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
     outline = shapely.convex_hull(shapely.multipoints(np.column_stack([x[above], y[above]])))
