@@ -148,7 +148,8 @@ def test_header_contradicting_points_gives_same_towers_and_a_warning(headers_run
             w.startswith("header: header bounds") and "contradict the points" in w for w in summary["warnings"]
         ), summary["warnings"]
     fa, fb = tower_features(ref / "towers.gpkg"), tower_features(out / "towers.gpkg")
-    # the towers the zone's model found on the CI scene (recorded in its card): a comparison of something
+    # at least the towers the zone's model found on the CI scene (recorded in its card): the
+    # equality below compares towers, not two empty tables
     model = json.loads((headers_run["work"] / headers_run["zone"] / "model.json").read_text())["path"]
     found = json.loads((REPO / model / "model_card.json").read_text())["metrics"]["reference_zone"]["towers_predicted"]
     assert len(fa) >= found and fa.drop(columns="geometry").equals(fb.drop(columns="geometry"))

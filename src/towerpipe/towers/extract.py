@@ -388,10 +388,6 @@ def extract_towers(
         g_pts = g if g_threshold is None else g[pts["prob"][g] >= g_threshold]
         if len(g_pts) < rules.min_points:
             continue  # what would be reported is too few points for a tower (the paper's 20)
-        # its foot: the low points off the outline of the tower above are the vegetation's (a
-        # rule on which points are reported, never on whether the tower is)
-        trimmed = g_pts[foot_mask(xyz[g_pts, 0], xyz[g_pts, 1], pts["hag"][g_pts], rules.foot)]
-        g_pts = trimmed if len(trimmed) >= rules.min_points else g_pts
         prob = pts["prob_single"][g].astype(np.float64)
         support = shape = float("nan")
         ctx = context(float(c.x), float(c.y)) if context is not None else None
@@ -422,6 +418,10 @@ def extract_towers(
             support = wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], float(bx), float(by), extent=extent)
             if hag.max() >= rules.wire_min_height and support < rules.min_wire_support:
                 continue
+        # its foot, once the tower is accepted: the low points off the outline of the tower above
+        # are the vegetation's (a rule on which points are reported, never on whether the tower is)
+        trimmed = g_pts[foot_mask(xyz[g_pts, 0], xyz[g_pts, 1], pts["hag"][g_pts], rules.foot)]
+        g_pts = trimmed if len(trimmed) >= rules.min_points else g_pts
         accepted.append((g, g_pts, footprint, touched, owned, support, shape, hag, prob))
     if not accepted:
         return ExtractedTowers(empty_towers(crs), members, neighbours)
