@@ -263,7 +263,7 @@ def test_windows_know_their_tower_family(tmp_path):
             {"design": "lattice_waist", "x": ox + 70, "y": 65.0, "geometry": shapely.Point(ox + 70, 65)},
         ]
     truth = tmp_path / "truth.gpkg"
-    gpd.GeoDataFrame(rows, geometry="geometry").to_file(truth, layer="towers")
+    gpd.GeoDataFrame(rows, geometry="geometry", crs="EPSG:25831").to_file(truth, layer="towers")
     ws = build_windows(paths, {"val_fraction": 0.34, "test_fraction": 0.34, "positive_shifts": 0}, truth={"t": truth})
     pos = np.flatnonzero(ws.kind == KINDS["positive"])
     fams = {int(f) for f in ws.family[pos]}
