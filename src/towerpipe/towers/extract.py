@@ -43,7 +43,9 @@ after the other rules, the points at or above ``rescue_threshold`` that no accep
 holds are clustered and each cluster is judged by rules 4-8 (its highest probability, not its
 90th percentile, must reach ``min_core_prob``), its points those at or above
 ``rescue_threshold``: a thin pole or a sparse real lattice that the segmenter paints mostly
-at 0.1-0.3 is found and outlined when its object is shaped like a tower.
+at 0.1-0.3 is found and outlined when its object is shaped like a tower. Rule 11, the column
+(``column``): an accepted tower also reports the faint points of its body above its foot
+(:mod:`towerpipe.towers.column`).
 
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
@@ -69,6 +71,7 @@ import shapely
 from towerpipe.config import TowersConfig
 from towerpipe.io.fields import DATETIME, GEOMETRY_GRID, Field, conform, dtypes, empty_frame, join_values
 from towerpipe.towers.cluster import _as_pred, _footprint, cluster_towers, gather_points
+from towerpipe.towers.column import column_mask
 from towerpipe.towers.foot import foot_mask
 from towerpipe.towers.registry import REVIEW_STATUSES, assign_ids
 from towerpipe.towers.shape import load_verifier, object_points
@@ -266,8 +269,9 @@ def extract_towers(
         - ``split_thresholds``: a cluster the shape check drops is clustered again from its
           points at or above each of these in turn, and each part is judged (``()``: never);
         - ``rescue_threshold``: rule 10 (module docstring; 0 never rescues);
-        - ``foot``: which of a tower's points below ``foot["height"]`` are reported
-          (:func:`towerpipe.towers.foot.foot_mask`); never whether the tower is.
+        - ``foot``, ``column``: which of a tower's points below ``foot["height"]`` are
+          reported (:func:`towerpipe.towers.foot.foot_mask`), and which faint points of its
+          body (:func:`towerpipe.towers.column.column_mask`); never whether the tower is.
     zone
         Zone name (recorded in ``zone``; not part of the id).
     point_threshold
@@ -276,10 +280,9 @@ def extract_towers(
         them. A tower with fewer than ``rules.min_points`` such points is dropped; of the
         others, below ``rules.foot["height"]``, only those near the outline of the tower above
         are reported (:func:`towerpipe.towers.foot.foot_mask`; all of them where fewer than
-        ``rules.min_points`` would remain). This trims
-        the uncertain edge of each tower (crowns next to it) without splitting off the pieces
-        of conductor that a higher clustering threshold leaves as false towers, and without
-        losing a tower the segmenter is unsure of.
+        ``rules.min_points`` would remain). This trims the uncertain edge of each tower
+        (crowns next to it) without splitting off the pieces of conductor that a higher
+        clustering threshold leaves as false towers, nor losing a tower the segmenter is unsure of.
     merge_gap, max_extent
         Clustering parameters, see :func:`towerpipe.towers.cluster.cluster_towers`.
     min_width
@@ -328,7 +331,9 @@ def extract_towers(
     # rule 10 needs the shape check: without it a rescue would only be a lower threshold
     checked = verifier is not None and rules.min_shape_score > 0
     rescue = float(rules.rescue_threshold) if checked and 0 < rules.rescue_threshold < rules.threshold else 0.0
-    pts = gather_points(preds, rescue or rules.threshold)
+    # the column (rule 11) may take points fainter than the clusters' and the rescue's
+    column_t = float(rules.column["threshold"])
+    pts = gather_points(preds, min(t for t in (rescue or rules.threshold, column_t) if t > 0))
     xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
 
     def cluster(idx: np.ndarray) -> np.ndarray:
@@ -369,7 +374,9 @@ def extract_towers(
             held = np.zeros(len(pts["x"]), bool)
             for a in accepted:
                 held[a[0]] = True
-            queue.extend((g, (), True) for g in groups(np.arange(len(pts["x"]))) if not held[g].any())
+            queue.extend(
+                (g, (), True) for g in groups(np.flatnonzero(pts["prob_single"] >= rescue)) if not held[g].any()
+            )
             continue
         g, splits, is_rescue = queue.popleft()
         core_q, g_threshold = (1.0, rescue) if is_rescue else (0.9, point_threshold)
@@ -418,11 +425,18 @@ def extract_towers(
             support = wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], float(bx), float(by), extent=extent)
             if hag.max() >= rules.wire_min_height and support < rules.min_wire_support:
                 continue
-        # its foot, once the tower is accepted: the low points off the outline of the tower above
-        # are the vegetation's (a rule on which points are reported, never on whether the tower is)
+        accepted.append((g, g_pts, footprint, touched, owned, support, shape, hag, prob))
+    # which points each accepted tower reports (rules on the points, never on whether a tower is):
+    # of its foot, the low points off the outline of the tower above are the vegetation's; its
+    # column (rule 11) adds the faint points of its body above the foot
+    held = np.isin(np.arange(len(pts["x"])), [i for a in accepted for i in a[0]])
+    for i, (g, g_pts, *rest) in enumerate(accepted):
         trimmed = g_pts[foot_mask(xyz[g_pts, 0], xyz[g_pts, 1], pts["hag"][g_pts], rules.foot)]
         g_pts = trimmed if len(trimmed) >= rules.min_points else g_pts
-        accepted.append((g, g_pts, footprint, touched, owned, support, shape, hag, prob))
+        f = np.flatnonzero(~held)
+        take = f[column_mask(*xyz[g_pts, :2].T, *xyz[f, :2].T, pts["hag"][f], pts["prob"][f], rules.column)]
+        held[take] = True
+        accepted[i] = (g, np.concatenate([g_pts, take]), *rest)
     if not accepted:
         return ExtractedTowers(empty_towers(crs), members, neighbours)
     ids, first_seen, review = assign_ids([a[2] for a in accepted], registry)
