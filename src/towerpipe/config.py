@@ -267,8 +267,8 @@ class TowersConfig(Section):
     #: The points of a tower's foot that are reported (``height``, ``band``, ``inside``,
     #: ``outside``, ``outline_points``; :func:`towerpipe.towers.foot.foot_mask`).
     foot: Mapping[str, float | int]
-    #: The faint points of a tower's body that are reported (``threshold``, ``outside``;
-    #: :func:`towerpipe.towers.column.column_mask`).
+    #: The faint points of a tower's body that are reported (``threshold``, ``outside``,
+    #: ``min_height``; :func:`towerpipe.towers.column.column_mask`).
     column: Mapping[str, float]
 
 

@@ -93,3 +93,36 @@ def test_the_schema_gives_the_column_and_the_foot_their_own_keys():
     assert set(rules.foot) == {"height", "band", "inside", "outside", "outline_points"}
     # the foot judges below its height, the column above it
     assert rules.column["min_height"] >= rules.foot["height"]
+
+
+def test_the_column_takes_no_point_from_a_block_the_tower_does_not_touch():
+    """A tower wholly in one block, with faint points just across the edge: the neighbour's
+    job does not judge that tower (its cluster does not touch the neighbour), so the neighbour's
+    merge would never classify those points: the column leaves them out."""
+    edge = X0 + 250.0
+    xyz, hag, prob, n = faint_lattice(edge + 3.5, Y0 + 100)  # legs at most 3.2 m out: all east
+    z = np.linspace(112.0, 120.0, 12)
+    across = np.column_stack([np.full(12, edge - 0.3), Y0 + 100 + np.linspace(-1, 1, 12), z])
+    xyz, hag = np.vstack([xyz, across]), np.r_[hag, z - 100.0].astype(np.float32)
+    prob = np.r_[prob, np.full(12, 0.2, np.float32)]
+    west = xyz[:, 0] < edge
+    pairs = []
+    for side, name in ((west, "bw"), (~west, "be")):
+        arrays, meta = pred_pair(xyz[side], hag[side], prob[side], [name], tile=name)
+        arrays["prob_single"] = prob[side].copy()
+        pairs.append((arrays, meta))
+    bw, be = (X0, Y0, edge, Y0 + 500), (edge, Y0, X0 + 500, Y0 + 500)
+    east = extract(pairs, "be", be, zone="z1", column=COLUMN)
+    assert len(east.towers) == 1 and east.towers.iloc[0]["blocks"] == "be"
+    ((blocks, _),) = east.members.values()
+    assert set(np.asarray(blocks).astype(str).tolist()) == {"be"}
+    assert extract(pairs[::-1], "bw", bw, zone="z1", column=COLUMN).members == {}
+
+
+def test_a_clustering_threshold_of_zero_gathers_every_point():
+    xyz, hag, prob, _ = faint_lattice(X0 + 50, Y0 + 50)
+    arrays, meta = pred_pair(xyz, hag, prob, ["b1"])
+    arrays["prob_single"] = prob.copy()
+    off = {**COLUMN, "threshold": 0.0}
+    # before the column, this setting gathered every point; it still does (the lattice and its crown)
+    assert len(extract([(arrays, meta)], "b1", BOUNDS, zone="z1", threshold=0.0, column=off).towers) >= 1

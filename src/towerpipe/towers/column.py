@@ -10,6 +10,11 @@ probability reaches ``threshold`` are its points too. The foot below is left to 
 (:mod:`towerpipe.towers.foot`), which runs first: grass and shrubs between the legs come out
 of the segmenter at these probabilities too.
 
+In :func:`towerpipe.towers.extract.extract_towers` the candidates are the gathered points (single-view
+probability at or above the lowest of the clustering, rescue and column thresholds) that no accepted
+tower's cluster holds (the point threshold has already judged those), from the blocks the tower's
+cluster touches (the blocks whose jobs judge the tower); ``threshold`` applies to the view mean.
+
 Set on the calibration zones only (``towerpipe calibrate``, one run per setting given as an
 extra config file; docs/model.md, "A tower's column"). It picks the points a tower reports,
 never which towers are.

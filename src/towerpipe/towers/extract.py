@@ -7,7 +7,8 @@ The segmenter gives every point a tower probability, from the window as it is
 block *and its neighbours* with ``prob_single >= threshold`` into towers (a tower the
 segmenter is unsure of in some views is still found), and a tower's points are those of
 its cluster with ``prob >= point_threshold`` (a crown painted in one view is left out), of
-its foot those that ``rules.foot`` keeps (:mod:`towerpipe.towers.foot`):
+its foot those that ``rules.foot`` keeps (:mod:`towerpipe.towers.foot`), and the faint points
+of its body that ``rules.column`` adds (rule 11, :mod:`towerpipe.towers.column`):
 
 1. connected components of a 3-D ``cKDTree`` graph (points closer than ``linkage``);
 2. a component wider than ``max_extent`` (a chain of falsely predicted wire points
@@ -280,9 +281,9 @@ def extract_towers(
         them. A tower with fewer than ``rules.min_points`` such points is dropped; of the
         others, below ``rules.foot["height"]``, only those near the outline of the tower above
         are reported (:func:`towerpipe.towers.foot.foot_mask`; all of them where fewer than
-        ``rules.min_points`` would remain). This trims the uncertain edge of each tower
-        (crowns next to it) without splitting off the pieces of conductor that a higher
-        clustering threshold leaves as false towers, nor losing a tower the segmenter is unsure of.
+        ``rules.min_points`` would remain); ``rules.column`` adds faint points of its body
+        (:func:`towerpipe.towers.column.column_mask`). This trims a tower's uncertain edge (crowns
+        beside it) without splitting off conductor pieces or losing a tower the segmenter is unsure of.
     merge_gap, max_extent
         Clustering parameters, see :func:`towerpipe.towers.cluster.cluster_towers`.
     min_width
@@ -332,8 +333,8 @@ def extract_towers(
     checked = verifier is not None and rules.min_shape_score > 0
     rescue = float(rules.rescue_threshold) if checked and 0 < rules.rescue_threshold < rules.threshold else 0.0
     # the column (rule 11) may take points fainter than the clusters' and the rescue's
-    column_t = float(rules.column["threshold"])
-    pts = gather_points(preds, min(t for t in (rescue or rules.threshold, column_t) if t > 0))
+    floor, column_t = rescue or rules.threshold, float(rules.column["threshold"])
+    pts = gather_points(preds, column_t if 0 < column_t < floor else floor)
     xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
 
     def cluster(idx: np.ndarray) -> np.ndarray:
@@ -426,17 +427,17 @@ def extract_towers(
             if hag.max() >= rules.wire_min_height and support < rules.min_wire_support:
                 continue
         accepted.append((g, g_pts, footprint, touched, owned, support, shape, hag, prob))
-    # which points each accepted tower reports (rules on the points, never on whether a tower is):
-    # of its foot, the low points off the outline of the tower above are the vegetation's; its
-    # column (rule 11) adds the faint points of its body above the foot
+    # the points each accepted tower reports (never whether it is one): the foot rule drops the low
+    # points off the outline of the tower above; the column (rule 11) adds the faint points of its
+    # body, from the blocks its cluster touches (the jobs that judge it: each block's merge sees them)
     held = np.isin(np.arange(len(pts["x"])), [i for a in accepted for i in a[0]])
-    for i, (g, g_pts, *rest) in enumerate(accepted):
+    for i, (g, g_pts, footprint, touched, *rest) in enumerate(accepted):
         trimmed = g_pts[foot_mask(xyz[g_pts, 0], xyz[g_pts, 1], pts["hag"][g_pts], rules.foot)]
         g_pts = trimmed if len(trimmed) >= rules.min_points else g_pts
-        f = np.flatnonzero(~held)
+        f = np.flatnonzero(~held & np.isin(pts["block"], touched))
         take = f[column_mask(*xyz[g_pts, :2].T, *xyz[f, :2].T, pts["hag"][f], pts["prob"][f], rules.column)]
         held[take] = True
-        accepted[i] = (g, np.concatenate([g_pts, take]), *rest)
+        accepted[i] = (g, np.concatenate([g_pts, take]), footprint, touched, *rest)
     if not accepted:
         return ExtractedTowers(empty_towers(crs), members, neighbours)
     ids, first_seen, review = assign_ids([a[2] for a in accepted], registry)
