@@ -126,3 +126,18 @@ def test_a_clustering_threshold_of_zero_gathers_every_point():
     off = {**COLUMN, "threshold": 0.0}
     # before the column, this setting gathered every point; it still does (the lattice and its crown)
     assert len(extract([(arrays, meta)], "b1", BOUNDS, zone="z1", threshold=0.0, column=off).towers) >= 1
+
+
+def test_the_shipped_column_leaves_the_foot_to_the_foot_rule():
+    from conftest import tower_rules
+
+    shipped = tower_rules().column
+    xyz, hag, prob, n = faint_lattice(X0 + 50, Y0 + 50)
+    arrays, meta = pred_pair(xyz, hag, prob, ["b1"])
+    arrays["prob_single"] = prob.copy()
+    found = extract([(arrays, meta)], "b1", BOUNDS, zone="z1", column=shipped)
+    got = set(found.members[found.towers.iloc[0]["tower_id"]][1].tolist())
+    faint = np.flatnonzero(prob[:n] < 0.5)
+    high = faint[hag[faint] >= shipped["min_height"]]
+    assert len(high) and set(high.tolist()) <= got  # the faint body above min_height is back
+    assert not set(faint[hag[faint] < shipped["min_height"]].tolist()) & got  # the faint foot is not
