@@ -27,6 +27,8 @@ from collections.abc import Mapping
 import numpy as np
 import shapely
 
+from towerpipe.towers.foot import outline
+
 __all__ = ["column_mask"]
 
 
@@ -62,10 +64,8 @@ def column_mask(
     x = np.asarray(x, dtype=np.float64)
     take = np.zeros(x.shape, bool)
     threshold = float(column["threshold"])
-    if threshold <= 0 or len(tower_x) < 3 or not x.size:
-        return take
-    hull = shapely.convex_hull(shapely.multipoints(np.column_stack([tower_x, tower_y]).astype(np.float64)))
-    if not isinstance(hull, shapely.Polygon):
+    hull = outline(tower_x, tower_y) if threshold > 0 and x.size else None
+    if hull is None:
         return take
     y = np.asarray(y, dtype=np.float64)
     outside = float(column["outside"])

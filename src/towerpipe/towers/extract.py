@@ -44,9 +44,7 @@ after the other rules, the points at or above ``rescue_threshold`` that no accep
 holds are clustered and each cluster is judged by rules 4-8 (its highest probability, not its
 90th percentile, must reach ``min_core_prob``), its points those at or above
 ``rescue_threshold``: a thin pole or a sparse real lattice that the segmenter paints mostly
-at 0.1-0.3 is found and outlined when its object is shaped like a tower. Rule 11, the column
-(``column``): an accepted tower also reports the faint points of its body above its foot
-(:mod:`towerpipe.towers.column`).
+at 0.1-0.3 is found and outlined when its object is shaped like a tower.
 
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
@@ -270,9 +268,8 @@ def extract_towers(
         - ``split_thresholds``: a cluster the shape check drops is clustered again from its
           points at or above each of these in turn, and each part is judged (``()``: never);
         - ``rescue_threshold``: rule 10 (module docstring; 0 never rescues);
-        - ``foot``, ``column``: which of a tower's points below ``foot["height"]`` are
-          reported (:func:`towerpipe.towers.foot.foot_mask`), and which faint points of its
-          body (:func:`towerpipe.towers.column.column_mask`); never whether the tower is.
+        - ``foot``, ``column``: which of a tower's points are reported (:mod:`towerpipe.towers.foot`,
+          :mod:`towerpipe.towers.column`: rule 11); never whether the tower is.
     zone
         Zone name (recorded in ``zone``; not part of the id).
     point_threshold
@@ -281,9 +278,8 @@ def extract_towers(
         them. A tower with fewer than ``rules.min_points`` such points is dropped; of the
         others, below ``rules.foot["height"]``, only those near the outline of the tower above
         are reported (:func:`towerpipe.towers.foot.foot_mask`; all of them where fewer than
-        ``rules.min_points`` would remain); ``rules.column`` adds faint points of its body
-        (:func:`towerpipe.towers.column.column_mask`). This trims a tower's uncertain edge (crowns
-        beside it) without splitting off conductor pieces or losing a tower the segmenter is unsure of.
+        ``rules.min_points`` would remain); rule 11 adds faint points of its body. This trims the
+        uncertain edge (crowns beside it) without splitting off conductor pieces or losing an unsure tower.
     merge_gap, max_extent
         Clustering parameters, see :func:`towerpipe.towers.cluster.cluster_towers`.
     min_width
@@ -356,6 +352,13 @@ def extract_towers(
         order = order[labels[order] >= 0]
         return [idx[g] for g in np.split(order, np.flatnonzero(np.diff(labels[order])) + 1) if g.size]
 
+    def held_by_clusters() -> np.ndarray:
+        """Which points of ``pts`` the clusters of the accepted towers hold."""
+        held = np.zeros(len(pts["x"]), bool)
+        for a in accepted:
+            held[a[0]] = True
+        return held
+
     sources = dict(source_files or {})
     xmin, ymin, xmax, ymax = (float(v) for v in block_bounds)
     accepted: list[tuple[Any, ...]] = []
@@ -372,9 +375,7 @@ def extract_towers(
             # probability, not its 90th percentile, must reach min_core_prob, and the shape check
             # must have judged it), its points those at or above that threshold
             rescued = True
-            held = np.zeros(len(pts["x"]), bool)
-            for a in accepted:
-                held[a[0]] = True
+            held = held_by_clusters()
             queue.extend(
                 (g, (), True) for g in groups(np.flatnonzero(pts["prob_single"] >= rescue)) if not held[g].any()
             )
@@ -427,10 +428,9 @@ def extract_towers(
             if hag.max() >= rules.wire_min_height and support < rules.min_wire_support:
                 continue
         accepted.append((g, g_pts, footprint, touched, owned, support, shape, hag, prob))
-    # the points each accepted tower reports (never whether it is one): the foot rule drops the low
-    # points off the outline of the tower above; the column (rule 11) adds the faint points of its
-    # body, from the blocks its cluster touches (the jobs that judge it: each block's merge sees them)
-    held = np.isin(np.arange(len(pts["x"])), [i for a in accepted for i in a[0]])
+    # the points each accepted tower reports (never whether it is one): its foot trimmed, then its column
+    # (rule 11) from the blocks its cluster touches, whose jobs judge it and whose merges classify them
+    held = held_by_clusters()
     for i, (g, g_pts, footprint, touched, *rest) in enumerate(accepted):
         trimmed = g_pts[foot_mask(xyz[g_pts, 0], xyz[g_pts, 1], pts["hag"][g_pts], rules.foot)]
         g_pts = trimmed if len(trimmed) >= rules.min_points else g_pts

@@ -26,7 +26,14 @@ from collections.abc import Mapping
 import numpy as np
 import shapely
 
-__all__ = ["foot_mask"]
+__all__ = ["foot_mask", "outline"]
+
+
+def outline(x: np.ndarray, y: np.ndarray) -> shapely.Polygon | None:
+    """The outline (convex hull) of points in plan; ``None`` where they outline nothing (fewer
+    than three, or all on a line or at a point)."""
+    hull = shapely.convex_hull(shapely.multipoints(np.column_stack([x, y]).astype(np.float64)))
+    return hull if isinstance(hull, shapely.Polygon) else None
 
 
 def foot_mask(x: np.ndarray, y: np.ndarray, hag: np.ndarray, foot: Mapping[str, float]) -> np.ndarray:
@@ -57,11 +64,11 @@ def foot_mask(x: np.ndarray, y: np.ndarray, hag: np.ndarray, foot: Mapping[str, 
     if height <= 0 or not low.any() or above.sum() < int(foot["outline_points"]):
         return keep
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
-    outline = shapely.convex_hull(shapely.multipoints(np.column_stack([x[above], y[above]])))
-    if not isinstance(outline, shapely.Polygon):
+    tower = outline(x[above], y[above])
+    if tower is None:
         return keep  # the points above on a line or at a point: no outline to measure from
     pts = shapely.points(x[low], y[low])
     # signed: negative within the outline
-    dist = shapely.distance(outline.exterior, pts) * np.where(shapely.contains(outline, pts), -1.0, 1.0)
+    dist = shapely.distance(tower.exterior, pts) * np.where(shapely.contains(tower, pts), -1.0, 1.0)
     keep[low] = (dist >= -float(foot["inside"])) & (dist <= float(foot["outside"]))
     return keep
