@@ -455,3 +455,16 @@ def test_zone_index_map_with_lines_and_failed_block(tmp_path):
     for href in ('href="../blocks/a.laz"', 'href="../towers/a.gpkg"', 'href="../towers.gpkg"', 'href="a.html"'):
         assert href in page
     assert "incomplete" in page
+
+
+def test_fill_nearest_fills_holes_and_leaves_a_full_grid_alone():
+    from towerpipe.products.qa.plots import fill_nearest
+
+    full = np.arange(12.0).reshape(3, 4)
+    np.testing.assert_array_equal(fill_nearest(full), full)
+    holed = full.copy()
+    holed[0, 0] = holed[2, 3] = np.nan
+    filled = fill_nearest(holed)
+    assert np.isfinite(filled).all()
+    assert filled[0, 0] in (1.0, 4.0) and filled[2, 3] in (7.0, 10.0)  # a nearest neighbour's value
+    np.testing.assert_array_equal(fill_nearest(np.full((2, 2), np.nan)), np.zeros((2, 2)))

@@ -67,11 +67,11 @@ def _axes_style(ax: Any, labelsize: int = 8) -> None:
 # --------------------------------------------------------------------------- rasters
 def fill_nearest(grid: np.ndarray) -> np.ndarray:
     """NaN cells take the value of the nearest finite cell."""
-    from scipy.ndimage import distance_transform_edt
-
     bad = ~np.isfinite(grid)
     if not bad.any() or bad.all():
         return np.where(bad, 0.0, grid)
+    from scipy.ndimage import distance_transform_edt  # only for a grid with holes: a QA job seldom needs it
+
     idx = distance_transform_edt(bad, return_distances=False, return_indices=True)
     return grid[tuple(idx)]
 
