@@ -38,6 +38,13 @@ def bare_zone(tmp_path_factory):
     block = truth.blocks[0]
     cache = tmp / "work" / zone / "cache" / block["name"]
     meta = split_block(block["path"], cache, block=block["name"], zone=zone, settings=preprocess_settings())
+    settings = preprocess_settings()
+    tiling.plan_zone_step(
+        {block["name"]: str(cache)},
+        str(tmp / "work" / zone / "plan.json"),
+        tile_size=settings.tile_size,
+        buffer=settings.buffer,
+    )
     for t in tiling.tile_ids(tuple(meta["header_bounds"]), 500.0):
         preprocess_tile(
             zone,
@@ -81,6 +88,36 @@ def test_benchmark_rows_auto_and_report(bare_zone, random_model_factory):
     report = (out / "report.md").read_text()
     assert "not usable: no valid nir, rgb" in report and "| ts40k | no_colour | shape |" in report
     assert json.loads((out / "scores.json").read_text())["transfer"]["full"]["score"] is None
+
+
+def test_benchmark_judges_conductor_support_where_the_pipeline_does(bare_zone, random_model_factory, monkeypatch):
+    """The benchmark scores a zone with the measured bounds of its blocks, as the towers jobs do:
+    a tower whose conductor ring lies mostly outside the data keeps an unknown support
+    (``towers.wire_ring_coverage``) instead of being judged on the rest of its ring."""
+    import towerpipe.evaluation.calibrate as calibrate
+    from towerpipe.evaluation.calibrate import zone_survey
+
+    tmp, zone, truth = bare_zone
+    seen = []
+    score_zone = calibrate.score_zone
+
+    def spy(*args, **kw):
+        seen.append(kw["survey"])
+        return score_zone(*args, **kw)
+
+    monkeypatch.setattr(calibrate, "score_zone", spy)
+    cfg = schema_config(inference={"tta": 1, "windows": "grid", "batch_size": 8})
+    run_benchmark(
+        {"shape": {"ts40k": random_model_factory("shape")}},
+        {zone: tmp / "data" / zone},
+        work=tmp / "work",
+        inference=cfg["inference"],
+        towers=cfg["towers"],
+        out_dir=tmp / "out_survey",
+    )
+    survey = zone_survey(tmp / "work", zone)
+    assert len(survey) == len(truth.blocks)  # one measured box per block
+    assert seen and all(s == survey for s in seen)
 
 
 def test_stamp_cards_writes_the_transfer_figures(tmp_path, random_model_factory):

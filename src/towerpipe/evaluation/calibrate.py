@@ -34,7 +34,16 @@ from towerpipe import classes
 from towerpipe.config import InferenceConfig
 from towerpipe.errors import InputError
 
-__all__ = ["Candidate", "INFERENCE_PACKAGES", "score_zone", "sweep", "tower_labels", "zone_predictions", "zone_tiles"]
+__all__ = [
+    "Candidate",
+    "INFERENCE_PACKAGES",
+    "score_zone",
+    "sweep",
+    "tower_labels",
+    "zone_predictions",
+    "zone_survey",
+    "zone_tiles",
+]
 
 #: One candidate: (views, towers.threshold, inference.threshold, towers.min_core_prob), optionally
 #: followed by inference.gate, towers.min_wire_support and towers.rescue_threshold (default: the config's).
@@ -49,8 +58,9 @@ _UNBOUNDED = (-1e18, -1e18, 1e18, 1e18)
 INFERENCE_PACKAGES = ("towerpipe.inference", "towerpipe.model", "towerpipe.towers.wires")
 
 
-def _survey(work: str | os.PathLike[str], zone: str) -> list[list[float]]:
-    """The measured bounds of the zone's blocks (its plan, written by the pipeline's split)."""
+def zone_survey(work: str | os.PathLike[str], zone: str) -> list[list[float]]:
+    """The measured bounds of the zone's blocks (its plan, written by the pipeline's split): where
+    the data is, as the towers jobs see it (:func:`score_zone`'s ``survey``)."""
     plan = Path(work, zone, "plan.json")
     if not plan.exists():
         raise InputError(plan, f"zone {zone!r} has no plan yet; run `snakemake --cores 2 results/{zone}/` first")
@@ -173,9 +183,9 @@ def score_zone(
     point_threshold: float,
     min_core_prob: float,
     towers: Mapping[str, Any],
+    survey: Sequence[Sequence[float]],
     zone: str = "zone",
     min_truth_points: int = 0,
-    survey: Sequence[Sequence[float]] = (),
 ) -> dict[str, Any]:
     """Towers of a whole zone from its predictions, scored against its labels.
 
@@ -186,8 +196,10 @@ def score_zone(
     tile_paths
         The zone's tiles (conductor support context).
     survey
-        The measured bounds of the zone's blocks: where the data is, as the towers jobs see
-        it (``towers.wire_ring_coverage``; see :class:`towerpipe.towers.wires.TileContext`).
+        The measured bounds of the zone's blocks (:func:`zone_survey`): where the data is, as
+        the towers jobs see it (``towers.wire_ring_coverage``; see
+        :class:`towerpipe.towers.wires.TileContext`). Required: without it a tower whose ring
+        lies mostly outside the data would be judged on the rest, which the pipeline never does.
     truth
         True tower footprints (GeoDataFrame, layer ``towers`` of ``towers_truth.gpkg``).
     labels
@@ -322,7 +334,7 @@ def sweep(
             gpd.read_file(truth_path, layer="towers"),
             tower_labels(Path(input_dir)),
             [str(p) for p in zone_tiles(work, zone)],
-            _survey(work, zone),
+            zone_survey(work, zone),
         )
     settings = InferenceConfig.from_config({"inference": inference})
     preds: dict[tuple[str, int, float], list[Any]] = {}

@@ -84,7 +84,7 @@ def evaluate_model(
     import geopandas as gpd
 
     from towerpipe.config import InferenceConfig
-    from towerpipe.evaluation.calibrate import score_zone, tower_labels, zone_predictions, zone_tiles
+    from towerpipe.evaluation.calibrate import score_zone, tower_labels, zone_predictions, zone_survey, zone_tiles
     from towerpipe.io.predictions import load_pred
 
     settings = InferenceConfig.from_config({"inference": inference})
@@ -99,6 +99,7 @@ def evaluate_model(
         point_threshold=float(inference["threshold"]),
         min_core_prob=float(towers["min_core_prob"]),
         towers=towers,
+        survey=zone_survey(work, zone),
         zone=zone,
         min_truth_points=int(towers["min_points"]),
     )
