@@ -37,22 +37,22 @@ def bare_zone(tmp_path_factory):
     )
     block = truth.blocks[0]
     cache = tmp / "work" / zone / "cache" / block["name"]
-    meta = split_block(block["path"], cache, block=block["name"], zone=zone, settings=preprocess_settings())
     settings = preprocess_settings()
+    meta = split_block(block["path"], cache, block=block["name"], zone=zone, settings=settings)
     tiling.plan_zone_step(
         {block["name"]: str(cache)},
         str(tmp / "work" / zone / "plan.json"),
         tile_size=settings.tile_size,
         buffer=settings.buffer,
     )
-    for t in tiling.tile_ids(tuple(meta["header_bounds"]), 500.0):
+    for t in tiling.tile_ids(tuple(meta["header_bounds"]), settings.tile_size):
         preprocess_tile(
             zone,
             block["name"],
             t,
             {block["name"]: cache},
             tmp / "work" / zone / "tiles" / block["name"] / f"{t}.npz",
-            settings=preprocess_settings(),
+            settings=settings,
         )
     return tmp, zone, truth
 
