@@ -231,7 +231,7 @@ class Section:
 @dataclass(frozen=True)
 class TowersConfig(Section):
     """The tower rules of :func:`towerpipe.towers.extract.extract_towers`: the keys of the
-    ``towers`` section it uses (``wire_ring_coverage`` is the conductor context's).
+    ``towers`` section it uses (``wire_line_coverage`` is the conductor context's).
 
     No defaults here: the schema holds them; :meth:`from_config` reads a validated config.
     """

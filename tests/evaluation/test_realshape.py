@@ -68,7 +68,7 @@ def test_benchmark_rows_auto_and_report(bare_zone, random_model_factory):
             "threshold": 0.5,
             "min_core_prob": 0.0,
             "min_wire_support": 0.0,
-            "wire_ring_coverage": 0.0,
+            "wire_line_coverage": 0.0,
             "max_base_ratio": 1.0,
             "min_shape_score": 0.0,
             "split_thresholds": [],
@@ -93,7 +93,7 @@ def test_benchmark_rows_auto_and_report(bare_zone, random_model_factory):
 def test_benchmark_judges_conductor_support_where_the_pipeline_does(bare_zone, random_model_factory, monkeypatch):
     """The benchmark scores a zone with the measured bounds of its blocks, as the towers jobs do:
     a tower whose conductor ring lies mostly outside the data keeps an unknown support
-    (``towers.wire_ring_coverage``) instead of being judged on the rest of its ring."""
+    (``towers.wire_line_coverage``) instead of being judged on the rest of its ring."""
     import towerpipe.evaluation.calibrate as calibrate
     from towerpipe.evaluation.calibrate import zone_survey
 

@@ -173,13 +173,13 @@ def test_block_flags(tmp_path):
     assert doc["towers"][0]["flags"] and "1 needs a look" in doc["summary"]
 
 
-def test_tower_whose_ring_is_outside_the_data_is_flagged(tmp_path):
+def test_tower_whose_lines_may_leave_the_data_is_flagged(tmp_path):
     pts = make_block()
     gdf = towers_of(pts)
-    gdf["wire_support"] = float("nan")  # towerpipe.towers.wires: ring mostly outside the surveyed area
+    gdf["wire_support"] = float("nan")  # towerpipe.towers.wires: a line through it may leave the data unseen
     doc = report(tmp_path, "b", towers=gdf, classified=pts)
     tall = [t for t in doc["towers"] if t["height_m"] >= 20]
-    assert tall and all(any("outside the data" in f for f in t["flags"]) for t in tall)
+    assert tall and all(any("leave the data unseen" in f for f in t["flags"]) for t in tall)
 
 
 def test_clean_block_is_ok_and_uses_raster(tmp_path):

@@ -222,6 +222,46 @@ def test_corridor_strip_scores_only_where_points_exist():
     assert support(inside, X0, Y0, extent=box) == 0.0
 
 
+def test_support_is_judged_only_where_every_line_through_the_tower_shows():
+    """``towers.wire_line_coverage``: a line leaves a tower in two opposite directions. At a
+    zone's straight edge one of them is always in the data, so the support is judged; at its
+    corner a line can leave both ways outside it (half the directions), and a tower whose
+    conductors do so must not be dropped for the wires nobody surveyed."""
+    from towerpipe.towers.wires import Coverage
+
+    rng = np.random.default_rng(7)
+    # the survey: the quadrant x >= X0, y >= Y0 (a zone's corner at (X0, Y0)), with points everywhere in it
+    gx, gy = np.meshgrid(np.arange(X0, X0 + 400, 5.0), np.arange(Y0, Y0 + 400, 5.0))
+    survey = [(X0, Y0, X0 + 400, Y0 + 400)]
+
+    def cover(min_line_share: float) -> Coverage:
+        return Coverage(gx.ravel(), gy.ravel(), survey=survey, min_line_share=min_line_share)
+
+    # a tower 20 m inside the corner: its line runs north-west to south-east, both ways out
+    cx, cy = X0 + 20, Y0 + 20
+    out = line_through(cx, cy, 3 * np.pi / 4, rng=rng, length=400.0)
+    seen = out[(out[:, 0] >= X0) & (out[:, 1] >= Y0)]
+    starts = np.radians(np.arange(0.0, 360.0, 5.0) + 10.0)
+    rc = 80.0 + 10.0 * (np.arange(8) + 0.5)
+    bx, by = cx + np.cos(starts)[:, None] * rc, cy + np.sin(starts)[:, None] * rc
+    assert 0.5 < cover(1.0).lines_seen(bx, by, 4) < 0.7  # a little over half the directions show
+    assert np.isnan(support(seen, cx, cy, extent=cover(1.0)))  # unknown: kept, flagged
+    assert support(seen, cx, cy, extent=cover(0.0)) == 0.0  # judged anyway: dropped as a crane would be
+    # the same tower with its line along the diagonal into the zone is judged and supported
+    into = line_through(cx, cy, np.pi / 4, rng=rng, length=400.0)
+    into = into[(into[:, 0] >= X0) & (into[:, 1] >= Y0)]
+    assert np.isnan(support(into, cx, cy, extent=cover(1.0)))  # still a corner: not judged
+    assert support(into, cx, cy, extent=cover(0.0)) == 1.0
+    # at the zone's straight edge (200 m from the corner) every line shows through the inner half
+    ex, ey = X0 + 200, Y0 + 20
+    assert cover(1.0).lines_seen(ex + np.cos(starts)[:, None] * rc, ey + np.sin(starts)[:, None] * rc, 4) == 1.0
+    along = line_through(ex, ey, 0.0, rng=rng, length=400.0)
+    along = along[along[:, 1] >= Y0]
+    assert support(along, ex, ey, extent=cover(1.0)) == 1.0
+    # a crane there (nothing pointing at it) is judged: support 0, dropped
+    assert support(np.empty((0, 3)), ex, ey, extent=cover(1.0)) == 0.0
+
+
 def test_conductor_points_of_a_block_with_clearance(tmp_path):
     """Each wire point of the block once (tile cores), with the gap down to the vegetation below it."""
     from towerpipe.io.tiles import Tile, empty_arrays, save_tile

@@ -197,9 +197,9 @@ def score_zone(
         The zone's tiles (conductor support context).
     survey
         The measured bounds of the zone's blocks (:func:`zone_survey`): where the data is, as
-        the towers jobs see it (``towers.wire_ring_coverage``; see
-        :class:`towerpipe.towers.wires.TileContext`). Required: without it a tower whose ring
-        lies mostly outside the data would be judged on the rest, which the pipeline never does.
+        the towers jobs see it (``towers.wire_line_coverage``; see
+        :class:`towerpipe.towers.wires.TileContext`). Required: without it a tower through which a
+        line could leave the data unseen would be judged on the rest, which the pipeline never does.
     truth
         True tower footprints (GeoDataFrame, layer ``towers`` of ``towers_truth.gpkg``).
     labels
@@ -234,7 +234,7 @@ def score_zone(
         rules,
         zone=zone,
         point_threshold=point_threshold,
-        context=TileContext(list(tile_paths), survey=survey, min_ring_share=float(towers["wire_ring_coverage"])),
+        context=TileContext(list(tile_paths), survey=survey, min_line_share=float(towers["wire_line_coverage"])),
         model_meta={},
         crs=truth.crs,
     )

@@ -69,8 +69,8 @@ def towers_step(
     receives the points of every accepted tower with points in the block, owned or not
     (:func:`towerpipe.io.members.save_members`): the merge classifies them 15 and writes
     their tower id. ``survey`` (measured bounds of the block and its neighbours) and
-    ``towers_cfg["wire_ring_coverage"]`` leave the support of a tower whose conductor ring
-    is mostly outside the data unknown. ``registry`` lists where the zone's tower registry
+    ``towers_cfg["wire_line_coverage"]`` leave the support of a tower unknown where a line
+    through it could leave it outside the data. ``registry`` lists where the zone's tower registry
     may be, first found first (:func:`towerpipe.products.registry_file.read_registry`): matched towers
     keep their ids.
     """
@@ -89,7 +89,7 @@ def towers_step(
     if cache_dir is not None:
         BlockCache.open(cache_dir)
     rules = TowersConfig.from_config({"towers": towers_cfg})
-    ring_share = float(towers_cfg["wire_ring_coverage"])
+    line_share = float(towers_cfg["wire_line_coverage"])
     loaded = [load_pred(p) for p in preds]
     for p in loaded:  # an inference that could not run on a tile (infer_step recorded why)
         if p.meta.get("error"):
@@ -109,7 +109,7 @@ def towers_step(
         source_files=source_files,
         crs=crs_wkt,
         point_threshold=point_threshold,
-        context=TileContext(tile_files, survey=survey, min_ring_share=ring_share) if tile_files else None,
+        context=TileContext(tile_files, survey=survey, min_line_share=line_share) if tile_files else None,
         registry=read_registry(*registry),
     )
     gdf, neighbours = found.towers, found.neighbours

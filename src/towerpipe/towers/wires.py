@@ -95,10 +95,11 @@ class Coverage:
     grow
         Cells added around the occupied ones: a location within about ``grow * cell``
         of a point counts as covered (the radial bins are tested at their centres).
-    survey, min_ring_share
+    survey, min_line_share
         The surveyed area around (boxes: the measured bounds of the block and its
-        neighbours, beyond the points loaded here) and the share of a tower's ring that
-        must lie in it for a support to be judged (see :func:`wire_support`).
+        neighbours, beyond the points loaded here) and the share of the lines through a
+        tower that must show in its ring for a support to be judged (see :meth:`lines_seen`
+        and :func:`wire_support`).
     """
 
     def __init__(
@@ -108,12 +109,12 @@ class Coverage:
         cell: float = 10.0,
         grow: int = 1,
         survey: Sequence[Sequence[float]] = (),
-        min_ring_share: float = 0.0,
+        min_line_share: float = 0.0,
     ):
         x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
         self.cell = float(cell)
         self.survey = [tuple(map(float, b)) for b in survey]
-        self.min_ring_share = float(min_ring_share)
+        self.min_line_share = float(min_line_share)
         if len(x) == 0:
             self.origin, self.mask = (0.0, 0.0), np.zeros((0, 0), dtype=bool)
             return
@@ -146,6 +147,21 @@ class Coverage:
         if not self.survey:
             return np.ones(np.shape(x), dtype=bool)
         return np.any([(x >= b[0]) & (x <= b[2]) & (y >= b[1]) & (y <= b[3]) for b in self.survey], axis=0)
+
+    def lines_seen(self, bx: np.ndarray, by: np.ndarray, min_bins: int) -> float:
+        """Share of the straight lines through a tower that its ring shows in the surveyed area.
+
+        ``bx, by`` are the ring's radial bin centres of sectors at equal angular steps over the
+        full circle (one row per sector, :func:`wire_support`'s). A line through the tower
+        leaves it in two opposite sectors; it shows when one of them has ``min_bins`` bins in
+        the surveyed area. Returns the share of the line directions that show (1.0 where no
+        survey is given): at a zone's straight edge every line shows through the inner
+        half of the ring, at its corner about half of them, in a corridor strip crossing the
+        line those along the strip only.
+        """
+        seen = self.surveyed(bx, by).sum(axis=1) >= min_bins
+        half = len(seen) // 2
+        return float((seen[:half] | seen[half : 2 * half]).mean()) if half else 1.0
 
 
 def wire_points(
@@ -276,7 +292,9 @@ def wire_support(
         to be known: below it, where the conductors go may be outside the data (a
         corridor strip crossing the line, the corner of a survey) and the support is
         ``nan``. 0 scores any ring with one scored sector. A :class:`Coverage` with a
-        ``survey`` judges this on the surveyed area with its own ``min_ring_share``.
+        ``survey`` also leaves the support ``nan`` when fewer than its ``min_line_share``
+        of the lines through the candidate show in the surveyed area (:meth:`Coverage.lines_seen`):
+        a conductor may then leave the tower where no data is.
 
     Returns
     -------
@@ -299,7 +317,7 @@ def wire_support(
         inside = np.ones((len(starts), nbins), dtype=bool)
     elif isinstance(extent, Coverage):
         inside = extent.contains(bx, by)
-        if extent.survey and extent.surveyed(bx, by).mean() < extent.min_ring_share:
+        if extent.survey and extent.lines_seen(bx, by, min_bins) < extent.min_line_share:
             return float("nan")
     else:
         xmin, ymin, xmax, ymax = extent
@@ -343,9 +361,9 @@ class TileContext:
     ----------
     tile_paths
         Tile files (:mod:`towerpipe.io.tiles`) of the block.
-    survey, min_ring_share
-        See :class:`Coverage`: a tower whose conductor ring lies mostly outside the
-        surveyed boxes gets an unknown support (kept, and flagged by the QA).
+    survey, min_line_share
+        See :class:`Coverage`: a tower through which a line could leave where the surveyed
+        boxes show none of its ring gets an unknown support (kept, and flagged by the QA).
     keep_tiles
         How many tiles are kept in memory (the least recently used is dropped): a block's
         own tiles (4 for a 1 km block of 500 m tiles) are then read once.
@@ -358,12 +376,12 @@ class TileContext:
         tile_paths: Sequence[str],
         *,
         survey: Sequence[Sequence[float]] = (),
-        min_ring_share: float = 0.0,
+        min_line_share: float = 0.0,
         keep_tiles: int = 4,
     ):
         from towerpipe.io.columns import read_meta
 
-        self._survey, self._min_ring_share = [b for b in survey if b], min_ring_share
+        self._survey, self._min_line_share = [b for b in survey if b], min_line_share
         self._keep = max(int(keep_tiles), 1)
         self.reads = 0  # tile files read so far
         self._tiles = []
@@ -386,7 +404,7 @@ class TileContext:
                     arrays = load_tile(path, columns=self._COLUMNS).arrays
                     self.reads += 1
                     keep = np.asarray(arrays.pop("model_input"), dtype=bool)
-                    cover = Coverage(arrays["x"], arrays["y"], survey=self._survey, min_ring_share=self._min_ring_share)
+                    cover = Coverage(arrays["x"], arrays["y"], survey=self._survey, min_line_share=self._min_line_share)
                     self._cached[path] = ({k: v[keep] for k, v in arrays.items()}, cover)
                     while len(self._cached) > self._keep:
                         self._cached.popitem(last=False)

@@ -317,7 +317,9 @@ def block_report(
         if math.isfinite(support) and support < limits.min_wire_support:
             tflags.append(f"no conductors found (support {support:.2f}): a pole, or not a tower?")
         elif not math.isfinite(support) and "wire_support" in gdf.columns and r.height_m >= limits.wire_min_height:
-            tflags.append("conductor ring (80-160 m) outside the data: support not measured, kept")
+            tflags.append(
+                "a line through it could leave the data unseen: conductor support (80-160 m) not measured, kept"
+            )
         for t in tflags:
             flag("tower", f"tower {i} ({r.tower_id}): {t}")
         tower_rows.append(
