@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from towerpipe.towers.wires import TileContext, wire_points, wire_support
+from towerpipe.towers.wires import wire_points, wire_support
 
 X0, Y0 = 400_000.0, 4_600_000.0
 
@@ -136,74 +136,10 @@ def test_no_data_in_the_ring_is_unknown_and_partial_data_is_scored_on_what_is_th
     assert support(east, X0, Y0, extent=(X0 + 50, Y0 - 300, X0 + 400, Y0 + 300)) == 1.0
 
 
-def test_tile_context_picks_the_tile_holding_the_centre(tmp_path):
-    from towerpipe.io.tiles import Tile, empty_arrays, save_tile
-
-    paths = []
-    for k, x0 in enumerate((X0, X0 + 500)):
-        a = empty_arrays(3)
-        a["x"][:] = x0 + np.array([10.0, 20.0, 30.0])
-        a["y"][:] = Y0 + 5
-        a["model_input"][:] = [True, True, False]
-        path = tmp_path / f"t{k}.npz"
-        save_tile(path, Tile(a, {"core_bounds": [x0, Y0, x0 + 500, Y0 + 500], "buffer": 40.0}))
-        paths.append(str(path))
-    ctx = TileContext(paths)
-    arrays, coverage = ctx(X0 + 600, Y0 + 10)
-    np.testing.assert_array_equal(arrays["x"], X0 + 500 + np.array([10.0, 20.0]))
-    # the data is where the tile's points are (all three, the non-model-input one too)
-    assert coverage.contains(np.array([X0 + 535.0, X0 + 600.0]), np.array([Y0 + 5.0, Y0 + 5.0])).tolist() == [
-        True,
-        False,
-    ]
-    assert ctx(X0 - 1, Y0) is None
-
-
-def test_tile_context_reads_each_tile_once_for_clusters_in_any_order(tmp_path):
-    # the towers job visits clusters in label order: keeping only the last tile read each
-    # tile again for nearly every cluster (240 reads of 4 tiles on the 1 km² benchmark block)
-    from towerpipe.io.tiles import Tile, empty_arrays, save_tile
-
-    paths = []
-    for k, x0 in enumerate((X0, X0 + 500, X0 + 1000)):
-        a = empty_arrays(2)
-        a["x"][:], a["y"][:], a["model_input"][:] = x0 + 10, Y0 + 10, True
-        path = tmp_path / f"t{k}.npz"
-        save_tile(path, Tile(a, {"core_bounds": [x0, Y0, x0 + 500, Y0 + 500], "buffer": 40.0}))
-        paths.append(str(path))
-    ctx = TileContext(paths, keep_tiles=3)
-    for _ in range(5):
-        for x0 in (X0, X0 + 1000, X0 + 500):
-            assert ctx(x0 + 100, Y0 + 100) is not None
-    assert ctx.reads == 3
-    one = TileContext(paths, keep_tiles=1)  # the least recently used tile is dropped
-    for x0 in (X0, X0 + 500, X0):
-        one(x0 + 100, Y0 + 100)
-    assert one.reads == 3
-
-
-def test_tile_context_skips_a_tile_without_points(tmp_path):
-    # a block whose split failed used to leave an empty tile over its neighbour's place:
-    # listed first, it hid the neighbour's tile and its tower lost its conductor support
-    from towerpipe.io.tiles import Tile, empty_arrays, save_tile
-
-    empty = tmp_path / "a_failed.npz"
-    save_tile(
-        empty,
-        Tile(empty_arrays(0), {"core_bounds": [X0, Y0, X0 + 500, Y0 + 500], "buffer": 40.0, "counts": {"points": 0}}),
-    )
-    a = empty_arrays(2)
-    a["x"][:], a["y"][:], a["model_input"][:] = X0 + 10, Y0 + 10, True
-    good = tmp_path / "b_good.npz"
-    save_tile(good, Tile(a, {"core_bounds": [X0, Y0, X0 + 500, Y0 + 500], "buffer": 40.0, "counts": {"points": 2}}))
-    arrays, _ = TileContext([str(empty), str(good)])(X0 + 100, Y0 + 100)
-    assert len(arrays["x"]) == 2
-
-
 def test_corridor_strip_scores_only_where_points_exist():
     # a 40 m wide strip along the line (a corridor survey): the ring beside the strip has
     # no data. Scored on the tile's box it looked like a tower without conductors
-    from towerpipe.towers.wires import Coverage
+    from towerpipe.towers.coverage import Coverage
 
     rng = np.random.default_rng(5)
     line = line_through(X0, Y0, 0.0, rng=rng, length=400.0)
@@ -227,7 +163,7 @@ def test_support_is_judged_only_where_every_line_through_the_tower_shows():
     zone's straight edge one of them is always in the data, so the support is judged; at its
     corner a line can leave both ways outside it (half the directions), and a tower whose
     conductors do so must not be dropped for the wires nobody surveyed."""
-    from towerpipe.towers.wires import Coverage
+    from towerpipe.towers.coverage import Coverage
 
     rng = np.random.default_rng(7)
     # the survey: the quadrant x >= X0, y >= Y0 (a zone's corner at (X0, Y0)), with points everywhere in it

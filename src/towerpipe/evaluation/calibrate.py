@@ -198,7 +198,7 @@ def score_zone(
     survey
         The measured bounds of the zone's blocks (:func:`zone_survey`): where the data is, as
         the towers jobs see it (``towers.wire_line_coverage``; see
-        :class:`towerpipe.towers.wires.TileContext`). Required: without it a tower through which a
+        :class:`towerpipe.towers.coverage.TileContext`). Required: without it a tower through which a
         line could leave the data unseen would be judged on the rest, which the pipeline never does.
     truth
         True tower footprints (GeoDataFrame, layer ``towers`` of ``towers_truth.gpkg``).
@@ -222,9 +222,9 @@ def score_zone(
         covers: they have segmented points) and ``false_towers`` (height, points).
     """
     from towerpipe.config import TowersConfig
+    from towerpipe.towers.coverage import TileContext
     from towerpipe.towers.extract import extract_towers
     from towerpipe.towers.matching import match_towers
-    from towerpipe.towers.wires import TileContext
 
     rules = TowersConfig.from_config({"towers": {**towers, "threshold": threshold, "min_core_prob": min_core_prob}})
     found = extract_towers(

@@ -63,7 +63,7 @@ def towers_step(
     ``out_neighbours`` (JSON) receives the towers with points in the block that a
     neighbour owns (see :func:`towerpipe.towers.extract.extract_towers`), for the block's QA.
     ``tile_files`` (the block's and its neighbours' tiles) give the conductor support of
-    each tower (:class:`towerpipe.towers.wires.TileContext`); ``wire_files`` (the block's
+    each tower (:class:`towerpipe.towers.coverage.TileContext`); ``wire_files`` (the block's
     conductor-points files, :func:`infer_step`) its layer ``conductor_points``, from which
     the zone builds its lines; ``out_members``
     receives the points of every accepted tower with points in the block, owned or not
@@ -83,8 +83,8 @@ def towers_step(
     from towerpipe.io.predictions import load_pred
     from towerpipe.products.gpkg import run_metadata, write_towers_gpkg
     from towerpipe.products.registry_file import read_registry
+    from towerpipe.towers.coverage import TileContext
     from towerpipe.towers.extract import extract_towers
-    from towerpipe.towers.wires import TileContext
 
     if cache_dir is not None:
         BlockCache.open(cache_dir)
