@@ -67,6 +67,16 @@ def towers_of(pts, block="b1"):
     return gdf
 
 
+def dtm_tif(path, res: float = 2.0):
+    """The block's DTM as a GeoTIFF (100 x 100 cells of ``res`` m)."""
+    xs = X0 + res * (np.arange(100) + 0.5)
+    ys = Y0 + SIZE - res * (np.arange(100) + 0.5)
+    profile = dict(driver="GTiff", width=100, height=100, count=1, dtype="float32", crs="EPSG:25831")
+    with rasterio.open(path, "w", transform=Affine(res, 0.0, X0, 0.0, -res, Y0 + SIZE), **profile) as ds:
+        ds.write(ground_z(xs[None, :], ys[:, None]).astype(np.float32), 1)
+    return path
+
+
 def metas(ground_source="class2", passed=3):
     tiles = [
         {
@@ -184,24 +194,7 @@ def test_tower_whose_lines_may_leave_the_data_is_flagged(tmp_path):
 
 def test_clean_block_is_ok_and_uses_raster(tmp_path):
     pts = make_block()
-    # a DTM GeoTIFF: used for the hillshade and HAG when points carry no HAG
-    res = 2.0
-    xs = X0 + res * (np.arange(100) + 0.5)
-    ys = Y0 + SIZE - res * (np.arange(100) + 0.5)
-    dtm = ground_z(xs[None, :], ys[:, None]).astype(np.float32)
-    tif = tmp_path / "dtm.tif"
-    with rasterio.open(
-        tif,
-        "w",
-        driver="GTiff",
-        width=100,
-        height=100,
-        count=1,
-        dtype="float32",
-        crs="EPSG:25831",
-        transform=Affine(res, 0.0, X0, 0.0, -res, Y0 + SIZE),
-    ) as ds:
-        ds.write(dtm, 1)
+    tif = dtm_tif(tmp_path / "dtm.tif")  # used for the hillshade and HAG when points carry no HAG
     no_hag = {k: v for k, v in pts.items() if k != "hag"}
     gdf = towers_of(pts)
     doc = report(tmp_path, "b", zone="z1", towers=gdf, classified=no_hag, raster=tif)
@@ -209,6 +202,42 @@ def test_clean_block_is_ok_and_uses_raster(tmp_path):
     assert doc["summary"] == "2 towers found; nothing to check."
     page = (tmp_path / "b.html").read_text()
     assert "dtm.tif" in page and "z − dtm.tif" in page
+
+
+def test_per_point_figures_do_not_depend_on_the_chunk_size(tmp_path, monkeypatch):
+    """The density grid and the heights (from the DTM) are computed a chunk of points at a
+    time, so a QA job holds no temporary of the block's size: any chunk size gives the same
+    page, figures included."""
+    import towerpipe.products.qa.block as qa_block
+    import towerpipe.products.qa.metrics as qa_metrics
+
+    pts = make_block()
+    no_hag = {k: v for k, v in pts.items() if k != "hag"}
+    tif, gdf = dtm_tif(tmp_path / "dtm.tif"), towers_of(pts)
+    pages, point_chunks = [], qa_metrics.point_chunks
+    for size in (qa_metrics.CHUNK_POINTS, 997):
+        chunks = lambda n, size=size: point_chunks(n, size)  # noqa: E731
+        monkeypatch.setattr(qa_block, "point_chunks", chunks)
+        monkeypatch.setattr(qa_metrics, "point_chunks", chunks)
+        out = tmp_path / f"c{size}"
+        out.mkdir()
+        doc = report(out, "b", zone="z1", towers=gdf, classified=no_hag, raster=tif)
+        pages.append((doc, re.findall(r"data:image/png;base64,([A-Za-z0-9+/=]+)", (out / "b.html").read_text())))
+    (a, figs_a), (b, figs_b) = pages
+    assert a["density"] == b["density"] and figs_a == figs_b and len(figs_a) >= 3
+    assert len(no_hag["x"]) > 997 * 10  # many chunks
+
+
+def test_clipped_histogram_counts_the_clipped_values_in_the_end_bins():
+    from towerpipe.products.qa.plots import clipped_histogram
+
+    a = np.random.default_rng(3).normal(5.0, 10.0, 10_000)
+    a[:3] = [-50.0, 12.0, 99.0]  # below, at and above the range
+    rng = (-2.0, 12.0)
+    counts, edges = clipped_histogram(a, rng)
+    want, want_edges = np.histogram(np.clip(a, *rng), bins=79, range=rng)
+    np.testing.assert_array_equal(counts, want)
+    np.testing.assert_array_equal(edges, want_edges)
 
 
 def test_block_report_from_files_and_no_towers(tmp_path):

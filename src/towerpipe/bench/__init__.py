@@ -453,7 +453,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     pe.add_argument("--size", type=float, default=1000.0)
     pe.add_argument("--density", type=float, default=10.0)
     pe.add_argument("--seed", type=int, default=11)
-    pe.add_argument("--model", help="model directory (default: the shipped full model)")
+    pe.add_argument("--model", help="inference.model for the run (default: the config's, auto)")
     run_args(pe)
     pe.set_defaults(func=bench_e2e)
     pb = bsub.add_parser("blocks", help="a zone of many small blocks: the fixed cost per job")

@@ -37,6 +37,7 @@ from towerpipe.products.qa.metrics import (
     jsonable,
     label_accuracy,
     load_classified,
+    point_chunks,
     read_benchmark,
     read_towers,
     sum_dicts,
@@ -273,14 +274,16 @@ def block_report(
         import rasterio
 
         with rasterio.open(raster) as ds:
+            inv = ~ds.transform
+            dtm = ds.read(1, masked=True).astype(np.float64).filled(np.nan)
+        hag, hag_source = np.empty(len(pts["z"])), f"z − {Path(raster).name}"
+        for s in point_chunks(len(hag)):  # no temporary of the block's size
             # rasterio.transform.rowcol's maths (floor of the inverse transform), without
             # its (3, n) stacking: a tenth of its time on 10 M points
-            inv = ~ds.transform
-            x, y = np.asarray(pts["x"], dtype=np.float64), np.asarray(pts["y"], dtype=np.float64)
-            rows = np.clip(np.floor(inv.d * x + inv.e * y + inv.f), 0, ds.height - 1).astype(np.int64)
-            cols = np.clip(np.floor(inv.a * x + inv.b * y + inv.c), 0, ds.width - 1).astype(np.int64)
-            dtm = ds.read(1, masked=True).astype(np.float64).filled(np.nan)
-            hag, hag_source = pts["z"] - dtm[rows, cols], f"z − {Path(raster).name}"
+            x, y = np.asarray(pts["x"][s], dtype=np.float64), np.asarray(pts["y"][s], dtype=np.float64)
+            rows = np.clip(np.floor(inv.d * x + inv.e * y + inv.f), 0, dtm.shape[0] - 1).astype(np.int64)
+            cols = np.clip(np.floor(inv.a * x + inv.b * y + inv.c), 0, dtm.shape[1] - 1).astype(np.int64)
+            hag[s] = pts["z"][s] - dtm[rows, cols]
     if hag is not None:
         figures.append(
             {

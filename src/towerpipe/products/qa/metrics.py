@@ -67,6 +67,16 @@ class Limits:
         )
 
 
+#: Points handled at a time by the per-point figures of a block (:func:`point_chunks`): a
+#: million, so a 20 M point block needs no temporary array of its size.
+CHUNK_POINTS = 1 << 20
+
+
+def point_chunks(n: int, size: int = CHUNK_POINTS) -> Iterable[slice]:
+    """Slices of ``size`` points covering ``range(n)`` (the QA's per-point work, a chunk at a time)."""
+    return (slice(i, min(i + size, n)) for i in range(0, n, size))
+
+
 #: Header bounds of adjoining blocks meet up to rounding (a block's max is its last point,
 #: not the next block's min): boxes are grown by this much (m) before they are joined.
 SEAM_TOLERANCE_M = 1.0
@@ -191,12 +201,16 @@ def density_grid(x: np.ndarray, y: np.ndarray, bounds: Sequence[float]) -> tuple
     cell = max(2.0, max(xmax - xmin, ymax - ymin) / 120)
     nx = max(1, int(math.ceil((xmax - xmin) / cell)))
     ny = max(1, int(math.ceil((ymax - ymin) / cell)))
-    # points per cell by integer binning (np.histogram2d is ~10x slower on millions of points)
-    ix = np.clip(((np.asarray(x) - xmin) * (1.0 / cell)).astype(np.int32), 0, nx - 1)
-    iy = np.clip(((np.asarray(y) - ymin) * (1.0 / cell)).astype(np.int32), 0, ny - 1)
-    ix *= ny
-    ix += iy
-    h = np.bincount(ix, minlength=nx * ny).reshape(nx, ny).astype(np.float64)
+    # points per cell by integer binning (np.histogram2d is ~10x slower on millions of points),
+    # a chunk at a time (no temporary of the block's size)
+    h = np.zeros(nx * ny, np.int64)
+    for s in point_chunks(len(x)):
+        ix = np.clip(((np.asarray(x[s]) - xmin) * (1.0 / cell)).astype(np.int32), 0, nx - 1)
+        iy = np.clip(((np.asarray(y[s]) - ymin) * (1.0 / cell)).astype(np.int32), 0, ny - 1)
+        ix *= ny
+        ix += iy
+        h += np.bincount(ix, minlength=nx * ny)
+    h = h.reshape(nx, ny).astype(np.float64)
     dens = h.T[::-1] / (cell * cell)
     filled = dens[dens > 0]
     stats = {

@@ -169,20 +169,33 @@ def density_map(dens: np.ndarray, bounds: Sequence[float], cell: float) -> str:
     return png(fig)
 
 
+def clipped_histogram(a: np.ndarray, rng: tuple[float, float], bins: int = 79) -> tuple[np.ndarray, np.ndarray]:
+    """``np.histogram(np.clip(a, *rng), bins, range=rng)`` without the clipped copy of ``a``.
+
+    Equal-width bins given as (count, range) take numpy's fast path (no per-point search,
+    in blocks); the values below and above ``rng`` are counted in the first and last bin.
+    """
+    counts, edges = np.histogram(a, bins=bins, range=rng)
+    counts[0] += np.count_nonzero(a < rng[0])
+    counts[-1] += np.count_nonzero(a > rng[1])
+    return counts, edges
+
+
 def hag_histogram(hag: np.ndarray, tower: np.ndarray | None) -> str:
     """Histogram of heights above ground (log counts), the tower points' in red."""
     fig, ax = _figure(figsize=(5.4, 4.2))
+    tower = tower if tower is not None and len(tower) == len(hag) else None
     ok = np.isfinite(hag)
-    tower = tower[ok] if tower is not None and len(tower) == len(hag) else None
-    hag = hag[ok]
+    if not ok.all():  # a copy only where the DTM has holes
+        tower = tower[ok] if tower is not None else None
+        hag = hag[ok]
     hi = max(10.0, float(np.percentile(hag, 99.9))) if hag.size else 10.0
     rng = (min(-2.0, float(hag.min()) if hag.size else -2.0), hi)
-    # equal-width bins given as (count, range): numpy's fast path, no per-point search
-    counts, edges = np.histogram(np.clip(hag, *rng), bins=79, range=rng)
+    counts, edges = clipped_histogram(hag, rng)
     ax.stairs(counts, edges, fill=True, color="#829ab1", label="all points")
     if tower is not None and tower.any():
         ax.stairs(
-            np.histogram(np.clip(hag[tower], *rng), bins=79, range=rng)[0],
+            clipped_histogram(hag[tower], rng)[0],
             edges,
             fill=True,
             color=TOWER_RED,
