@@ -7,7 +7,7 @@ import laspy
 import numpy as np
 import shapely
 
-from towerpipe.evaluation.evaluate import false_tower_sources, zone_points
+from towerpipe.evaluation.evaluate import false_tower_sources, summary_line, zone_points
 
 
 def write_block(path, x, y, cls):
@@ -45,3 +45,21 @@ def test_false_tower_sources_tally_input_classes(tmp_path):
     assert rows[0]["input_classes"] == {1: int(shapely.contains_xy(shapely.box(6.5, 6.5, 13.5, 13.5), *crane.T).sum())}
     assert set(rows[1]["input_classes"]) == {5} and rows[1]["input_classes"][5] <= 20
     assert false_tower_sources(false.iloc[:0], labelled) == []
+
+
+def test_summary_line_says_n_a_where_a_ratio_is_undefined():
+    # a zone where nothing was reported has no precision: the command says so instead of failing
+    res = {
+        "towers_predicted": 0,
+        "towers_true": 1,
+        "tower_precision": None,
+        "tower_recall": 0.0,
+        "towers_reported_twice": 0,
+        "point_iou_tower": 0.0,
+    }
+    assert summary_line(res) == (
+        "towers: 0 predicted, 1 true; precision n/a recall 0.000; reported twice 0; point IoU (tower) 0.000"
+    )
+    assert "precision 0.500 recall 1.000" in summary_line(
+        {**res, "towers_predicted": 2, "tower_precision": 0.5, "tower_recall": 1.0}
+    )

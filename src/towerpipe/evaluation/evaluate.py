@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -294,17 +295,27 @@ def _cli_windows(args: argparse.Namespace) -> int:
     return 0
 
 
+def _figure(value: float | None) -> str:
+    """A ratio to three decimals, ``n/a`` where it is undefined (no tower true or predicted)."""
+    return "n/a" if value is None else f"{value:.3f}"
+
+
+def summary_line(res: Mapping[str, Any]) -> str:
+    """One line of :func:`evaluate_zone`'s figures (``towerpipe evaluate``)."""
+    return (
+        f"towers: {res['towers_predicted']} predicted, {res['towers_true']} true; "
+        f"precision {_figure(res['tower_precision'])} recall {_figure(res['tower_recall'])}; "
+        f"reported twice {res['towers_reported_twice']}; point IoU (tower) {_figure(res['point_iou_tower'])}"
+    )
+
+
 def _cli(args: argparse.Namespace) -> int:
     res = evaluate_zone(
         args.zone_dir, args.results, truth_gpkg=args.truth, out_json=args.json, min_truth_points=args.min_truth_points
     )
     if args.record_in:
         record_reference(args.record_in, res, args.zone_config)
-    print(
-        f"towers: {res['towers_predicted']} predicted, {res['towers_true']} true; "
-        f"precision {res['tower_precision']:.3f} recall {res['tower_recall']:.3f}; "
-        f"reported twice {res['towers_reported_twice']}; point IoU (tower) {res['point_iou_tower']:.3f}"
-    )
+    print(summary_line(res))
     for t in res["false_towers"]:
         print(
             f"false tower {t['tower_id']}: {t['height_m']} m, {t['n_points']} points, mean probability "
