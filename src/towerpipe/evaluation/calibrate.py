@@ -53,9 +53,10 @@ _UNBOUNDED = (-1e18, -1e18, 1e18, 1e18)
 
 #: The subpackages and modules whose code makes a tile's predictions: all of their modules
 #: are part of the key of the cached predictions (:func:`zone_predictions`). Of the tower
-#: code only the wire detector (the peaks leave overhead wires out): the tower rules run
-#: after the predictions and never invalidate them.
-INFERENCE_PACKAGES = ("towerpipe.inference", "towerpipe.model", "towerpipe.towers.wires")
+#: code the wire detector (the peaks leave overhead wires out) and the shape module (the
+#: shape gate cuts and scores the object at each peak): the tower rules run after the
+#: predictions and never invalidate them.
+INFERENCE_PACKAGES = ("towerpipe.inference", "towerpipe.model", "towerpipe.towers.wires", "towerpipe.towers.shape")
 
 
 def zone_survey(work: str | os.PathLike[str], zone: str) -> list[list[float]]:
@@ -141,8 +142,9 @@ def _inference_code() -> str:
     """SHA-256 of the code that turns a tile into predictions.
 
     Every module of :data:`INFERENCE_PACKAGES` (path and content, in sorted order): the
-    windows, the networks, their features and sampling, and the wire detector (the peaks
-    leave overhead wires out), wherever in those subpackages it lives.
+    windows, the networks, their features and sampling, the wire detector (the peaks
+    leave overhead wires out) and the shape gate's cut and score of a peak's object,
+    wherever in those subpackages it lives.
     """
     import hashlib
     from importlib.util import find_spec
