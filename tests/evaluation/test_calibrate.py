@@ -35,11 +35,11 @@ def test_the_prediction_cache_key_covers_the_tower_code_the_inference_runs():
     to either must predict the zones again. Every ``towerpipe.towers`` module that the inference
     or the model code imports is in the key."""
     import ast
-    from pathlib import Path
 
+    from conftest import REPO
     from towerpipe.evaluation.calibrate import INFERENCE_PACKAGES
 
-    src = Path(__file__).resolve().parents[2] / "src" / "towerpipe"
+    src = REPO / "src" / "towerpipe"
     imported = set()
     for path in [*(src / "inference").rglob("*.py"), *(src / "model").rglob("*.py")]:
         for node in ast.walk(ast.parse(path.read_text())):
