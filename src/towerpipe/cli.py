@@ -24,6 +24,7 @@ COMMAND_MODULES = [
     "towerpipe.evaluation.evaluate",
     "towerpipe.evaluation.calibrate",
     "towerpipe.evaluation.realshape",
+    "towerpipe.evaluation.trace",
     "towerpipe.jobs.lines",
     "towerpipe.bench",
 ]

@@ -27,13 +27,31 @@ def test_height_peaks_find_tower_tops_not_wires_or_crowns():
     tops = centers[heights > 20]
     assert sorted(np.round(tops[:, 0] / 10).astype(int).tolist()) == [10, 40]
     assert np.all(np.abs(tops[:, 1] - 50) < 3)
-    assert PEAK_RADIUS == 10.0 and heights.min() == pytest.approx(12.0)
+    assert heights.min() == pytest.approx(12.0)
+
+
+def test_a_small_tower_among_higher_crowns_is_its_own_peak():
+    """In woodland a 16 m lattice has 19 m crowns of 3 m radius 11 m away: within 7 m it stands
+    alone and makes a candidate; within 10 m (PEAK_RADIUS) the crowns' edges hide it."""
+    rng = np.random.default_rng(2)
+    h = rng.uniform(0, 16, 250)
+    tower = np.c_[50 + rng.uniform(-1.5, 1.5, 250) * (1 - h / 20), 50 + rng.uniform(-1.5, 1.5, 250), h]
+    crowns = []
+    for cx, cy in ((61.0, 50.0), (39.0, 50.0), (50.0, 39.0)):
+        a, r = rng.uniform(0, 2 * np.pi, 300), 3.0 * np.sqrt(rng.uniform(0, 1, 300))
+        crowns.append(np.c_[cx + r * np.cos(a), cy + r * np.sin(a), 19.0 - r - rng.uniform(0, 3, 300)])
+    p = np.concatenate([tower, *crowns])
+    _, centers, heights = height_peaks(p[:, 0], p[:, 1], p[:, 2], min_height=10.0, radius=7.0)
+    at_tower = np.hypot(centers[:, 0] - 50, centers[:, 1] - 50) < 1.5
+    assert at_tower.sum() == 1 and heights[at_tower][0] == pytest.approx(16.0, abs=0.3)
+    _, centers, _ = height_peaks(p[:, 0], p[:, 1], p[:, 2], min_height=10.0)
+    assert PEAK_RADIUS == 10.0 and not (np.hypot(centers[:, 0] - 50, centers[:, 1] - 50) < 1.5).any()
 
 
 def test_candidate_windows_need_core_points_and_keep_canonical_order():
     rng = np.random.default_rng(1)
-    x = np.r_[rng.uniform(0, 10, 200), rng.uniform(200, 210, 200)]
-    y = rng.uniform(0, 10, 400)
+    x = np.r_[rng.uniform(0, 5, 200), rng.uniform(200, 205, 200)]
+    y = rng.uniform(0, 5, 400)
     h = np.r_[rng.uniform(0, 30, 200), rng.uniform(0, 30, 200)]
     core = x < 100  # the second object is buffer only
     cw = candidate_windows(x, y, h, core, window=40.0, min_height=10.0)

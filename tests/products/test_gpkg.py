@@ -23,7 +23,7 @@ from towerpipe.products.gpkg import (
     write_towers_gpkg,
 )
 from towerpipe.products.gpkg_read import merge_gpkgs, read_metadata, read_towers
-from towerpipe.towers.extract import TOWER_COLUMNS, empty_towers
+from towerpipe.towers.records import TOWER_COLUMNS, empty_towers
 
 X0, Y0 = 400_000.0, 4_600_000.0
 WKT = ProjCRS.from_epsg(25831).to_wkt()
@@ -233,8 +233,8 @@ def zone_file(tmp_path):
 
 def test_geopackage_version_and_fields(tmp_path):
     """GeoPackage 1.2, DATETIME fields, values to the cm, height = top - base, descriptions with units."""
-    from towerpipe.towers.extract import TOWER_FIELDS
     from towerpipe.towers.lines import LINE_FIELDS, SPAN_FIELDS
+    from towerpipe.towers.records import TOWER_FIELDS
     from towerpipe.towers.registry import REGISTRY_FIELDS
 
     path, towers, lines, spans = zone_file(tmp_path)

@@ -14,8 +14,9 @@ from towerpipe.errors import InputError
 from towerpipe.io.members import member_mask, save_members
 from towerpipe.io.predictions import save_pred
 from towerpipe.towers.cluster import cluster_towers
-from towerpipe.towers.extract import TOWER_COLUMNS, extract_towers
+from towerpipe.towers.extract import extract_towers
 from towerpipe.towers.matching import match_towers, towers_from_labels
+from towerpipe.towers.records import TOWER_COLUMNS
 from towerpipe.towers.registry import location_id
 
 X0, Y0 = 400_000.0, 4_600_000.0
@@ -349,6 +350,30 @@ def test_floating_cluster_is_not_a_tower():
     assert len(extract([pair], "b1", BOUNDS, zone="z1", max_base_ratio=1.0).towers) == 2
     kept = extract([pair], "b1", BOUNDS, zone="z1", max_base_ratio=0.7).towers
     assert len(kept) == 1 and abs(kept.iloc[0]["centroid_x"] - (X0 + 50)) < 1
+
+
+def test_a_trace_records_what_decided_each_cluster_and_changes_nothing():
+    """Every cluster judged is traced with the rule that decided it; the towers are the same."""
+    from towerpipe.towers.extract import TRACE_RULES
+
+    xyz, hag = synthetic_tower(X0 + 50, Y0 + 50, seed=1)
+    s = np.linspace(0, 1, 60)
+    piece = np.column_stack([X0 + 150 + 12 * s, np.full_like(s, Y0 + 50), 124 + 4 * s])
+    faint, hf = synthetic_tower(X0 + 300, Y0 + 50, seed=2)
+    allxyz = np.concatenate([xyz, piece, faint])
+    allhag = np.concatenate([hag, (piece[:, 2] - 100).astype(np.float32), hf])
+    prob = np.r_[np.full(len(xyz) + len(piece), 0.95), np.full(len(faint), 0.6)]
+    pair = pred_pair(allxyz, allhag, prob, ["b1"])
+    trace: list = []
+    traced = extract([pair], "b1", BOUNDS, zone="z1", min_core_prob=0.9, processed_at=STAMP, trace=trace).towers
+    plain = extract([pair], "b1", BOUNDS, zone="z1", min_core_prob=0.9, processed_at=STAMP).towers
+    pd.testing.assert_frame_equal(traced, plain)
+    by_x = {round(float(np.median(t["x"])) - X0, -1): t for t in trace}
+    assert {t["rule"] for t in trace} <= set(TRACE_RULES)
+    assert by_x[50.0]["rule"] == "accepted" and len(by_x[50.0]["x"]) == len(xyz)
+    assert by_x[160.0]["rule"] == "floating" and by_x[160.0]["value"] > 0.7
+    assert by_x[300.0]["rule"] == "core" and by_x[300.0]["value"] == pytest.approx(0.6)
+    assert not any(t["rescue"] for t in trace)
 
 
 def test_tall_tower_without_conductors_is_dropped_and_support_recorded():

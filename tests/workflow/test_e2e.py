@@ -156,3 +156,27 @@ def test_snakemake_report_holds_the_qa_pages(zone_run, tmp_path):
         # the zone's QA index and GeoPackage are in the report too
         assert any(n.endswith("qa/index.html") for n in qa) and any(n.endswith("towers.gpkg") for n in names)
         assert any(n.endswith("report.html") for n in names)
+
+
+def test_trace_tells_found_from_missed_as_the_scores_do(zone_run):
+    """`towerpipe trace` runs the tower rules again on the zone's own predictions: the towers
+    it finds are those the pipeline reported, and each missed one is given the stage that lost it."""
+    from towerpipe.evaluation.evaluate import evaluate_zone
+    from towerpipe.evaluation.trace import RULE_NAMES, trace_table, trace_zone
+
+    out, data, cmd = zone_run
+    work = next(a.split("=", 1)[1] for a in cmd if a.startswith("workdir="))
+    cfg = effective_config([REPO / ".test/config/config.yaml"], root=REPO)
+    rows = trace_zone(work, ZONE, data, inference=cfg["inference"], towers=cfg["towers"])
+    res = evaluate_zone(data, out)
+    small = sum(n < cfg["towers"]["min_points"] for n in pyogrio.read_dataframe(data / "towers_truth.gpkg")["n_points"])
+    assert len(rows) == res["towers_true"] - small
+    found = [r for r in rows if r["stage"] == "found"]
+    assert len(found) == round(res["tower_recall"] * res["towers_true"])
+    stages = {"found", "not segmented", "faint", "no cluster", *RULE_NAMES}
+    assert all(r["stage"] in stages for r in rows)
+    for r in rows:
+        if r["stage"] in RULE_NAMES:
+            assert r["cluster_points"] > 0
+    table = trace_table(rows)
+    assert table.splitlines()[-1] == f"{len(found)} of {len(rows)} true towers found."

@@ -43,6 +43,7 @@ __all__ = [
     "zone_predictions",
     "zone_survey",
     "zone_tiles",
+    "zone_towers",
 ]
 
 #: One candidate: (views, towers.threshold, inference.threshold, towers.min_core_prob), optionally
@@ -175,6 +176,39 @@ def tower_labels(input_dir: Path) -> dict[str, np.ndarray]:
     return out
 
 
+def zone_towers(
+    preds: Sequence[Any],
+    tile_paths: Sequence[str | os.PathLike[str]],
+    towers: Mapping[str, Any],
+    *,
+    point_threshold: float,
+    survey: Sequence[Sequence[float]],
+    zone: str,
+    crs: Any,
+    trace: list[dict[str, Any]] | None = None,
+) -> Any:
+    """The towers of a whole zone at once, as its towers jobs find them block by block (the config's
+    ``towers`` rules; the tiles as context: :func:`score_zone`; ``trace``: see ``extract_towers``)."""
+    from towerpipe.config import TowersConfig
+    from towerpipe.towers.coverage import TileContext
+    from towerpipe.towers.extract import extract_towers
+
+    return extract_towers(
+        preds,
+        zone,
+        _UNBOUNDED,
+        TowersConfig.from_config({"towers": dict(towers)}),
+        zone=zone,
+        point_threshold=point_threshold,
+        context=TileContext(
+            [str(p) for p in tile_paths], survey=survey, min_line_share=float(towers["wire_line_coverage"])
+        ),
+        model_meta={},
+        crs=crs,
+        trace=trace,
+    )
+
+
 def score_zone(
     preds: Sequence[Any],
     tile_paths: Sequence[str],
@@ -223,22 +257,11 @@ def score_zone(
         ``gate_recall`` (share of the true towers that some window passing the gate
         covers: they have segmented points) and ``false_towers`` (height, points).
     """
-    from towerpipe.config import TowersConfig
-    from towerpipe.towers.coverage import TileContext
-    from towerpipe.towers.extract import extract_towers
     from towerpipe.towers.matching import match_towers
 
-    rules = TowersConfig.from_config({"towers": {**towers, "threshold": threshold, "min_core_prob": min_core_prob}})
-    found = extract_towers(
-        preds,
-        zone,
-        _UNBOUNDED,
-        rules,
-        zone=zone,
-        point_threshold=point_threshold,
-        context=TileContext(list(tile_paths), survey=survey, min_line_share=float(towers["wire_line_coverage"])),
-        model_meta={},
-        crs=truth.crs,
+    rules = {**towers, "threshold": threshold, "min_core_prob": min_core_prob}
+    found = zone_towers(
+        preds, tile_paths, rules, point_threshold=point_threshold, survey=survey, zone=zone, crs=truth.crs
     )
     gdf = found.towers
     chosen: dict[str, list[np.ndarray]] = {}

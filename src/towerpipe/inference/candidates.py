@@ -26,7 +26,10 @@ __all__ = ["PEAK_RADIUS", "PEAK_RES", "CandidateWindows", "candidate_windows", "
 #: Candidate windows: cell (m) of the height raster, and the radius (m) within which a
 #: candidate is the highest point (a tower's crossarm reach). With the overhead wires left
 #: out, every tower of the CI scene has a window centred within 3.1 m of it (28 windows);
-#: 7 m gives 34 windows, and the wires left in hide 3 of its 5 tower tops.
+#: 7 m gives 34 windows, and the wires left in hide 3 of its 5 tower tops. In woodland a
+#: small tower with higher crowns within 10 m has no peak of its own; 7 m was measured
+#: (docs/model.md, towers in woodland) and not kept: three more towers of `calib_forest`, and
+#: more crowns painted beside the towers of the held-out zones.
 PEAK_RES, PEAK_RADIUS = 1.0, 10.0
 
 

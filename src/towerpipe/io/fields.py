@@ -1,7 +1,7 @@
 """Attribute schemas of the product layers: type, title, description and precision per field.
 
 A layer's fields are declared once, as an ordered ``{name: Field}`` mapping next to the
-concept that owns them (:data:`towerpipe.towers.extract.TOWER_FIELDS`,
+concept that owns them (:data:`towerpipe.towers.records.TOWER_FIELDS`,
 :data:`towerpipe.towers.lines.LINE_FIELDS`, …). The same declaration gives
 
 * the column order and dtypes of the GeoDataFrames (:func:`empty_frame`, :func:`conform`);

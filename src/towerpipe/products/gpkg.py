@@ -3,7 +3,7 @@
 A tower GeoPackage holds
 
 * layer ``towers`` (Polygon): one footprint per tower, attributes
-  :data:`towerpipe.towers.extract.TOWER_FIELDS`;
+  :data:`towerpipe.towers.records.TOWER_FIELDS`;
 * layer ``tower_points`` (Point): the footprint centroid with the same attributes;
 * in the zone's file, layers ``lines`` (LineString, :data:`towerpipe.towers.lines.LINE_FIELDS`),
   ``spans`` (LineString, :data:`towerpipe.towers.lines.SPAN_FIELDS`) and ``vanished_towers``
@@ -103,7 +103,7 @@ def default_style(layer: str = LAYER_TOWERS, fields: Mapping[str, Field] | None 
     if layer not in _STYLES:
         raise ValueError(f"no style for layer {layer!r} (known: {', '.join(_STYLES)})")
     if fields is None:
-        from towerpipe.towers.extract import TOWER_FIELDS as fields
+        from towerpipe.towers.records import TOWER_FIELDS as fields
     return styles.qml(_STYLES[layer], fields)
 
 
@@ -303,7 +303,7 @@ def write_gpkg(
 
 def _tower_layers(towers: gpd.GeoDataFrame | None, crs: Any) -> list[Layer]:
     from towerpipe.io.fields import empty_frame
-    from towerpipe.towers.extract import TOWER_FIELDS
+    from towerpipe.towers.records import TOWER_FIELDS
 
     gdf = towers if towers is not None and len(towers) else empty_frame(TOWER_FIELDS, crs)
     gdf = conform(gdf, TOWER_FIELDS, crs)

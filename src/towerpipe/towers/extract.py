@@ -60,6 +60,7 @@ from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from functools import partial
 from typing import Any
 
 import geopandas as gpd
@@ -68,114 +69,25 @@ import pandas as pd
 import shapely
 
 from towerpipe.config import TowersConfig
-from towerpipe.io.fields import DATETIME, GEOMETRY_GRID, Field, conform, dtypes, empty_frame, join_values
+from towerpipe.io.fields import GEOMETRY_GRID, conform, join_values
 from towerpipe.towers.cluster import _as_pred, _footprint, cluster_towers, gather_points
 from towerpipe.towers.column import column_mask
 from towerpipe.towers.foot import foot_mask
-from towerpipe.towers.registry import REVIEW_STATUSES, assign_ids
+from towerpipe.towers.records import TOWER_FIELDS, empty_towers
+from towerpipe.towers.registry import assign_ids
 from towerpipe.towers.shape import load_verifier, object_points
 
-#: Fields of a tower record (besides the footprint geometry), in order: the GeoPackage
-#: layers ``towers`` and ``tower_points`` use exactly these.
-TOWER_FIELDS: dict[str, Field] = {
-    "tower_id": Field(
-        "int64",
-        "Tower id",
-        "Stable id (docs/products.md): the first-seen footprint centroid on a 1 m grid, "
-        "(x mod 9e7) * 1e8 + (y mod 1e8); kept from run to run by the zone's registry. The "
-        "TowerpipeTowerId of the tower's points in the classified blocks",
-    ),
-    "zone": Field("str", "Zone", "Zone name"),
-    "block": Field("str", "Owning block", "Block holding the footprint centroid: the block that reports the tower"),
-    "blocks": Field("str", "Blocks touched", "Blocks the tower's points come from, ';'-separated"),
-    "centroid_x": Field("float64", "Centroid X (m)", "Footprint centroid, CRS units (m)", 2),
-    "centroid_y": Field("float64", "Centroid Y (m)", "Footprint centroid, CRS units (m)", 2),
-    "height_m": Field("float64", "Height (m)", "Height of the tower: top_z - base_z (m)", 2),
-    "base_z": Field(
-        "float64", "Base elevation (m)", "Ground elevation at the tower: median of z - HAG over its points (m)", 2
-    ),
-    "top_z": Field("float64", "Top elevation (m)", "Elevation of the tower's highest point (m)", 2),
-    "footprint_area_m2": Field("float64", "Footprint area (m²)", "Area of the xy footprint (m²)", 2),
-    "footprint_width_m": Field(
-        "float64", "Footprint width (m)", "Short side of the footprint's minimum rotated rectangle (m)", 2
-    ),
-    "footprint_length_m": Field(
-        "float64", "Footprint length (m)", "Long side of the footprint's minimum rotated rectangle (m)", 2
-    ),
-    "edge_distance_m": Field(
-        "float64",
-        "Distance to block edge (m)",
-        "Distance from the centroid to the nearest edge of the owning block (m)",
-        2,
-    ),
-    "n_points": Field("int64", "Points", "Points of the tower: those classified 15 in the classified blocks"),
-    "prob_mean": Field(
-        "float64", "Mean probability", "Mean single-view tower probability (0-1) of the points of its cluster", 3
-    ),
-    "prob_max": Field(
-        "float64", "Max probability", "Highest single-view tower probability (0-1) of the points of its cluster", 3
-    ),
-    "shape_score": Field(
-        "float64",
-        "Shape score",
-        "How much the object under the footprint looks like a tower and not a tree, roof or crane "
-        "(0-1, towerpipe.towers.shape; towers below towers.min_shape_score are not reported); "
-        "NULL without the shape check",
-        3,
-    ),
-    "wire_support": Field(
-        "float64",
-        "Conductor support (0-1)",
-        "Share (0-1) of the 80-160 m ring around the base reached by a conductor pointing at "
-        "it; NULL when unknown (no data around)",
-        3,
-    ),
-    "line_id": Field(
-        "Int64",
-        "Line id",
-        "Line of the tower (layer lines): the smallest tower_id on the line; "
-        "NULL when the tower is linked to no other (set in the zone's file)",
-    ),
-    "line_seq": Field("Int64", "Position on the line", "1, 2, … along the line (layer lines); NULL off a line"),
-    "line_chainage_m": Field(
-        "float64", "Chainage (m)", "Distance along the line from its first tower, through the towers (m)", 2
-    ),
-    "bearing_deg": Field(
-        "float64",
-        "Line bearing (°)",
-        "Azimuth of the line at the tower, degrees clockwise from grid north, toward increasing "
-        "line_seq (at an angle tower the bisector of its two spans); the crossarm is "
-        "perpendicular. For a tower on no line, the axis of its conductors (0-180); NULL "
-        "when no conductor was found",
-        1,
-    ),
-    "deflection_deg": Field(
-        "float64",
-        "Line deflection (°)",
-        "Angle the line turns at the tower (0 = straight through; angle towers); NULL at the ends of a line",
-        1,
-    ),
-    "review_status": Field(
-        "str",
-        "Review status",
-        "Analyst review: unreviewed (default), confirmed or rejected; kept from run to run by the registry",
-        enum=REVIEW_STATUSES,
-    ),
-    "first_seen": Field(DATETIME, "First seen (UTC)", "When the tower was first found (when its id was made)"),
-    "source_files": Field("str", "Source files", "Absolute paths of the input files of its blocks, ';'-separated"),
-    "model_name": Field("str", "Model", "Model that predicted the tower points"),
-    "model_version": Field("str", "Model version", "Version of that model"),
-    "processed_at": Field(DATETIME, "Processed at (UTC)", "Time of the towers step"),
-}
-#: Column name → dtype of :data:`TOWER_FIELDS`.
-TOWER_COLUMNS: dict[str, str] = dtypes(TOWER_FIELDS)
+#: What decided a cluster in a ``trace`` of :func:`extract_towers`: its core probability (rule 6),
+#: floating (7), too few points to report, no context for a rescue, the shape check (9), the
+#: conductor support (8), or accepted.
+TRACE_RULES = ("core", "floating", "points", "context", "shape", "wires", "accepted")
 
 
 @dataclass
 class ExtractedTowers:
     """What :func:`extract_towers` finds for one block."""
 
-    #: One row per tower the block owns, columns :data:`TOWER_COLUMNS` and the footprint
+    #: One row per tower the block owns, columns :data:`~towerpipe.towers.records.TOWER_COLUMNS` and the footprint
     #: Polygon, sorted by ``tower_id``; empty (full schema) when there is none.
     towers: gpd.GeoDataFrame
     #: ``tower_id`` → (block names, point indices) of the points of every accepted tower with
@@ -189,15 +101,18 @@ class ExtractedTowers:
     neighbours: list[dict[str, Any]]
 
 
-# --------------------------------------------------------------------------- records
-def empty_towers(crs: Any = None) -> gpd.GeoDataFrame:
-    """An empty tower table with the full schema (:data:`TOWER_FIELDS` + Polygon geometry)."""
-    return empty_frame(TOWER_FIELDS, crs)
-
-
 def _in_bounds(x: np.ndarray, y: np.ndarray, bounds: Sequence[float]) -> np.ndarray:
     xmin, ymin, xmax, ymax = bounds
     return (x >= xmin) & (x < xmax) & (y >= ymin) & (y < ymax)
+
+
+def _decided(trace: list[dict[str, Any]], xyz: np.ndarray, rescue: bool, rule: str, value: float) -> None:
+    """Record in ``trace`` what decided the cluster of points ``xyz`` (:data:`TRACE_RULES`)."""
+    trace.append({"x": xyz[:, 0], "y": xyz[:, 1], "rescue": bool(rescue), "rule": rule, "value": float(value)})
+
+
+def _not_traced(rule: str, value: float) -> None:
+    """No trace asked for."""
 
 
 def _split_by_confidence(
@@ -233,6 +148,7 @@ def extract_towers(
     processed_at: str | None = None,
     context: Callable[[float, float], tuple[Mapping[str, np.ndarray], Sequence[float]] | None] | None = None,
     registry: gpd.GeoDataFrame | None = None,
+    trace: list[dict[str, Any]] | None = None,
 ) -> ExtractedTowers:
     """Towers owned by one block, built from the predictions of the block and its neighbours.
 
@@ -306,6 +222,11 @@ def extract_towers(
         get a new id from their location (:func:`towerpipe.towers.registry.assign_ids`). Ids are
         assigned over every accepted tower the job sees (its own and those of its
         neighbours it reaches into), so both jobs give a tower across an edge one id.
+    trace
+        A list that receives, for every cluster judged (the splits' and the rescue's parts
+        included), ``{"x", "y"}`` (its points), ``"rescue"`` and the rule that decided it:
+        ``"rule"`` one of :data:`TRACE_RULES` and ``"value"`` what the rule measured
+        (:mod:`towerpipe.evaluation.trace` tells from it why a true tower was missed).
 
     Returns
     -------
@@ -381,11 +302,15 @@ def extract_towers(
             )
             continue
         g, splits, is_rescue = queue.popleft()
+        decided = partial(_decided, trace, xyz[g], is_rescue) if trace is not None else _not_traced
         core_q, g_threshold = (1.0, rescue) if is_rescue else (0.9, point_threshold)
-        if rules.min_core_prob > 0 and np.quantile(pts["prob_single"][g], core_q) < rules.min_core_prob:
+        core = float(np.quantile(pts["prob_single"][g], core_q))
+        if rules.min_core_prob > 0 and core < rules.min_core_prob:
+            decided("core", core)
             continue
         hag = pts["hag"][g].astype(np.float64)
         if hag.min() > rules.max_base_ratio * hag.max():
+            decided("floating", hag.min() / max(hag.max(), 1e-9))
             continue  # floating: a piece of conductor or crossarm, not a tower standing on the ground
         xy = xyz[g, :2]
         footprint = shapely.set_precision(_footprint(xy, min_width), GEOMETRY_GRID)  # as written: 1 cm
@@ -396,11 +321,13 @@ def extract_towers(
             continue  # a neighbour's tower that does not reach this block
         g_pts = g if g_threshold is None else g[pts["prob"][g] >= g_threshold]
         if len(g_pts) < rules.min_points:
+            decided("points", len(g_pts))
             continue  # what would be reported is too few points for a tower (the paper's 20)
         prob = pts["prob_single"][g].astype(np.float64)
         support = shape = float("nan")
         ctx = context(float(c.x), float(c.y)) if context is not None else None
         if is_rescue and ctx is None:
+            decided("context", float("nan"))
             continue  # a rescue stands on the shape check, which needs the points around it
         if ctx is not None:
             from towerpipe.towers.wires import wire_support
@@ -412,6 +339,7 @@ def extract_towers(
                 if len(obj):
                     shape = verifier.score(arr["x"][obj], arr["y"][obj], arr["hag"][obj])
                 if shape < rules.min_shape_score or (is_rescue and np.isnan(shape)):
+                    decided("shape", shape)
                     # the object under it is shaped like a tree, a roof or a crane; or it is a
                     # tower standing in crowns the segmenter painted with it: its more
                     # confident points are clustered again and each part judged
@@ -426,7 +354,9 @@ def extract_towers(
             bx, by = np.median(xy[low], axis=0)
             support = wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], float(bx), float(by), extent=extent)
             if hag.max() >= rules.wire_min_height and support < rules.min_wire_support:
+                decided("wires", support)
                 continue
+        decided("accepted", shape)
         accepted.append((g, g_pts, footprint, touched, owned, support, shape, hag, prob))
     # the points each accepted tower reports (never whether it is one): its foot trimmed, then its column
     # (rule 11) from the blocks its cluster touches, whose jobs judge it and whose merges classify them

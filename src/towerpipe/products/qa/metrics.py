@@ -177,7 +177,7 @@ def read_towers(towers: Any) -> Any:
     import geopandas as gpd
 
     if towers is None:
-        from towerpipe.towers.extract import empty_towers
+        from towerpipe.towers.records import empty_towers
 
         return empty_towers()
     if isinstance(towers, (str, os.PathLike)):

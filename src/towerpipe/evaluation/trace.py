@@ -1,0 +1,222 @@
+"""Why a true tower was missed: each labelled tower of a zone the pipeline has run, and the
+stage that lost it (``towerpipe trace``).
+
+The tower rules are run again on the zone's own predictions and tiles (those of its last
+run under ``<workdir>/<zone>/``), as the towers jobs and :func:`towerpipe.evaluation.calibrate.score_zone`
+run them, with a ``trace`` (:func:`towerpipe.towers.extract.extract_towers`) that records
+what decided every cluster. A true tower is then:
+
+- ``found``: a reported tower matches it (within 5 m, :func:`towerpipe.towers.matching.match_towers`);
+- ``not segmented``: no point within 1 m of its footprint was segmented (no window over it
+  passed the classifier's gate or the shape gate);
+- ``faint``: segmented, but no point reaches the probability that clusters
+  (``towers.threshold``, or ``towers.rescue_threshold`` with the rescue);
+- ``no cluster``: its points made no cluster of ``towers.min_points`` points and
+  ``towers.min_height`` m;
+- else the rule that dropped the cluster holding most of its points (:data:`RULE_NAMES`),
+  with what that rule measured; ``accepted`` when that cluster was reported but matched
+  another tower (it took in a neighbour) or lies more than 5 m from it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["RULE_NAMES", "trace_zone", "trace_table"]
+
+#: What each rule of a trace means to a reader (:data:`towerpipe.towers.extract.TRACE_RULES`).
+RULE_NAMES = {
+    "core": "no confident core (towers.min_core_prob)",
+    "floating": "floating above the ground (towers.max_base_ratio)",
+    "points": "too few points reported (towers.min_points)",
+    "context": "no tile around it for the rescue's shape check",
+    "shape": "shape check (towers.min_shape_score)",
+    "wires": "conductor support (towers.min_wire_support)",
+    "accepted": "reported, matched to another tower or more than 5 m away",
+}
+
+#: A true tower's neighbourhood (m around its footprint) in which its segmented points and
+#: clusters are looked for: :func:`towerpipe.evaluation.calibrate.gate_recall`'s.
+NEAR_M = 1.0
+
+
+def trace_zone(
+    work: str | os.PathLike[str],
+    zone: str,
+    input_dir: str | os.PathLike[str],
+    *,
+    inference: Mapping[str, Any],
+    towers: Mapping[str, Any],
+    truth_file: str | os.PathLike[str] | None = None,
+    predictions: Sequence[str | os.PathLike[str]] | None = None,
+) -> list[dict[str, Any]]:
+    """One row per true tower of a zone: found, or the stage that lost it.
+
+    Parameters
+    ----------
+    work
+        The workdir; the zone's predictions, tiles and plan are read under ``<work>/<zone>/``.
+    zone
+        The zone's name.
+    input_dir
+        The zone's labelled input (``towers_truth.gpkg`` unless ``truth_file``).
+    inference, towers
+        The config's sections, as the zone was run (``inference.threshold``, the tower rules).
+    truth_file
+        True tower footprints (layer ``towers``).
+    predictions
+        The prediction files to trace (default: the zone's last run, ``<work>/<zone>/pred/*/*.npz``;
+        e.g. :func:`towerpipe.evaluation.calibrate.zone_predictions` for another model or setting).
+
+    Returns
+    -------
+    list of dict
+        ``tower_id``, ``design``, ``height_m``, ``n_points`` (of the truth), ``stage`` (``found``,
+        ``not segmented``, ``faint``, ``no cluster`` or a rule of :data:`RULE_NAMES`), ``value``
+        (what that stage measured: the highest probability, the shape score, ...),
+        ``cluster_points`` (of the deciding cluster) and ``max_prob`` (the highest
+        single-view probability segmented within 1 m of it). True towers under
+        ``towers.min_points`` points are left out, as the scores leave them out.
+    """
+    import geopandas as gpd
+    import shapely
+
+    from towerpipe.config import TowersConfig
+    from towerpipe.evaluation.calibrate import zone_survey, zone_tiles, zone_towers
+    from towerpipe.io.predictions import load_pred
+    from towerpipe.towers.matching import match_towers
+
+    pred_files = list(predictions) if predictions is not None else sorted(Path(work, zone, "pred").glob("*/*.npz"))
+    if not pred_files:
+        from towerpipe.errors import InputError
+
+        raise InputError(
+            Path(work, zone, "pred"),
+            f"no predictions of zone {zone!r}; run `snakemake --cores 2 results/{zone}/` first",
+        )
+    truth = gpd.read_file(truth_file or Path(input_dir) / "towers_truth.gpkg", layer="towers")
+    rules = TowersConfig.from_config({"towers": dict(towers)})
+    preds = [load_pred(p) for p in pred_files]
+    trace: list[dict[str, Any]] = []
+    found = zone_towers(
+        preds,
+        zone_tiles(work, zone),
+        towers,
+        point_threshold=float(inference["threshold"]),
+        survey=zone_survey(work, zone),
+        zone=zone,
+        crs=truth.crs,
+        trace=trace,
+    )
+    matched = {str(m["truth"]) for m in match_towers(found.towers, truth, max_dist=5.0)["matches"]}
+    x = np.concatenate([np.asarray(p.arrays["x"], np.float64) for p in preds])
+    y = np.concatenate([np.asarray(p.arrays["y"], np.float64) for p in preds])
+    prob = np.concatenate([np.asarray(p.arrays["prob_single"], np.float64) for p in preds])
+    floor = min(float(rules.threshold), float(rules.rescue_threshold) or float(rules.threshold))
+    rows = []
+    for _, t in truth.iterrows():
+        n_true = int(t["n_points"]) if "n_points" in truth.columns else -1
+        if 0 <= n_true < int(rules.min_points):
+            continue
+        near = shapely.buffer(t.geometry, NEAR_M)
+        here = shapely.contains_xy(near, x, y)
+        row = {
+            "tower_id": str(t["tower_id"]),
+            "design": str(t.get("design", "")),
+            "height_m": float(t["height"]) if "height" in truth.columns else float("nan"),
+            "n_points": n_true,
+            "max_prob": float(prob[here].max()) if here.any() else 0.0,
+            "stage": "found",
+            "value": float("nan"),
+            "cluster_points": 0,
+        }
+        if str(t["tower_id"]) in matched:
+            pass
+        elif not here.any():
+            row["stage"] = "not segmented"
+        elif row["max_prob"] < floor:
+            row.update(stage="faint", value=row["max_prob"])
+        else:
+            # the cluster holding most of its points decides (a split's parts and the rescue's
+            # clusters included); the last such decision wins a tie: it is the later judgement
+            best, best_n = None, 0
+            for entry in trace:
+                n = int(shapely.contains_xy(near, entry["x"], entry["y"]).sum())
+                if n and n >= best_n:
+                    best, best_n = entry, n
+            if best is None:
+                row["stage"] = "no cluster"
+            else:
+                row.update(stage=best["rule"], value=best["value"], cluster_points=len(best["x"]))
+        rows.append(row)
+    return rows
+
+
+def trace_table(rows: Sequence[Mapping[str, Any]]) -> str:
+    """The rows of :func:`trace_zone` as a Markdown table, the missed towers first."""
+
+    def key(r: Mapping[str, Any]) -> tuple[bool, int, str]:
+        tid = str(r["tower_id"])
+        return r["stage"] == "found", int(tid) if tid.isdigit() else 0, tid
+
+    order = sorted(rows, key=key)
+    lines = [
+        "| tower | design | height (m) | true points | highest probability | stage | value | cluster points |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in order:
+        stage = RULE_NAMES.get(r["stage"], r["stage"])
+        value = "" if not np.isfinite(r["value"]) else f"{r['value']:.3f}"
+        lines.append(
+            f"| {r['tower_id']} | {r['design']} | {r['height_m']:.1f} | {r['n_points']} | {r['max_prob']:.2f} | "
+            f"{stage} | {value} | {r['cluster_points'] or ''} |"
+        )
+    missed = sum(r["stage"] != "found" for r in rows)
+    lines.append("")
+    lines.append(f"{len(rows) - missed} of {len(rows)} true towers found.")
+    return "\n".join(lines)
+
+
+def _cli(args: argparse.Namespace) -> int:
+    from towerpipe.config import effective_config
+    from towerpipe.errors import InputError
+
+    cfg = effective_config(args.config)
+    spec = (cfg.get("zones") or {}).get(args.zone)
+    if spec is None:
+        raise InputError(args.config[-1] if args.config else "config", f"zone {args.zone!r} is not defined")
+    rows = trace_zone(
+        args.workdir or cfg["workdir"],
+        args.zone,
+        spec["input"],
+        inference=cfg["inference"],
+        towers=cfg["towers"],
+        truth_file=args.truth,
+    )
+    print(trace_table(rows))
+    if args.json:
+        plain = [{k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in r.items()} for r in rows]
+        Path(args.json).write_text(json.dumps(plain, indent=1))  # NULL, not NaN: strict JSON
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("trace", help="why each true tower of a labelled zone was missed (after its run)")
+    p.add_argument("--zone", required=True, help="a labelled zone of the config, run with `snakemake`")
+    p.add_argument(
+        "--config",
+        nargs="*",
+        default=[],
+        help="config files over config/config.yaml and config/models.yaml, as the zone was run",
+    )
+    p.add_argument("--workdir", help="the workdir (default: the config's)")
+    p.add_argument("--truth", help="true tower footprints (default: <input>/towers_truth.gpkg)")
+    p.add_argument("--json", help="write the rows here")
+    p.set_defaults(func=_cli)

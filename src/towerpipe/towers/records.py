@@ -1,0 +1,113 @@
+"""The tower record: the fields of a tower (the GeoPackage's ``towers`` and ``tower_points``
+layers, :func:`towerpipe.towers.extract.extract_towers`' rows) and an empty table of them."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import geopandas as gpd
+
+from towerpipe.io.fields import DATETIME, Field, dtypes, empty_frame
+from towerpipe.towers.registry import REVIEW_STATUSES
+
+__all__ = ["TOWER_COLUMNS", "TOWER_FIELDS", "empty_towers"]
+
+#: Fields of a tower record (besides the footprint geometry), in order: the GeoPackage
+#: layers ``towers`` and ``tower_points`` use exactly these.
+TOWER_FIELDS: dict[str, Field] = {
+    "tower_id": Field(
+        "int64",
+        "Tower id",
+        "Stable id (docs/products.md): the first-seen footprint centroid on a 1 m grid, "
+        "(x mod 9e7) * 1e8 + (y mod 1e8); kept from run to run by the zone's registry. The "
+        "TowerpipeTowerId of the tower's points in the classified blocks",
+    ),
+    "zone": Field("str", "Zone", "Zone name"),
+    "block": Field("str", "Owning block", "Block holding the footprint centroid: the block that reports the tower"),
+    "blocks": Field("str", "Blocks touched", "Blocks the tower's points come from, ';'-separated"),
+    "centroid_x": Field("float64", "Centroid X (m)", "Footprint centroid, CRS units (m)", 2),
+    "centroid_y": Field("float64", "Centroid Y (m)", "Footprint centroid, CRS units (m)", 2),
+    "height_m": Field("float64", "Height (m)", "Height of the tower: top_z - base_z (m)", 2),
+    "base_z": Field(
+        "float64", "Base elevation (m)", "Ground elevation at the tower: median of z - HAG over its points (m)", 2
+    ),
+    "top_z": Field("float64", "Top elevation (m)", "Elevation of the tower's highest point (m)", 2),
+    "footprint_area_m2": Field("float64", "Footprint area (m²)", "Area of the xy footprint (m²)", 2),
+    "footprint_width_m": Field(
+        "float64", "Footprint width (m)", "Short side of the footprint's minimum rotated rectangle (m)", 2
+    ),
+    "footprint_length_m": Field(
+        "float64", "Footprint length (m)", "Long side of the footprint's minimum rotated rectangle (m)", 2
+    ),
+    "edge_distance_m": Field(
+        "float64",
+        "Distance to block edge (m)",
+        "Distance from the centroid to the nearest edge of the owning block (m)",
+        2,
+    ),
+    "n_points": Field("int64", "Points", "Points of the tower: those classified 15 in the classified blocks"),
+    "prob_mean": Field(
+        "float64", "Mean probability", "Mean single-view tower probability (0-1) of the points of its cluster", 3
+    ),
+    "prob_max": Field(
+        "float64", "Max probability", "Highest single-view tower probability (0-1) of the points of its cluster", 3
+    ),
+    "shape_score": Field(
+        "float64",
+        "Shape score",
+        "How much the object under the footprint looks like a tower and not a tree, roof or crane "
+        "(0-1, towerpipe.towers.shape; towers below towers.min_shape_score are not reported); "
+        "NULL without the shape check",
+        3,
+    ),
+    "wire_support": Field(
+        "float64",
+        "Conductor support (0-1)",
+        "Share (0-1) of the 80-160 m ring around the base reached by a conductor pointing at "
+        "it; NULL when unknown (no data around)",
+        3,
+    ),
+    "line_id": Field(
+        "Int64",
+        "Line id",
+        "Line of the tower (layer lines): the smallest tower_id on the line; "
+        "NULL when the tower is linked to no other (set in the zone's file)",
+    ),
+    "line_seq": Field("Int64", "Position on the line", "1, 2, … along the line (layer lines); NULL off a line"),
+    "line_chainage_m": Field(
+        "float64", "Chainage (m)", "Distance along the line from its first tower, through the towers (m)", 2
+    ),
+    "bearing_deg": Field(
+        "float64",
+        "Line bearing (°)",
+        "Azimuth of the line at the tower, degrees clockwise from grid north, toward increasing "
+        "line_seq (at an angle tower the bisector of its two spans); the crossarm is "
+        "perpendicular. For a tower on no line, the axis of its conductors (0-180); NULL "
+        "when no conductor was found",
+        1,
+    ),
+    "deflection_deg": Field(
+        "float64",
+        "Line deflection (°)",
+        "Angle the line turns at the tower (0 = straight through; angle towers); NULL at the ends of a line",
+        1,
+    ),
+    "review_status": Field(
+        "str",
+        "Review status",
+        "Analyst review: unreviewed (default), confirmed or rejected; kept from run to run by the registry",
+        enum=REVIEW_STATUSES,
+    ),
+    "first_seen": Field(DATETIME, "First seen (UTC)", "When the tower was first found (when its id was made)"),
+    "source_files": Field("str", "Source files", "Absolute paths of the input files of its blocks, ';'-separated"),
+    "model_name": Field("str", "Model", "Model that predicted the tower points"),
+    "model_version": Field("str", "Model version", "Version of that model"),
+    "processed_at": Field(DATETIME, "Processed at (UTC)", "Time of the towers step"),
+}
+#: Column name → dtype of :data:`TOWER_FIELDS`.
+TOWER_COLUMNS: dict[str, str] = dtypes(TOWER_FIELDS)
+
+
+def empty_towers(crs: Any = None) -> gpd.GeoDataFrame:
+    """An empty tower table with the full schema (:data:`TOWER_FIELDS` + Polygon geometry)."""
+    return empty_frame(TOWER_FIELDS, crs)
