@@ -51,6 +51,8 @@ __all__ = [
 Candidate = tuple[float, ...]
 
 _UNBOUNDED = (-1e18, -1e18, 1e18, 1e18)
+#: A true tower's neighbourhood (m around its footprint) where its segmented points are looked for.
+NEAR_TOWER_M = 1.0
 
 #: The subpackages and modules whose code makes a tile's predictions: all of their modules
 #: are part of the key of the cached predictions (:func:`zone_predictions`). Of the tower
@@ -314,7 +316,7 @@ def gate_recall(preds: Sequence[Any], truth) -> float | None:
     loaded = [load_pred(p) if isinstance(p, (str, os.PathLike)) else p for p in preds]
     x = np.concatenate([np.asarray(p.arrays["x"]) for p in loaded]) if loaded else np.empty(0)
     y = np.concatenate([np.asarray(p.arrays["y"]) for p in loaded]) if loaded else np.empty(0)
-    hit = [bool(shapely.contains_xy(shapely.buffer(g, 1.0), x, y).any()) for g in truth.geometry]
+    hit = [bool(shapely.contains_xy(shapely.buffer(g, NEAR_TOWER_M), x, y).any()) for g in truth.geometry]
     return float(np.mean(hit))
 
 

@@ -42,10 +42,6 @@ RULE_NAMES = {
     "accepted": "reported, matched to another tower or more than 5 m away",
 }
 
-#: A true tower's neighbourhood (m around its footprint) in which its segmented points and
-#: clusters are looked for: :func:`towerpipe.evaluation.calibrate.gate_recall`'s.
-NEAR_M = 1.0
-
 
 def trace_zone(
     work: str | os.PathLike[str],
@@ -89,7 +85,7 @@ def trace_zone(
     import shapely
 
     from towerpipe.config import TowersConfig
-    from towerpipe.evaluation.calibrate import zone_survey, zone_tiles, zone_towers
+    from towerpipe.evaluation.calibrate import NEAR_TOWER_M, zone_survey, zone_tiles, zone_towers
     from towerpipe.io.predictions import load_pred
     from towerpipe.towers.matching import match_towers
 
@@ -125,7 +121,7 @@ def trace_zone(
         n_true = int(t["n_points"]) if "n_points" in truth.columns else -1
         if 0 <= n_true < int(rules.min_points):
             continue
-        near = shapely.buffer(t.geometry, NEAR_M)
+        near = shapely.buffer(t.geometry, NEAR_TOWER_M)  # as gate_recall looks
         here = shapely.contains_xy(near, x, y)
         row = {
             "tower_id": str(t["tower_id"]),
