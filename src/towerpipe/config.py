@@ -305,6 +305,11 @@ class InferenceConfig(Section):
     #: With candidate windows, windows whose peak object the shape verifier
     #: (``towers.verifier``) scores below this are background without a classifier pass (0: none).
     shape_gate: float
+    #: With candidate windows, the peaks within this radius (m) that are not peaks within
+    #: :data:`~towerpipe.inference.candidates.PEAK_RADIUS` also get a window (0: none).
+    secondary_radius: float
+    #: A secondary peak's window sets the probabilities of the points within this distance (m) of its centre only.
+    secondary_reach: float
 
 
 @dataclass(frozen=True)

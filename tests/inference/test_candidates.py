@@ -30,17 +30,22 @@ def test_height_peaks_find_tower_tops_not_wires_or_crowns():
     assert heights.min() == pytest.approx(12.0)
 
 
-def test_a_small_tower_among_higher_crowns_is_its_own_peak():
-    """In woodland a 16 m lattice has 19 m crowns of 3 m radius 11 m away: within 7 m it stands
-    alone and makes a candidate; within 10 m (PEAK_RADIUS) the crowns' edges hide it."""
-    rng = np.random.default_rng(2)
+def _tower_among_crowns(seed: int = 2) -> np.ndarray:
+    """A 16 m lattice at (50, 50) with 19 m crowns 11 m away (woodland)."""
+    rng = np.random.default_rng(seed)
     h = rng.uniform(0, 16, 250)
     tower = np.c_[50 + rng.uniform(-1.5, 1.5, 250) * (1 - h / 20), 50 + rng.uniform(-1.5, 1.5, 250), h]
     crowns = []
     for cx, cy in ((61.0, 50.0), (39.0, 50.0), (50.0, 39.0)):
         a, r = rng.uniform(0, 2 * np.pi, 300), 3.0 * np.sqrt(rng.uniform(0, 1, 300))
         crowns.append(np.c_[cx + r * np.cos(a), cy + r * np.sin(a), 19.0 - r - rng.uniform(0, 3, 300)])
-    p = np.concatenate([tower, *crowns])
+    return np.concatenate([tower, *crowns])
+
+
+def test_a_small_tower_among_higher_crowns_is_its_own_peak():
+    """In woodland a 16 m lattice has 19 m crowns of 3 m radius 11 m away: within 7 m it stands
+    alone and makes a candidate; within 10 m (PEAK_RADIUS) the crowns' edges hide it."""
+    p = _tower_among_crowns()
     _, centers, heights = height_peaks(p[:, 0], p[:, 1], p[:, 2], min_height=10.0, radius=7.0)
     at_tower = np.hypot(centers[:, 0] - 50, centers[:, 1] - 50) < 1.5
     assert at_tower.sum() == 1 and heights[at_tower][0] == pytest.approx(16.0, abs=0.3)
@@ -61,3 +66,32 @@ def test_candidate_windows_need_core_points_and_keep_canonical_order():
     cw2 = candidate_windows(x[perm], y[perm], h[perm], core[perm], canonical_order=canon)
     np.testing.assert_array_equal(perm[cw2.indices(0)], cw.indices(0))
     assert len(cw.select(np.array([True]))) == 1
+
+
+def test_a_tower_hidden_by_crowns_gets_a_secondary_window_of_limited_reach():
+    """The hidden tower's peak within the secondary radius becomes a window whose segmentation
+    counts near its centre only; the primary peaks keep an unlimited reach; without secondary
+    candidates the windows are the primary peaks'."""
+    p = _tower_among_crowns()
+    core = np.ones(len(p), bool)
+    primary = candidate_windows(p[:, 0], p[:, 1], p[:, 2], core, secondary_radius=0.0)
+    both = candidate_windows(p[:, 0], p[:, 1], p[:, 2], core, secondary_radius=7.0, secondary_reach=6.0)
+    assert np.isinf(primary.reach).all()
+    assert not (np.hypot(*(primary.centers - 50).T) < 1.5).any()
+    at_tower = np.hypot(*(both.centers - 50).T) < 1.5
+    assert at_tower.sum() == 1 and both.reach[at_tower][0] == 6.0
+    # every primary window is kept, with its reach
+    assert {tuple(k) for k in primary.keys} <= {tuple(k) for k in both.keys}
+    assert np.isinf(both.reach[~at_tower]).sum() == len(primary)
+    assert both.select(at_tower).reach.tolist() == [6.0]
+
+
+def test_the_schema_bounds_secondary_peaks_by_the_peak_radius():
+    """inference.secondary_radius names the peaks within it that are not peaks within PEAK_RADIUS:
+    the schema's bound is that constant."""
+    from conftest import REPO
+    from towerpipe.config import SCHEMA_FILE, load_yaml
+
+    schema = load_yaml(REPO / SCHEMA_FILE, "schema")
+    sec = schema["properties"]["inference"]["properties"]["secondary_radius"]
+    assert sec["exclusiveMaximum"] == PEAK_RADIUS and sec["default"] == 0

@@ -490,3 +490,62 @@ def test_a_tile_with_nothing_tall_never_loads_the_networks(tmp_path, random_mode
         got = load_pred(tmp_path / other)
         for k in eager.arrays:
             np.testing.assert_array_equal(got.arrays[k], eager.arrays[k])
+
+
+class CentreColumn(FakeBundle):
+    """Says "tower" for a window whose centre holds points 12-17 m high and nothing higher,
+    and paints every tall point of a window it segments."""
+
+    def classify(self, feats: np.ndarray) -> np.ndarray:
+        out = np.zeros(feats.shape[0], dtype=np.float32)
+        for b, f in enumerate(feats):
+            xy, z = f[:, :2] * R, f[:, 2] * R
+            centre = np.abs(xy).max(axis=1) < 2.0
+            out[b] = 0.9 if (centre & (z > 12)).sum() >= 5 and z[centre].max() < 17.0 else 0.0
+        return out
+
+    def segment(self, feats: np.ndarray) -> np.ndarray:
+        return np.where(feats[:, 2] * R > 5.0, 0.9, 0.0).astype(np.float32)
+
+
+def tile_with_hidden_tower(seed: int = 3) -> Tile:
+    """A 16 m column at TOWER among 19 m crowns 11 m away: no peak of its own within 10 m."""
+    tile = make_tile(seed, tower=None, density=0.2)
+    a, rng = tile.arrays, np.random.default_rng(seed)
+    tx, ty = TOWER
+    h = rng.uniform(0.5, 16.0, 300)
+    parts = [np.c_[tx + rng.uniform(-1.5, 1.5, 300), ty + rng.uniform(-1.5, 1.5, 300), h]]
+    for dx, dy in ((11.0, 0.0), (-11.0, 0.0), (0.0, -11.0)):
+        ang, r = rng.uniform(0, 2 * np.pi, 300), 3.0 * np.sqrt(rng.uniform(0, 1, 300))
+        parts.append(np.c_[tx + dx + r * np.cos(ang), ty + dy + r * np.sin(ang), 19.0 - r - rng.uniform(0, 3, 300)])
+    obj = np.concatenate(parts)
+    n0, k = len(a["x"]), len(obj)
+    new = empty_arrays(k)
+    new["x"], new["y"], new["hag"] = obj[:, 0], obj[:, 1], obj[:, 2].astype(np.float32)
+    new["z"] = 200.0 + obj[:, 2]
+    new["classification"] = np.ones(k, np.uint8)
+    new["point_index"] = np.arange(n0, n0 + k, dtype=np.int64)
+    new["core"] = np.ones(k, bool)
+    new["model_input"] = np.ones(k, bool)
+    merged = {key: np.concatenate([a[key], new[key]]) for key in a}
+    return Tile(merged, tile.meta)
+
+
+def test_secondary_peaks_reach_a_hidden_tower_and_paint_only_near_it():
+    """A tower among higher crowns is found only through its secondary peak; that window sets
+    the probabilities within secondary_reach of its centre only; a secondary peak inside a
+    segmented primary window is not segmented."""
+    tile = tile_with_hidden_tower()
+    base = grid_inference(windows="candidates", min_height=10.0, gate=0.5)
+    off, st_off = predict_tile(tile, CentreColumn(), base)
+    assert st_off["windows_segmented"] == 0 and len(off["x"]) == 0
+    on, st_on = predict_tile(tile, CentreColumn(), replace(base, secondary_radius=7.0, secondary_reach=4.0))
+    assert st_on["windows_segmented"] == 1
+    d = np.hypot(on["x"] - TOWER[0], on["y"] - TOWER[1])
+    assert len(d) and d.max() <= 4.0 + 1.6  # the window's centre is the column's top cell
+    assert on["prob_single"].max() == np.float32(0.9)
+    # a classifier that passes every window: the crowns' primary windows hold the column
+    _, st_all = predict_tile(tile, FakeBundle(), replace(base, gate=0.0, secondary_radius=7.0, secondary_reach=4.0))
+    _, st_prim = predict_tile(tile, FakeBundle(), replace(base, gate=0.0))
+    assert st_all["windows_total"] > st_prim["windows_total"]
+    assert st_all["windows_segmented"] == st_prim["windows_segmented"]

@@ -116,8 +116,8 @@ def zone_predictions(
     from towerpipe.towers.shape import VERIFIER_FILE, resolve_verifier
 
     tiles = zone_tiles(work, zone)
-    keys = ("window", "windows", "stride", "gate", "combine", "batch_size", "min_points", "min_height", "shape_gate")
-    kw = {k: getattr(settings, k) for k in keys}
+    # every inference setting (the views name the directory): a new one can never reuse old predictions
+    kw = {f.name: getattr(settings, f.name) for f in dataclasses.fields(settings) if f.name != "tta"}
     gate_by = resolve_verifier(str(verifier)) if settings.shape_gate > 0 else None
     # the weights' hashes (the shape gate's too) and the inference code are part of the key: a
     # retrained model or another way of placing windows never reuses old predictions

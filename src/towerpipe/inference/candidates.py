@@ -12,6 +12,13 @@ grid sends it (a forest gives one candidate per crown cluster, open land none). 
 lives on a global grid and a candidate's window reaches at most ``window / 2 + PEAK_RADIUS``
 from it, within the tile buffer, so a tower near a tile edge gives the same window in both
 tiles that see it.
+
+A tower among higher crowns has no peak within :data:`PEAK_RADIUS`. With a
+``secondary_radius``, the peaks within that smaller radius that are not peaks within
+:data:`PEAK_RADIUS` become *secondary* candidates, each with a ``reach``: the inference
+segments such a window only where no segmented primary window reaches, and takes its
+probabilities for the points within ``reach`` of its centre only (the segmenter reads a
+window's centre as the tower's place, and would paint a crown there).
 """
 
 from __future__ import annotations
@@ -29,7 +36,9 @@ __all__ = ["PEAK_RADIUS", "PEAK_RES", "CandidateWindows", "candidate_windows", "
 #: 7 m gives 34 windows, and the wires left in hide 3 of its 5 tower tops. In woodland a
 #: small tower with higher crowns within 10 m has no peak of its own; 7 m was measured
 #: (docs/model.md, towers in woodland) and not kept: three more towers of `calib_forest`, and
-#: more crowns painted beside the towers of the held-out zones.
+#: more crowns painted beside the towers of the held-out zones. The secondary peaks of
+#: :func:`candidate_windows` (``inference.secondary_radius``) add such towers' windows without
+#: letting them paint around the towers the 10 m peaks find.
 PEAK_RES, PEAK_RADIUS = 1.0, 10.0
 
 
@@ -59,6 +68,7 @@ class CandidateWindows:
     core_counts: np.ndarray
     _ptr: np.ndarray
     _idx: np.ndarray
+    reach: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -86,6 +96,7 @@ class CandidateWindows:
             self.core_counts[sel],
             ptr,
             idx,
+            None if self.reach is None else self.reach[sel],
         )
 
 
@@ -142,6 +153,8 @@ def candidate_windows(
     canonical_order: np.ndarray | None = None,
     exclude: np.ndarray | None = None,
     tree: Any = None,
+    secondary_radius: float = 0.0,
+    secondary_reach: float = 0.0,
 ) -> CandidateWindows:
     """Windows centred on the height peaks of a tile that hold a core point (see the module docstring).
 
@@ -167,6 +180,10 @@ def candidate_windows(
     tree
         A ``scipy.spatial.cKDTree`` of ``(x, y)`` (built here if not given; the inference
         shares one with the shape gate).
+    secondary_radius, secondary_reach
+        With ``0 < secondary_radius < radius``, the peaks within ``secondary_radius`` that are not
+        peaks within ``radius`` (a tower among higher crowns) are candidates too, with a
+        :attr:`CandidateWindows.reach` of ``secondary_reach``; 0: none.
     """
     from scipy.spatial import cKDTree
 
@@ -177,6 +194,18 @@ def candidate_windows(
     keys, centers, heights = height_peaks(
         x[peak_pts], y[peak_pts], np.asarray(hag)[peak_pts], min_height=min_height, radius=radius
     )
+    reach = np.full(len(keys), np.inf)
+    if 0 < secondary_radius < radius:
+        if not secondary_reach > 0:
+            raise ValueError(f"secondary_reach must be > 0 with secondary peaks, got {secondary_reach}")
+        k2, c2, h2 = height_peaks(
+            x[peak_pts], y[peak_pts], np.asarray(hag)[peak_pts], min_height=min_height, radius=secondary_radius
+        )
+        new = ~(k2[:, None, :] == keys[None, :, :]).all(-1).any(1) if len(keys) else np.ones(len(k2), bool)
+        keys = np.concatenate([keys, k2[new]])
+        centers = np.concatenate([centers, c2[new]])
+        heights = np.concatenate([heights, h2[new]])
+        reach = np.concatenate([reach, np.full(int(new.sum()), float(secondary_reach))])
     n = len(x)
     rank = np.empty(n, np.int64)
     rank[np.arange(n) if canonical_order is None else np.asarray(canonical_order)] = np.arange(n)
@@ -195,4 +224,6 @@ def candidate_windows(
     idx = np.concatenate(parts) if parts else np.empty(0, np.int64)
     counts = np.diff(ptr)
     core_counts = np.array([int(core[p].sum()) for p in parts], np.int64)
-    return CandidateWindows(float(window), keys[keep], centers[keep], heights[keep], counts, core_counts, ptr, idx)
+    return CandidateWindows(
+        float(window), keys[keep], centers[keep], heights[keep], counts, core_counts, ptr, idx, reach[keep]
+    )

@@ -12,6 +12,12 @@ whose peak stands on an object the verifier scores below ``shape_gate``
 classifier pass. A forest gives a thousand peaks a km², and the classifier's gate, low
 enough to let real towers through, passed 40 % of them to the segmenter.
 
+With ``secondary_radius`` > 0 the peaks within that radius that are not peaks within
+:data:`~towerpipe.inference.candidates.PEAK_RADIUS` get windows too (a tower among higher
+crowns has no peak of its own): they pass the same gates, are segmented only where no
+segmented window of a primary peak reaches (its square), and set the probabilities of the
+points within ``secondary_reach`` of their centre only.
+
 Windows overlap (``stride < window``); the probabilities of a point from the
 segmented windows that contain it are combined with ``max`` (default) or ``mean``.
 A point that no segmented window contains has probability 0 and is not written.
@@ -187,6 +193,8 @@ def predict_tile(
             canonical_order=canon,
             exclude=wires,
             tree=tree,
+            secondary_radius=settings.secondary_radius,
+            secondary_reach=settings.secondary_reach,
         )
         n_all = len(ws)
     else:
@@ -260,6 +268,16 @@ def predict_tile(
 
     # --- segmenter on all points of the windows that passed the gate ----------------
     passed = todo[win_prob[todo] >= gate]
+    if getattr(ws, "reach", None) is not None and np.isfinite(ws.reach[passed]).any():
+        # a secondary peak inside a segmented primary window is seen by that window already: mostly
+        # another top of its tower (a shield-wire peak, a crossarm's end) or a crown beside it,
+        # which a window centred on it would paint (the segmenter reads its centre as the tower's)
+        sec = np.isfinite(ws.reach[passed])
+        prim = ws.centers[passed[~sec]]
+        if len(prim):
+            d = np.abs(ws.centers[passed[sec]][:, None, :] - prim[None, :, :]).max(-1).min(1)
+            passed = np.concatenate([passed[~sec], passed[sec][d > window / 2.0]])
+            passed.sort()
     acc = np.zeros(len(mi), dtype=np.float32)
     acc1 = acc if tta == 1 else np.zeros(len(mi), dtype=np.float32)  # the single view
     cnt = np.zeros(len(mi), dtype=np.uint16)
@@ -274,6 +292,11 @@ def predict_tile(
         if p.shape != (len(idx),):
             raise ModelError(f"model {bundle.name!r}: segment returned {p.shape} for {len(idx)} points")
         tb = time.perf_counter()
+        reach = float(ws.reach[i]) if getattr(ws, "reach", None) is not None else np.inf
+        if np.isfinite(reach):  # a secondary candidate's window: its centre's points only
+            cx, cy = ws.center(int(i))
+            near = np.hypot(arrays["x"][idx] - cx, arrays["y"][idx] - cy) <= reach
+            local, p, p1 = local[near], p[near], p1[near]
         for a, q in ((acc, p), (acc1, p1)) if tta > 1 else ((acc, p),):
             if combine == "max":
                 a[local] = np.maximum(a[local], q)
