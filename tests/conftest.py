@@ -203,6 +203,22 @@ def qa_limits(**overrides):
 GRID_INFERENCE = {"windows": "grid", "gate": 0.5, "tta": 1, "min_height": None}
 
 
+def tower_among_crowns(centre: tuple[float, float] = (50.0, 50.0), seed: int = 2):
+    """``(n, 3)`` x, y, height of a 16 m lattice at ``centre`` with three 19 m crowns of 3 m
+    radius 11 m away (woodland): within 7 m it is a height peak, within 10 m the crowns hide it."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    cx, cy = centre
+    h = rng.uniform(0, 16, 250)
+    tower = np.c_[cx + rng.uniform(-1.5, 1.5, 250) * (1 - h / 20), cy + rng.uniform(-1.5, 1.5, 250), h]
+    crowns = []
+    for dx, dy in ((11.0, 0.0), (-11.0, 0.0), (0.0, -11.0)):
+        a, r = rng.uniform(0, 2 * np.pi, 300), 3.0 * np.sqrt(rng.uniform(0, 1, 300))
+        crowns.append(np.c_[cx + dx + r * np.cos(a), cy + dy + r * np.sin(a), 19.0 - r - rng.uniform(0, 3, 300)])
+    return np.concatenate([tower, *crowns])
+
+
 def inference_settings(**inference):
     """:class:`towerpipe.config.InferenceConfig` over the schema's defaults."""
     from towerpipe.config import InferenceConfig

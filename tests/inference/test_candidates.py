@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conftest import tower_among_crowns
 from towerpipe.inference.candidates import PEAK_RADIUS, candidate_windows, height_peaks
 
 
@@ -30,22 +31,10 @@ def test_height_peaks_find_tower_tops_not_wires_or_crowns():
     assert heights.min() == pytest.approx(12.0)
 
 
-def _tower_among_crowns(seed: int = 2) -> np.ndarray:
-    """A 16 m lattice at (50, 50) with 19 m crowns 11 m away (woodland)."""
-    rng = np.random.default_rng(seed)
-    h = rng.uniform(0, 16, 250)
-    tower = np.c_[50 + rng.uniform(-1.5, 1.5, 250) * (1 - h / 20), 50 + rng.uniform(-1.5, 1.5, 250), h]
-    crowns = []
-    for cx, cy in ((61.0, 50.0), (39.0, 50.0), (50.0, 39.0)):
-        a, r = rng.uniform(0, 2 * np.pi, 300), 3.0 * np.sqrt(rng.uniform(0, 1, 300))
-        crowns.append(np.c_[cx + r * np.cos(a), cy + r * np.sin(a), 19.0 - r - rng.uniform(0, 3, 300)])
-    return np.concatenate([tower, *crowns])
-
-
 def test_a_small_tower_among_higher_crowns_is_its_own_peak():
     """In woodland a 16 m lattice has 19 m crowns of 3 m radius 11 m away: within 7 m it stands
     alone and makes a candidate; within 10 m (PEAK_RADIUS) the crowns' edges hide it."""
-    p = _tower_among_crowns()
+    p = tower_among_crowns()
     _, centers, heights = height_peaks(p[:, 0], p[:, 1], p[:, 2], min_height=10.0, radius=7.0)
     at_tower = np.hypot(centers[:, 0] - 50, centers[:, 1] - 50) < 1.5
     assert at_tower.sum() == 1 and heights[at_tower][0] == pytest.approx(16.0, abs=0.3)
@@ -72,7 +61,7 @@ def test_a_tower_hidden_by_crowns_gets_a_secondary_window_of_limited_reach():
     """The hidden tower's peak within the secondary radius becomes a window whose segmentation
     counts near its centre only; the primary peaks keep an unlimited reach; without secondary
     candidates the windows are the primary peaks'."""
-    p = _tower_among_crowns()
+    p = tower_among_crowns()
     core = np.ones(len(p), bool)
     primary = candidate_windows(p[:, 0], p[:, 1], p[:, 2], core, secondary_radius=0.0)
     both = candidate_windows(p[:, 0], p[:, 1], p[:, 2], core, secondary_radius=7.0, secondary_reach=6.0)

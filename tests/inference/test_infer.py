@@ -13,7 +13,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from conftest import grid_inference, inference_settings
+from conftest import grid_inference, inference_settings, tower_among_crowns
 from towerpipe.errors import ConfigError, ModelError
 from towerpipe.inference.compat import check_model_compatibility
 from towerpipe.inference.infer import infer_tile, predict_tile
@@ -511,14 +511,8 @@ class CentreColumn(FakeBundle):
 def tile_with_hidden_tower(seed: int = 3) -> Tile:
     """A 16 m column at TOWER among 19 m crowns 11 m away: no peak of its own within 10 m."""
     tile = make_tile(seed, tower=None, density=0.2)
-    a, rng = tile.arrays, np.random.default_rng(seed)
-    tx, ty = TOWER
-    h = rng.uniform(0.5, 16.0, 300)
-    parts = [np.c_[tx + rng.uniform(-1.5, 1.5, 300), ty + rng.uniform(-1.5, 1.5, 300), h]]
-    for dx, dy in ((11.0, 0.0), (-11.0, 0.0), (0.0, -11.0)):
-        ang, r = rng.uniform(0, 2 * np.pi, 300), 3.0 * np.sqrt(rng.uniform(0, 1, 300))
-        parts.append(np.c_[tx + dx + r * np.cos(ang), ty + dy + r * np.sin(ang), 19.0 - r - rng.uniform(0, 3, 300)])
-    obj = np.concatenate(parts)
+    a = tile.arrays
+    obj = tower_among_crowns(TOWER, seed)
     n0, k = len(a["x"]), len(obj)
     new = empty_arrays(k)
     new["x"], new["y"], new["hag"] = obj[:, 0], obj[:, 1], obj[:, 2].astype(np.float32)

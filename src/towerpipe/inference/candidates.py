@@ -68,7 +68,7 @@ class CandidateWindows:
     core_counts: np.ndarray
     _ptr: np.ndarray
     _idx: np.ndarray
-    reach: np.ndarray | None = None
+    reach: np.ndarray
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -96,7 +96,7 @@ class CandidateWindows:
             self.core_counts[sel],
             ptr,
             idx,
-            None if self.reach is None else self.reach[sel],
+            self.reach[sel],
         )
 
 

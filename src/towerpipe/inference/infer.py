@@ -197,6 +197,7 @@ def predict_tile(
             secondary_reach=settings.secondary_reach,
         )
         n_all = len(ws)
+        reach = ws.reach
     else:
         all_windows = sliding_windows(
             arrays["x"][mi],
@@ -209,6 +210,7 @@ def predict_tile(
         )
         ws = all_windows.select(all_windows.counts >= max(int(min_points), 1))
         n_all = len(all_windows)
+        reach = np.full(len(ws), np.inf)  # every grid window sets all its points
     fmeta = features.tile_feature_meta(arrays, tile.meta)
     timings["windows"] = time.perf_counter() - t0
 
@@ -268,16 +270,14 @@ def predict_tile(
 
     # --- segmenter on all points of the windows that passed the gate ----------------
     passed = todo[win_prob[todo] >= gate]
-    if getattr(ws, "reach", None) is not None and np.isfinite(ws.reach[passed]).any():
+    sec = np.isfinite(reach[passed])
+    if sec.any() and not sec.all():
         # a secondary peak inside a segmented primary window is seen by that window already: mostly
         # another top of its tower (a shield-wire peak, a crossarm's end) or a crown beside it,
         # which a window centred on it would paint (the segmenter reads its centre as the tower's)
-        sec = np.isfinite(ws.reach[passed])
         prim = ws.centers[passed[~sec]]
-        if len(prim):
-            d = np.abs(ws.centers[passed[sec]][:, None, :] - prim[None, :, :]).max(-1).min(1)
-            passed = np.concatenate([passed[~sec], passed[sec][d > window / 2.0]])
-            passed.sort()
+        d = np.abs(ws.centers[passed[sec]][:, None, :] - prim[None, :, :]).max(-1).min(1)
+        passed = np.sort(np.concatenate([passed[~sec], passed[sec][d > window / 2.0]]))
     acc = np.zeros(len(mi), dtype=np.float32)
     acc1 = acc if tta == 1 else np.zeros(len(mi), dtype=np.float32)  # the single view
     cnt = np.zeros(len(mi), dtype=np.uint16)
@@ -292,10 +292,9 @@ def predict_tile(
         if p.shape != (len(idx),):
             raise ModelError(f"model {bundle.name!r}: segment returned {p.shape} for {len(idx)} points")
         tb = time.perf_counter()
-        reach = float(ws.reach[i]) if getattr(ws, "reach", None) is not None else np.inf
-        if np.isfinite(reach):  # a secondary candidate's window: its centre's points only
+        if np.isfinite(reach[i]):  # a secondary candidate's window: its centre's points only
             cx, cy = ws.center(int(i))
-            near = np.hypot(arrays["x"][idx] - cx, arrays["y"][idx] - cy) <= reach
+            near = np.hypot(arrays["x"][idx] - cx, arrays["y"][idx] - cy) <= reach[i]
             local, p, p1 = local[near], p[near], p1[near]
         for a, q in ((acc, p), (acc1, p1)) if tta > 1 else ((acc, p),):
             if combine == "max":
