@@ -508,11 +508,18 @@ class CentreColumn(FakeBundle):
         return np.where(feats[:, 2] * R > 5.0, 0.9, 0.0).astype(np.float32)
 
 
-def tile_with_hidden_tower(seed: int = 3) -> Tile:
-    """A 16 m column at TOWER among 19 m crowns 11 m away: no peak of its own within 10 m."""
+def tile_with_hidden_tower(seed: int = 3, two_tops: bool = False) -> Tile:
+    """A 16 m column at TOWER among 19 m crowns 11 m away: no peak of its own within 10 m.
+    ``two_tops``: also a 30 m tower 60 m east with a 27 m crossarm end 8.5 m from its top (a peak
+    within 7 m, not within 10 m)."""
     tile = make_tile(seed, tower=None, density=0.2)
-    a = tile.arrays
+    a, rng = tile.arrays, np.random.default_rng(seed)
     obj = tower_among_crowns(TOWER, seed)
+    if two_tops:
+        tx, ty = TOWER[0] + 60.0, TOWER[1]
+        body = np.c_[tx + rng.uniform(-1, 1, 300), ty + rng.uniform(-1, 1, 300), rng.uniform(0.5, 30.0, 300)]
+        arm = np.c_[tx + 8.5 + rng.uniform(-0.3, 0.3, 40), ty + rng.uniform(-0.3, 0.3, 40), rng.uniform(25.0, 27.0, 40)]
+        obj = np.concatenate([obj, body, arm])
     n0, k = len(a["x"]), len(obj)
     new = empty_arrays(k)
     new["x"], new["y"], new["hag"] = obj[:, 0], obj[:, 1], obj[:, 2].astype(np.float32)
@@ -527,8 +534,8 @@ def tile_with_hidden_tower(seed: int = 3) -> Tile:
 
 def test_secondary_peaks_reach_a_hidden_tower_and_paint_only_near_it():
     """A tower among higher crowns is found only through its secondary peak; that window sets
-    the probabilities within secondary_reach of its centre only; a secondary peak inside a
-    segmented primary window is not segmented."""
+    the probabilities within secondary_reach of its centre only; a secondary peak within
+    PEAK_RADIUS of a segmented primary peak is not segmented."""
     tile = tile_with_hidden_tower()
     base = grid_inference(windows="candidates", min_height=10.0, gate=0.5)
     off, st_off = predict_tile(tile, CentreColumn(), base)
@@ -538,8 +545,10 @@ def test_secondary_peaks_reach_a_hidden_tower_and_paint_only_near_it():
     d = np.hypot(on["x"] - TOWER[0], on["y"] - TOWER[1])
     assert len(d) and d.max() <= 4.0 + 1.6  # the window's centre is the column's top cell
     assert on["prob_single"].max() == np.float32(0.9)
-    # a classifier that passes every window: the crowns' primary windows hold the column
-    _, st_all = predict_tile(tile, FakeBundle(), replace(base, gate=0.0, secondary_radius=7.0, secondary_reach=4.0))
-    _, st_prim = predict_tile(tile, FakeBundle(), replace(base, gate=0.0))
-    assert st_all["windows_total"] > st_prim["windows_total"]
-    assert st_all["windows_segmented"] == st_prim["windows_segmented"]
+    # a classifier that passes every window: the crossarm end, 8.5 m from its tower's top, is not
+    # segmented; the hidden column, 11 m from the crowns' tops, is
+    both = tile_with_hidden_tower(two_tops=True)
+    _, st_all = predict_tile(both, FakeBundle(), replace(base, gate=0.0, secondary_radius=7.0, secondary_reach=4.0))
+    _, st_prim = predict_tile(both, FakeBundle(), replace(base, gate=0.0))
+    assert st_all["windows_total"] == st_prim["windows_total"] + 2
+    assert st_all["windows_segmented"] == st_prim["windows_segmented"] + 1

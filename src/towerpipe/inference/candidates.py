@@ -16,7 +16,8 @@ tiles that see it.
 A tower among higher crowns has no peak within :data:`PEAK_RADIUS`. With a
 ``secondary_radius``, the peaks within that smaller radius that are not peaks within
 :data:`PEAK_RADIUS` become *secondary* candidates, each with a ``reach``: the inference
-segments such a window only where no segmented primary window reaches, and takes its
+segments such a window only farther than :data:`PEAK_RADIUS` from every segmented primary
+peak (nearer, it is mostly another top of that tower), and takes its
 probabilities for the points within ``reach`` of its centre only (the segmenter reads a
 window's centre as the tower's place, and would paint a crown there).
 """

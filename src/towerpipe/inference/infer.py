@@ -14,9 +14,9 @@ enough to let real towers through, passed 40 % of them to the segmenter.
 
 With ``secondary_radius`` > 0 the peaks within that radius that are not peaks within
 :data:`~towerpipe.inference.candidates.PEAK_RADIUS` get windows too (a tower among higher
-crowns has no peak of its own): they pass the same gates, are segmented only where no
-segmented window of a primary peak reaches (its square), and set the probabilities of the
-points within ``secondary_reach`` of their centre only.
+crowns has no peak of its own): they pass the same gates, are segmented only farther than
+``PEAK_RADIUS`` from every segmented primary peak, and set the probabilities of the points
+within ``secondary_reach`` of their centre only.
 
 Windows overlap (``stride < window``); the probabilities of a point from the
 segmented windows that contain it are combined with ``max`` (default) or ``mean``.
@@ -58,7 +58,7 @@ import numpy as np
 from towerpipe import classes
 from towerpipe.config import InferenceConfig
 from towerpipe.errors import ConfigError, ModelError
-from towerpipe.inference.candidates import CandidateWindows, candidate_windows
+from towerpipe.inference.candidates import PEAK_RADIUS, CandidateWindows, candidate_windows
 from towerpipe.inference.compat import BundleLike, check_model_compatibility, model_info
 from towerpipe.inference.views import check_views, segment_views
 from towerpipe.inference.windows import TileWindows, sliding_windows
@@ -272,12 +272,12 @@ def predict_tile(
     passed = todo[win_prob[todo] >= gate]
     sec = np.isfinite(reach[passed])
     if sec.any() and not sec.all():
-        # a secondary peak inside a segmented primary window is seen by that window already: mostly
-        # another top of its tower (a shield-wire peak, a crossarm's end) or a crown beside it,
-        # which a window centred on it would paint (the segmenter reads its centre as the tower's)
+        # a secondary peak within PEAK_RADIUS of a segmented primary peak is mostly another top of
+        # that tower (a shield-wire peak, a crossarm's end), whose window would paint the crowns
+        # around it (the segmenter reads a window's centre as the tower's place)
         prim = ws.centers[passed[~sec]]
-        d = np.abs(ws.centers[passed[sec]][:, None, :] - prim[None, :, :]).max(-1).min(1)
-        passed = np.sort(np.concatenate([passed[~sec], passed[sec][d > window / 2.0]]))
+        d = np.hypot(*(ws.centers[passed[sec]][:, None, :] - prim[None, :, :]).transpose(2, 0, 1)).min(1)
+        passed = np.sort(np.concatenate([passed[~sec], passed[sec][d > PEAK_RADIUS]]))
     acc = np.zeros(len(mi), dtype=np.float32)
     acc1 = acc if tta == 1 else np.zeros(len(mi), dtype=np.float32)  # the single view
     cnt = np.zeros(len(mi), dtype=np.uint16)
