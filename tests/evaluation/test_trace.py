@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from towerpipe.errors import InputError
-from towerpipe.evaluation.trace import RULE_NAMES, trace_table, trace_zone
+from towerpipe.evaluation.trace import GATE_STAGES, RULE_NAMES, _gate_stage, trace_table, trace_zone
 from towerpipe.towers.extract import TRACE_RULES
 
 
@@ -34,6 +34,35 @@ def test_the_table_lists_the_missed_towers_first_and_counts_the_found():
     assert [line.split("|")[1].strip() for line in body] == ["9", "10", "2"]
     assert RULE_NAMES["core"] in body[1] and "0.240" in body[1] and "| 105 |" in body[1]
     assert lines[-1] == "1 of 3 true towers found."
+
+
+def test_a_tower_never_segmented_is_told_which_gate_refused_it():
+    """The windows centred on a tower's footprint (buffered) and the gates' record of them
+    (``window_gates`` of the inference) name the gate that lost it, with its best score."""
+    import numpy as np
+    import shapely
+
+    near = shapely.box(0, 0, 4, 4)
+    gates = {
+        "x": np.array([2.0, 3.0, 50.0]),
+        "y": np.array([2.0, 1.0, 50.0]),
+        "shape": np.array([0.001, 0.002, 0.9]),
+        "prob": np.array([np.nan, np.nan, 0.8]),
+        "gate": 0.03,
+    }
+    assert _gate_stage(near, gates) == ("shape gate", 0.002)
+    gates["shape"][1], gates["prob"][1] = 0.5, 0.02
+    assert _gate_stage(near, gates) == ("classifier gate", 0.02)
+    gates["prob"][1] = 0.4  # passed both gates, not segmented all the same: no gate lost it
+    assert _gate_stage(near, gates) == ("not segmented", 0.4)
+    assert _gate_stage(shapely.box(100, 100, 104, 104), gates) == (
+        "no window",
+        pytest.approx(float("nan"), nan_ok=True),
+    )
+    assert _gate_stage(near, None)[0] == "not segmented"  # predictions written before the record
+    rows = [_row("3", "shape gate", 0.002), _row("4", "no window")]
+    table = trace_table(rows)
+    assert GATE_STAGES["shape gate"] in table and "0.002" in table and GATE_STAGES["no window"] in table
 
 
 def test_a_zone_never_run_names_the_run_to_do(tmp_path):

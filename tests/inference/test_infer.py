@@ -410,6 +410,50 @@ def test_shape_gate_skips_windows_whose_peak_object_it_rejects():
     assert st_grid["windows_shape_gated"] == 0 and st_grid["windows_classified"] > 0
 
 
+def test_the_gates_record_of_each_window_what_they_made_of_it():
+    """``window_gates`` (for ``towerpipe trace``): one entry per window that reached the gates,
+    its shape score where the shape gate judged it, its probability where the classifier did."""
+    tile = make_tile()
+    settings = grid_inference(windows="candidates", min_height=10.0, shape_gate=0.05)
+    _, st = predict_tile(tile, FakeBundle(), settings, verifier=ConstVerifier(1.0))
+    g = st["window_gates"]
+    n = st["windows_total"] - st["windows_prefiltered"]
+    assert n > 0 and all(len(g[k]) == n for k in ("x", "y", "shape", "prob", "segmented"))
+    assert g["shape"] == [1.0] * n and None not in g["prob"]
+    assert sum(g["segmented"]) == st["windows_segmented"]
+    assert all(p >= st["gate_threshold"] for p, s in zip(g["prob"], g["segmented"]) if s)
+    # refused by the shape gate: never classified
+    _, st_none = predict_tile(tile, FakeBundle(), settings, verifier=ConstVerifier(0.0))
+    assert st_none["window_gates"]["shape"] == [0.0] * n and st_none["window_gates"]["prob"] == [None] * n
+    assert not any(st_none["window_gates"]["segmented"])
+    # no verifier: no shape score; the windows' centres are where the tile's windows are
+    _, st_ref = predict_tile(tile, FakeBundle(), settings)
+    assert st_ref["window_gates"]["shape"] == [None] * n
+    assert st_ref["window_gates"]["x"] == g["x"] and st_ref["window_gates"]["y"] == g["y"]
+
+
+def test_window_gates_are_plain_json_columns():
+    import json
+
+    from towerpipe.inference.windows import window_gates
+
+    g = window_gates(
+        np.array([[400000.04, 4600000.06], [400010.0, 4600010.0]]),
+        np.array([0.123456, np.nan]),
+        np.array([np.nan, 0.5]),
+        np.array([False, True]),
+    )
+    assert g == {
+        "x": [400000.0, 400010.0],
+        "y": [4600000.1, 4600010.0],
+        "shape": [0.1235, None],
+        "prob": [None, 0.5],
+        "segmented": [False, True],
+    }
+    assert json.loads(json.dumps(g)) == g
+    assert window_gates(np.empty((0, 2)), np.empty(0), np.empty(0), np.empty(0, bool))["x"] == []
+
+
 def test_candidate_windows_identical_from_adjacent_tiles():
     tile = make_tile(density=0.3)
     a = tile.arrays

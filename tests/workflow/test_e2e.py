@@ -162,7 +162,7 @@ def test_trace_tells_found_from_missed_as_the_scores_do(zone_run):
     """`towerpipe trace` runs the tower rules again on the zone's own predictions: the towers
     it finds are those the pipeline reported, and each missed one is given the stage that lost it."""
     from towerpipe.evaluation.evaluate import evaluate_zone
-    from towerpipe.evaluation.trace import RULE_NAMES, trace_table, trace_zone
+    from towerpipe.evaluation.trace import GATE_STAGES, RULE_NAMES, trace_table, trace_zone
 
     out, data, cmd = zone_run
     work = next(a.split("=", 1)[1] for a in cmd if a.startswith("workdir="))
@@ -173,7 +173,7 @@ def test_trace_tells_found_from_missed_as_the_scores_do(zone_run):
     assert len(rows) == res["towers_true"] - small
     found = [r for r in rows if r["stage"] == "found"]
     assert len(found) == round(res["tower_recall"] * res["towers_true"])
-    stages = {"found", "not segmented", "faint", "no cluster", *RULE_NAMES}
+    stages = {"found", "not segmented", "faint", "no cluster", *RULE_NAMES, *GATE_STAGES}
     assert all(r["stage"] in stages for r in rows)
     for r in rows:
         if r["stage"] in RULE_NAMES:

@@ -7,8 +7,14 @@ run them, with a ``trace`` (:func:`towerpipe.towers.extract.extract_towers`) tha
 what decided every cluster. A true tower is then:
 
 - ``found``: a reported tower matches it (within 5 m, :func:`towerpipe.towers.matching.match_towers`);
-- ``not segmented``: no point within 1 m of its footprint was segmented (no window over it
-  passed the classifier's gate or the shape gate);
+- ``not segmented``: no point within 1 m of its footprint was segmented; the windows' gates
+  (:func:`towerpipe.inference.windows.window_gates`, recorded by each inference job) then say why:
+  ``no window`` (no window centred within 1 m of its footprint: no height peak on it),
+  ``shape gate`` (every such window's peak object scored under ``inference.shape_gate``; the
+  value is the best score), ``classifier gate`` (every one the shape gate let through scored
+  under ``inference.gate``; the value is the best probability); it stays ``not segmented``
+  when a window over it passed both gates (a secondary peak near a segmented one) or its
+  predictions hold no such record (written before 0.8.13);
 - ``faint``: segmented, but no point reaches the probability that clusters
   (``towers.threshold``, or ``towers.rescue_threshold`` with the rescue);
 - ``no cluster``: its points made no cluster of ``towers.min_points`` points and
@@ -29,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["RULE_NAMES", "trace_zone", "trace_table"]
+__all__ = ["GATE_STAGES", "RULE_NAMES", "trace_zone", "trace_table"]
 
 #: What each rule of a trace means to a reader (:data:`towerpipe.towers.extract.TRACE_RULES`).
 RULE_NAMES = {
@@ -40,6 +46,12 @@ RULE_NAMES = {
     "shape": "shape check (towers.min_shape_score)",
     "wires": "conductor support (towers.min_wire_support)",
     "accepted": "reported, matched to another tower or more than 5 m away",
+}
+#: What each gate stage of a tower never segmented means to a reader.
+GATE_STAGES = {
+    "no window": "not segmented: no window on it (no height peak)",
+    "shape gate": "not segmented: shape gate (inference.shape_gate)",
+    "classifier gate": "not segmented: classifier gate (inference.gate)",
 }
 
 
@@ -75,7 +87,8 @@ def trace_zone(
     -------
     list of dict
         ``tower_id``, ``design``, ``height_m``, ``n_points`` (of the truth), ``stage`` (``found``,
-        ``not segmented``, ``faint``, ``no cluster`` or a rule of :data:`RULE_NAMES`), ``value``
+        ``no window``, ``shape gate``, ``classifier gate``, ``not segmented``, ``faint``, ``no
+        cluster`` or a rule of :data:`RULE_NAMES`), ``value``
         (what that stage measured: the highest probability, the shape score, ...),
         ``cluster_points`` (of the deciding cluster) and ``max_prob`` (the highest
         single-view probability segmented within 1 m of it). True towers under
@@ -116,6 +129,7 @@ def trace_zone(
     y = np.concatenate([np.asarray(p.arrays["y"], np.float64) for p in preds])
     prob = np.concatenate([np.asarray(p.arrays["prob_single"], np.float64) for p in preds])
     floor = min(float(rules.threshold), float(rules.rescue_threshold) or float(rules.threshold))
+    gates = _window_gates(preds, inference)
     rows = []
     for _, t in truth.iterrows():
         n_true = int(t["n_points"]) if "n_points" in truth.columns else -1
@@ -136,7 +150,8 @@ def trace_zone(
         if str(t["tower_id"]) in matched:
             pass
         elif not here.any():
-            row["stage"] = "not segmented"
+            stage, value = _gate_stage(near, gates)
+            row.update(stage=stage, value=value)
         elif row["max_prob"] < floor:
             row.update(stage="faint", value=row["max_prob"])
         else:
@@ -155,6 +170,44 @@ def trace_zone(
     return rows
 
 
+def _window_gates(preds: Sequence[Any], inference: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The windows' gate records of every tile, one column each (``None`` if a prediction file
+    has none: written before they were recorded), and the classifier's gate as the tiles ran it."""
+    recs = [p.meta.get("window_gates") for p in preds]
+    if not recs or any(r is None for r in recs):
+        return None
+
+    def cat(key: str) -> np.ndarray:
+        return np.array([np.nan if v is None else v for r in recs for v in r[key]], dtype=np.float64)
+
+    return {
+        "x": cat("x"),
+        "y": cat("y"),
+        "shape": cat("shape"),
+        "prob": cat("prob"),
+        "gate": float(preds[0].meta.get("gate_threshold", inference["gate"])),
+    }
+
+
+def _gate_stage(near: Any, gates: Mapping[str, Any] | None) -> tuple[str, float]:
+    """Why no window segmented a tower whose footprint (buffered) is ``near``: the gate that
+    refused every window centred on it, and the best score that gate saw."""
+    import shapely
+
+    if gates is None:
+        return "not segmented", float("nan")
+    on = shapely.contains_xy(near, gates["x"], gates["y"])
+    if not on.any():
+        return "no window", float("nan")
+    shape, prob = gates["shape"][on], gates["prob"][on]
+    if np.isfinite(prob).any():
+        best = float(np.nanmax(prob))
+        # a window over it passed both gates and was still not segmented (a secondary peak near a
+        # segmented one): the gates did not lose it
+        return ("not segmented" if best >= gates["gate"] else "classifier gate"), best
+    return "shape gate", float(np.nanmax(shape)) if np.isfinite(shape).any() else float("nan")
+
+
 def trace_table(rows: Sequence[Mapping[str, Any]]) -> str:
     """The rows of :func:`trace_zone` as a Markdown table, the missed towers first."""
 
@@ -168,7 +221,7 @@ def trace_table(rows: Sequence[Mapping[str, Any]]) -> str:
         "|---|---|---|---|---|---|---|---|",
     ]
     for r in order:
-        stage = RULE_NAMES.get(r["stage"], r["stage"])
+        stage = RULE_NAMES.get(r["stage"]) or GATE_STAGES.get(r["stage"], r["stage"])
         value = "" if not np.isfinite(r["value"]) else f"{r['value']:.3f}"
         lines.append(
             f"| {r['tower_id']} | {r['design']} | {r['height_m']:.1f} | {r['n_points']} | {r['max_prob']:.2f} | "

@@ -61,7 +61,7 @@ from towerpipe.errors import ConfigError, ModelError
 from towerpipe.inference.candidates import PEAK_RADIUS, CandidateWindows, candidate_windows
 from towerpipe.inference.compat import BundleLike, check_model_compatibility, model_info
 from towerpipe.inference.views import check_views, segment_views
-from towerpipe.inference.windows import TileWindows, sliding_windows
+from towerpipe.inference.windows import TileWindows, sliding_windows, window_gates
 from towerpipe.io.predictions import save_pred
 from towerpipe.io.tiles import Tile, load_tile
 from towerpipe.progress import Progress, peak_rss_mb
@@ -138,8 +138,9 @@ def predict_tile(
         background without a classifier pass), ``windows_shape_gated`` (windows whose peak
         object the shape gate judged background),
         ``gate_threshold``, ``combine``, ``points_core``, ``points_model_input_core``,
-        ``points_predicted``, ``timings`` (s) and ``window_probs`` (list of
-        ``[kx, ky, p]`` for the windows that passed the gate).
+        ``points_predicted``, ``timings`` (s), ``window_probs`` (list of
+        ``[kx, ky, p]`` for the windows that passed the gate) and ``window_gates``
+        (:func:`towerpipe.inference.windows.window_gates`: what the gates made of every window with something tall in it).
     """
     from towerpipe.model import features, sampling
 
@@ -225,6 +226,8 @@ def predict_tile(
 
     # --- shape gate: the object at a candidate's peak is a crown or a roof -----------
     n_tall = len(todo)
+    tall_windows = todo
+    win_shape = np.full(n_win, np.nan)  # the shape gate's score of each window it judged
     ts = time.perf_counter()
     by_shape = windows == "candidates" and verifier is not None  # the grid's windows have no peak
     if by_shape and settings.shape_gate > 0 and n_tall:
@@ -232,13 +235,15 @@ def predict_tile(
 
         px, py, ph = arrays["x"][mi], arrays["y"][mi], hag[mi]
         objects = peak_objects(ws.centers[todo], px, py, ph, exclude=wires, tree=tree)
-        shape = peak_scores(verifier, objects, px, py, ph)
-        todo = todo[shape >= settings.shape_gate]
+        win_shape[todo] = peak_scores(verifier, objects, px, py, ph)
+        todo = todo[win_shape[todo] >= settings.shape_gate]
     timings["shape_gate"] = time.perf_counter() - ts
 
     # --- classifier gate, one batch at a time ---------------------------------------
     n_pts = int(bundle.n_points)
     win_prob = np.zeros(n_win, dtype=np.float32)
+    classified = np.zeros(n_win, dtype=bool)
+    classified[todo] = True
     t_sample = t_clf = 0.0
     buf: np.ndarray | None = None
     n_todo = len(todo)
@@ -354,6 +359,12 @@ def predict_tile(
         "timings": timings,
         "windows_per_s_classify": float(n_todo / (t_sample + t_clf)) if n_todo and (t_sample + t_clf) > 0 else None,
         "window_probs": [[int(ws.keys[i, 0]), int(ws.keys[i, 1]), float(win_prob[i])] for i in passed],
+        "window_gates": window_gates(
+            np.array([ws.center(int(i)) for i in tall_windows]),
+            win_shape[tall_windows],
+            np.where(classified, win_prob, np.nan)[tall_windows],
+            np.isin(tall_windows, passed),
+        ),
     }
     return out, stats
 

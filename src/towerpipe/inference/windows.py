@@ -18,6 +18,9 @@ sorted once into ``stride``-sized grid cells (a stable sort on a canonical order
 see :func:`sliding_windows`), and a window's points are the concatenation of the
 slices of its ``ceil(window / stride)²`` cells, filtered on the far edge when
 ``window`` is not a multiple of ``stride``. Memory is O(points + cells).
+
+What the gates made of each window (:func:`window_gates`) is recorded in the prediction
+file's ``meta``, for ``towerpipe trace``.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["TileWindows", "sliding_windows"]
+__all__ = ["TileWindows", "sliding_windows", "window_gates"]
 
 
 @dataclass(frozen=True)
@@ -335,3 +338,37 @@ def _window_counts(ws: TileWindows, cx: np.ndarray, cy: np.ndarray, core: np.nda
             total += np.bincount(pos[hit], minlength=len(keycodes))
             ncore += np.bincount(pos[hit], weights=core[ok][hit], minlength=len(keycodes)).astype(np.int64)
     return total, ncore
+
+
+def window_gates(centers: np.ndarray, shape: np.ndarray, prob: np.ndarray, segmented: np.ndarray) -> dict[str, list]:
+    """What the gates made of a tile's windows, for ``towerpipe trace`` to say why a tower was
+    never segmented: one entry per window with something at least ``min_height`` in it.
+
+    Parameters
+    ----------
+    centers
+        ``(W, 2)`` the windows' centres (absolute x, y).
+    shape, prob
+        ``(W,)`` the shape gate's score and the classifier's probability of each (NaN: not
+        judged by that gate).
+    segmented
+        ``(W,)`` bool, whether each was segmented.
+
+    Returns
+    -------
+    dict
+        Columns ``x``, ``y`` (m, to 0.1 m), ``shape``, ``prob`` (4 decimals, ``None`` where not
+        judged) and ``segmented``, JSON-able.
+    """
+
+    def col(a: np.ndarray, ndigits: int) -> list:
+        return [None if not np.isfinite(v) else round(float(v), ndigits) for v in np.asarray(a, np.float64)]
+
+    centers = np.asarray(centers, np.float64).reshape(-1, 2)
+    return {
+        "x": col(centers[:, 0], 1),
+        "y": col(centers[:, 1], 1),
+        "shape": col(shape, 4),
+        "prob": col(prob, 4),
+        "segmented": np.asarray(segmented, dtype=bool).tolist(),
+    }

@@ -24,7 +24,8 @@ array             dtype     meaning
 ``crs_wkt``, ``core_bounds``, ``model`` (``name``, ``version``, ``feature_set``,
 ``path``, ``sha256``), ``windows_total``, ``windows_passed_gate``,
 ``windows_segmented``, ``gate_threshold``, ``combine``, ``points_core``,
-``points_model_input_core``, ``timings`` (seconds) and ``peak_rss_mb``.
+``points_model_input_core``, ``timings`` (seconds), ``peak_rss_mb`` and ``window_gates``
+(what the gates made of every window: :func:`towerpipe.inference.windows.window_gates`).
 """
 
 from __future__ import annotations
