@@ -242,8 +242,6 @@ def predict_tile(
     # --- classifier gate, one batch at a time ---------------------------------------
     n_pts = int(bundle.n_points)
     win_prob = np.zeros(n_win, dtype=np.float32)
-    classified = np.zeros(n_win, dtype=bool)
-    classified[todo] = True
     t_sample = t_clf = 0.0
     buf: np.ndarray | None = None
     n_todo = len(todo)
@@ -362,7 +360,7 @@ def predict_tile(
         "window_gates": window_gates(
             np.array([ws.center(int(i)) for i in tall_windows]),
             win_shape[tall_windows],
-            np.where(classified, win_prob, np.nan)[tall_windows],
+            np.where(np.isin(tall_windows, todo), win_prob[tall_windows], np.nan),  # classified or not
             np.isin(tall_windows, passed),
         ),
     }
