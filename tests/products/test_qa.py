@@ -11,6 +11,7 @@ import rasterio
 from affine import Affine
 
 from conftest import extract, qa_limits
+from towerpipe import classes
 from towerpipe.products.qa.block import BlockInputs, block_report
 from towerpipe.products.qa.index import zone_index
 from towerpipe.products.qa.metrics import load_classified, read_benchmark
@@ -385,11 +386,18 @@ def test_side_views_see_a_seam_tower_whole(tmp_path):
 
     pts, gdf, _ = seam_setup()
     tid = gdf["tower_id"].iloc[0]
+    # noise 700 m above the tower, classified (18) or only out of the tile's height range (class 1,
+    # 700 m above ground): never in its side views (it would set their scale)
+    cx, cy = gdf["centroid_x"].iloc[0], gdf["centroid_y"].iloc[0]
+    top = float(pts["z"].max()) + 700.0
+    for cls, hag in ((classes.HIGH_NOISE, 50.0), (1, 700.0)):
+        noise = {"x": cx - 2.0, "y": cy, "z": top, "classification": cls, "prob": 0.0, "hag": hag}
+        pts = {k: np.append(v, noise.get(k, v[-1])).astype(v.dtype) for k, v in pts.items()}
     # two blocks split at the seam: b1's tile holds its core and b2's points as buffer
     in_b1 = pts["x"] < X0 + SIZE
     idx = {b: np.flatnonzero(m) for b, m in (("b1", in_b1), ("b2", ~in_b1))}
     arrays = empty_arrays(len(pts["x"]))
-    for k in ("x", "y", "z", "classification"):
+    for k in ("x", "y", "z", "hag", "classification"):
         arrays[k] = pts[k].astype(arrays[k].dtype)
     arrays["block_id"] = np.where(in_b1, 0, 1).astype(np.int32)
     arrays["point_index"] = np.zeros(len(in_b1), np.int64)
@@ -397,7 +405,9 @@ def test_side_views_see_a_seam_tower_whole(tmp_path):
         arrays["point_index"][i] = np.arange(len(i))
     arrays["core"] = in_b1
     tile = tmp_path / "t.npz"
-    save_tile(tile, Tile(arrays, {"blocks": ["b1", "b2"], "core_bounds": list(BOUNDS)}))
+    save_tile(
+        tile, Tile(arrays, {"blocks": ["b1", "b2"], "core_bounds": list(BOUNDS), "hag_min": -5.0, "hag_max": 100.0})
+    )
     is_tower = pts["classification"] == 15
     members = tmp_path / "b1.points.npz"
     save_members(members, {tid: (np.where(in_b1[is_tower], "b1", "b2"), arrays["point_index"][is_tower])})
@@ -407,6 +417,7 @@ def test_side_views_see_a_seam_tower_whole(tmp_path):
     assert hood["tower"].sum() == is_tower.sum()
     assert hood["x"][hood["tower"]].max() > X0 + SIZE  # the neighbour's half of the tower is there
     assert len(hood["x"]) == len(np.unique(np.column_stack([hood["x"], hood["y"], hood["z"]]), axis=0))
+    assert hood["z"].max() < top - 600  # both noise points are left out
     report(tmp_path, "b1", stem="b", towers=gdf, classified=pts, neighbourhoods=hoods)
     page = (tmp_path / "b.html").read_text()
     assert 'id="tower-1"' in page and 'href="#tower-1"' in page and "Side views" in page

@@ -1,8 +1,8 @@
 """The points around each tower of a block, for its side views on the QA page.
 
 :func:`tower_neighbourhoods` cuts a square around each tower from the block's tiles (core
-and buffer, each point once) and marks the towers' own points; the side views are drawn by
-:func:`towerpipe.products.qa.plots.tower_elevations`.
+and buffer, each point once, noise left out) and marks the towers' own points; the side
+views are drawn by :func:`towerpipe.products.qa.plots.tower_elevations`.
 """
 
 from __future__ import annotations
@@ -13,8 +13,23 @@ from typing import Any
 
 import numpy as np
 
+from towerpipe import classes
+
 #: Half-width (m) of the square around a tower shown in its side views, at least.
 VIEW_RADIUS_M = 30.0
+
+
+def noise(tile: Any) -> np.ndarray:
+    """The points of a tile that its preprocessing called noise: classified noise
+    (:data:`towerpipe.classes.NOISE`) or out of its height range above ground (the tile's
+    ``hag_min`` and ``hag_max``, as :func:`towerpipe.preprocess.tile.preprocess_tile` judged them)."""
+    hag = np.asarray(tile.arrays["hag"], dtype=np.float64)
+    out = np.isin(tile.arrays["classification"], classes.NOISE)
+    if tile.meta.get("hag_max") is not None:
+        out |= hag > float(tile.meta["hag_max"])
+    if tile.meta.get("hag_min") is not None:
+        out |= hag < float(tile.meta["hag_min"])
+    return out
 
 
 def tower_neighbourhoods(
@@ -42,7 +57,9 @@ def tower_neighbourhoods(
     Returns
     -------
     dict
-        ``tower_id`` → ``x, y, z`` (float64) and ``tower`` (bool) of the points in its square.
+        ``tower_id`` → ``x, y, z`` (float64) and ``tower`` (bool) of the points in its square,
+        without the noise (:func:`noise`): a single return of noise hundreds of metres up would
+        set the scale of both views (drawn to equal scales) and shrink the tower to a few pixels.
     """
     from towerpipe.io.columns import load_columns
     from towerpipe.io.members import MEMBER_ARRAYS
@@ -63,11 +80,12 @@ def tower_neighbourhoods(
     parts: dict[str, list[dict[str, np.ndarray]]] = {t: [] for t in boxes}
     seen: dict[str, set[tuple[int, int]]] = {t: set() for t in boxes}
     for path in tile_files:
-        tile = load_tile(path, ["x", "y", "z", "block_id", "point_index"])
+        tile = load_tile(path, ["x", "y", "z", "hag", "classification", "block_id", "point_index"])
         names = list(tile.meta.get("blocks") or [])
         x, y = tile.arrays["x"], tile.arrays["y"]
+        signal = ~noise(tile)
         for tid, (x0, y0, x1, y1) in boxes.items():
-            sel = np.flatnonzero((x >= x0) & (x < x1) & (y >= y0) & (y < y1))
+            sel = np.flatnonzero((x >= x0) & (x < x1) & (y >= y0) & (y < y1) & signal)
             if not sel.size:
                 continue
             bid, pidx = tile.arrays["block_id"][sel], tile.arrays["point_index"][sel]
