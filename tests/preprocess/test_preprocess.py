@@ -11,7 +11,7 @@ from conftest import HIGH_NOISE, RGB_SUBSET, RGBNIR_BLOCK, RGBNIR_SMALL, preproc
 from towerpipe.io.tiles import load_tile
 from towerpipe.preprocess import tiling
 from towerpipe.preprocess.split import split_block
-from towerpipe.preprocess.tile import preprocess_tile, summarize_block
+from towerpipe.preprocess.tile import preprocess_tile, summarize_block, tile_noise
 
 pytestmark = pytest.mark.usefixtures("pdal_cli")
 
@@ -111,6 +111,13 @@ def test_high_noise_points_out_of_model_input(tmp_path):
     summary = summarize_block(tmp_path / "cache" / "b", [str(tmp_path / "tiles" / f"{t}.npz") for t in tiles])
     assert summary["counts"]["noise_hag_core"] >= 20
     assert summary["points"] == meta["points"]
+    # read back from the written tiles (the QA's side views leave these points out)
+    for t in tiles:
+        tile = load_tile(tmp_path / "tiles" / f"{t}.npz")
+        noise = tile_noise(tile)
+        assert noise[tile.arrays["hag"] > 100.0].all()
+        assert not (noise & tile.arrays["model_input"]).any()
+        assert noise.sum() < 0.01 * len(noise)
 
 
 def split_file(src, out_dir, x_cut):

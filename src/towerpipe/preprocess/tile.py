@@ -5,7 +5,8 @@ core and buffer points from the block's cache (:func:`towerpipe.preprocess.split
 and its neighbours' (:func:`gather_tile`, :func:`buffer_attributes`), classifies ground
 where the block lacks it, builds a DTM and heights above ground with PDAL
 (:mod:`towerpipe.preprocess.ground`), flags noise, and writes a :mod:`towerpipe.io.tiles`.
-:func:`summarize_block` sums a block's tiles for the QA.
+:func:`summarize_block` sums a block's tiles for the QA; :func:`tile_noise` reads back
+which points of a written tile it called noise.
 
 Nothing is deleted from the block: noise and ground are only excluded from the
 model input (``model_input`` flag); the merge step writes every point back.
@@ -46,6 +47,24 @@ log = logging.getLogger(__name__)
 
 #: The stages of a tile after gathering its points (each logged as done, with the time left).
 TILE_STAGES = ("ground", "dtm", "hag", "noise")
+
+
+def out_of_range(hag: np.ndarray, hag_min: float, hag_max: float) -> np.ndarray:
+    """The points too high or too low above the ground to be anything but noise
+    (``preprocess.hag_max``, ``preprocess.hag_min``)."""
+    return (hag > hag_max) | (hag < hag_min)
+
+
+def tile_noise(tile: Tile) -> np.ndarray:
+    """The points of a written tile that its preprocessing called noise: classified noise
+    (:data:`towerpipe.classes.NOISE`) or out of the tile's height range (its ``hag_min`` and
+    ``hag_max``, :func:`out_of_range`). The tile needs ``hag`` and ``classification``. The
+    statistical outliers are not recorded in a tile and are not among them."""
+    out = np.isin(tile.arrays["classification"], classes.NOISE)
+    if tile.meta.get("hag_min") is not None and tile.meta.get("hag_max") is not None:
+        hag = np.asarray(tile.arrays["hag"], dtype=np.float64)
+        out |= out_of_range(hag, float(tile.meta["hag_min"]), float(tile.meta["hag_max"]))
+    return out
 
 
 _COLOUR = ("red", "green", "blue", "nir")
@@ -249,7 +268,7 @@ def preprocess_tile(
             timings["hag"] = time.perf_counter() - s
             progress.update(detail=f"hag took {timings['hag']:.1f} s")
             s = time.perf_counter()
-            noise_hag = (hag > cfg.hag_max) | (hag < cfg.hag_min)
+            noise_hag = out_of_range(hag, cfg.hag_min, cfg.hag_max)
             outlier = np.zeros(n, bool)
             if cfg.outlier:
                 cand = ~ground & ~noise_cls & ~noise_hag

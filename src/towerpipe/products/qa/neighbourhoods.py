@@ -13,23 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from towerpipe import classes
-
 #: Half-width (m) of the square around a tower shown in its side views, at least.
 VIEW_RADIUS_M = 30.0
-
-
-def noise(tile: Any) -> np.ndarray:
-    """The points of a tile that its preprocessing called noise: classified noise
-    (:data:`towerpipe.classes.NOISE`) or out of its height range above ground (the tile's
-    ``hag_min`` and ``hag_max``, as :func:`towerpipe.preprocess.tile.preprocess_tile` judged them)."""
-    hag = np.asarray(tile.arrays["hag"], dtype=np.float64)
-    out = np.isin(tile.arrays["classification"], classes.NOISE)
-    if tile.meta.get("hag_max") is not None:
-        out |= hag > float(tile.meta["hag_max"])
-    if tile.meta.get("hag_min") is not None:
-        out |= hag < float(tile.meta["hag_min"])
-    return out
 
 
 def tower_neighbourhoods(
@@ -58,12 +43,14 @@ def tower_neighbourhoods(
     -------
     dict
         ``tower_id`` → ``x, y, z`` (float64) and ``tower`` (bool) of the points in its square,
-        without the noise (:func:`noise`): a single return of noise hundreds of metres up would
-        set the scale of both views (drawn to equal scales) and shrink the tower to a few pixels.
+        without the noise (:func:`towerpipe.preprocess.tile.tile_noise`): a single return of
+        noise hundreds of metres up would set the scale of both views (drawn to equal scales)
+        and shrink the tower to a few pixels.
     """
     from towerpipe.io.columns import load_columns
     from towerpipe.io.members import MEMBER_ARRAYS
     from towerpipe.io.tiles import load_tile
+    from towerpipe.preprocess.tile import tile_noise
 
     if not len(towers):
         return {}
@@ -83,7 +70,7 @@ def tower_neighbourhoods(
         tile = load_tile(path, ["x", "y", "z", "hag", "classification", "block_id", "point_index"])
         names = list(tile.meta.get("blocks") or [])
         x, y = tile.arrays["x"], tile.arrays["y"]
-        signal = ~noise(tile)
+        signal = ~tile_noise(tile)
         for tid, (x0, y0, x1, y1) in boxes.items():
             sel = np.flatnonzero((x >= x0) & (x < x1) & (y >= y0) & (y < y1) & signal)
             if not sel.size:
