@@ -241,6 +241,13 @@ def test_clipped_histogram_counts_the_clipped_values_in_the_end_bins():
     np.testing.assert_array_equal(edges, want_edges)
 
 
+def test_histogram_counts_are_labelled_as_short_plain_text():
+    from towerpipe.products.qa.plots import count_label
+
+    got = [count_label(v) for v in (1, 10, 100, 1e3, 1e4, 1e5, 1e6, 2.5e6)]
+    assert got == ["1", "10", "100", "1k", "10k", "100k", "1M", "2.5M"]  # no 10^n: no mathematical text
+
+
 def test_block_report_from_files_and_no_towers(tmp_path):
     import laspy
 

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
-from matplotlib.ticker import LogFormatter, NullFormatter
+from matplotlib.ticker import FuncFormatter, NullFormatter
 
 #: Colours shared by every figure (and by the pages' CSS).
 TOWER_RED = "#e12d39"
@@ -193,9 +193,17 @@ def clipped_histogram(a: np.ndarray, rng: tuple[float, float], bins: int = 79) -
     return counts, edges
 
 
+def count_label(v: float, _pos: int | None = None) -> str:
+    """A count as short plain text: 1, 10, 100, 1k, 10k, 100k, 1M."""
+    for div, suffix in ((1e6, "M"), (1e3, "k")):
+        if v >= div:
+            return f"{v / div:g}{suffix}"
+    return f"{v:g}"
+
+
 def hag_histogram(hag: np.ndarray, tower: np.ndarray | None) -> str:
     """Histogram of heights above ground (log counts), the tower points' in red."""
-    fig, ax = _figure(figsize=(5.4, 4.2), margins={"left": 0.13, "right": 0.97, "bottom": 0.12, "top": 0.92})
+    fig, ax = _figure(figsize=(5.4, 4.2), margins={"left": 0.14, "right": 0.97, "bottom": 0.12, "top": 0.92})
     tower = tower if tower is not None and len(tower) == len(hag) else None
     ok = np.isfinite(hag)
     if not ok.all():  # a copy only where the DTM has holes
@@ -217,9 +225,9 @@ def hag_histogram(hag: np.ndarray, tower: np.ndarray | None) -> str:
     for b in (3.0, 8.0):
         ax.axvline(b, color="#616e7c", lw=0.8, ls=":")
     ax.set_yscale("log")
-    # counts as plain numbers: the default 10^n labels set mathematical text, whose fonts a
-    # QA job would load for this one figure
-    ax.yaxis.set_major_formatter(LogFormatter(labelOnlyBase=True))
+    # counts as plain text (1, 10, ..., 1k, 1M): the default 10^n labels set mathematical text,
+    # whose fonts a QA job would load for this one figure
+    ax.yaxis.set_major_formatter(FuncFormatter(count_label))
     ax.yaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("height above ground (m)")
     ax.set_ylabel("points (log)")
