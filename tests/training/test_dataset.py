@@ -247,6 +247,25 @@ def test_occlusion_takes_a_face_of_the_tower(tmp_path):
     assert np.median(np.array(t1) / np.array(t0)) < 0.8
 
 
+def test_tower_thinning_thins_the_tower_alone(tmp_path):
+    """The tower's points get sparser, the rest of the window stays; never under min_tower_points + 10."""
+    paths = make_tiles(tmp_path, n_blocks=3, tower_pts=800)
+    cfg = {"val_fraction": 0.34, "test_fraction": 0.34, "seed": 5, "positive_shifts": 0}
+    plain = build_windows(paths, cfg)
+    thin = build_windows(paths, {**cfg, "tower_thinning": {"probability": 1.0, "keep": [0.01, 0.02]}})
+    never = build_windows(paths, {**cfg, "tower_thinning": {"probability": 0.0, "keep": [0.01, 0.02]}})
+
+    def counts(ws):
+        pos = np.flatnonzero(ws.kind == KINDS["positive"])
+        lab = [ws.point_label[ws.offsets[i] : ws.offsets[i + 1]] for i in pos]
+        return np.array([int(v.sum()) for v in lab]), np.array([int((v == 0).sum()) for v in lab])
+
+    (t0, b0), (t1, b1), (t2, b2) = counts(plain), counts(thin), counts(never)
+    assert len(t0) == len(t1) and (t1 < t0).all() and t1.min() >= 30
+    assert np.array_equal(b0, b1)  # the window around the tower is untouched
+    assert np.array_equal(t0, t2) and np.array_equal(b0, b2)
+
+
 def test_windows_know_their_tower_family(tmp_path):
     """With the truth, every window records the families of its towers; a hard negative, its lost tower's."""
     import geopandas as gpd

@@ -26,19 +26,19 @@ window cannot be denser than its zone), so one tower is seen at 2 and at 30 pts/
 positive keeps at least ``min_tower_points`` + 10 of its tower's points. With probability
 ``occlusion`` a positive's tower also loses most of the points of one side (a face in scan
 shadow): those beyond a random vertical plane through its centre are kept with a chance
-drawn in 0-0.4.
+drawn in 0-0.4. ``tower_thinning`` (``{"probability": p, "keep": [lo, hi]}``, off by default)
+keeps, with probability ``p``, a rate drawn log-uniformly in ``[lo, hi]`` of a window's tower points
+(at least ``min_tower_points`` + 10): a tower sparser than what stands around it.
 
 Real tower families: with the zones' truth (``truth``, :func:`build_windows`), every
 window records which families (:data:`towerpipe.training.windowset.FAMILY_BITS`) its tower
 points come from, and a hard negative the family of the tower it lost, so that training can
 leave one family out (``exclude_families`` in :mod:`towerpipe.training.train`).
 
-The built windows are a :class:`towerpipe.training.windowset.WindowSet`.
-
-A window is positive when it holds at least ``min_tower_points`` tower points. The
-split is *by block* (the block of the tile whose core holds the window centre), so no
-block contributes to two splits; blocks with towers are split separately from the
-others.
+The built windows are a :class:`towerpipe.training.windowset.WindowSet`. A window is positive
+when it holds at least ``min_tower_points`` tower points. The split is *by block* (the block of
+the tile whose core holds the window centre), so no block contributes to two splits; blocks with
+towers are split separately from the others.
 
 Each window stores its point pool as float16 features (:data:`towerpipe.model.features.ALL_FEATURES`)
 with per-point labels, plus the indices of its constrained and of its random 2048-point
@@ -91,6 +91,7 @@ DEFAULT_DATASET_CONFIG: dict[str, Any] = {
     "positive_shifts": 1,
     "density_range": None,
     "occlusion": 0.0,
+    "tower_thinning": None,
 }
 
 
@@ -266,6 +267,15 @@ def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator, t
             keep = max(keep, min(1.0, (min_tower + 10) / towers_kept))
         return pts if keep >= 1.0 else pts[rng.random(pts.size) < keep]
 
+    def thin_tower(pts: np.ndarray) -> np.ndarray:
+        """The tower's points sparser than the rest of the window (see the module docstring)."""
+        spec = cfg["tower_thinning"]
+        if not spec or rng.random() >= float(spec["probability"]):
+            return pts
+        tw = np.flatnonzero(is_tower[pts])
+        k = round(float(np.exp(rng.uniform(*np.log(np.asarray(spec["keep"], float))))) * tw.size)
+        return np.delete(pts, np.setdiff1d(tw, rng.choice(tw, min(tw.size, max(k, min_tower + 10)), replace=False)))
+
     def occlude(pts: np.ndarray, tower_c: np.ndarray) -> np.ndarray:
         """A face of the tower in scan shadow (see the module docstring)."""
         if tower_c is None or not cfg["occlusion"] or rng.random() >= float(cfg["occlusion"]):
@@ -280,8 +290,7 @@ def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator, t
         fam = int(np.bitwise_or.reduce(family[pts])) if pts.size else 0
         if drop_towers:
             pts = pts[~is_tower[pts]]
-        pts = thin(pts, int(is_tower[pts].sum()))
-        pts = occlude(pts, tower_c)
+        pts = occlude(thin_tower(thin(pts, int(is_tower[pts].sum()))), tower_c)
         pts.sort()
         if pts.size < int(cfg["min_window_points"]):
             return False
