@@ -26,9 +26,8 @@ window cannot be denser than its zone), so one tower is seen at 2 and at 30 pts/
 positive keeps at least ``min_tower_points`` + 10 of its tower's points. With probability
 ``occlusion`` a positive's tower also loses most of the points of one side (a face in scan
 shadow): those beyond a random vertical plane through its centre are kept with a chance
-drawn in 0-0.4. ``tower_thinning`` (``{"probability": p, "keep": [lo, hi]}``, off by default)
-keeps, with probability ``p``, a rate drawn log-uniformly in ``[lo, hi]`` of a window's tower points
-(at least ``min_tower_points`` + 10): a tower sparser than what stands around it.
+drawn in 0-0.4. ``tower_thinning`` (``{"probability": p, "keep": [lo, hi]}``, off by default) keeps, with
+probability ``p``, a rate log-uniform in ``[lo, hi]`` of a window's tower points (at least ``min_tower_points`` + 10).
 
 Real tower families: with the zones' truth (``truth``, :func:`build_windows`), every
 window records which families (:data:`towerpipe.training.windowset.FAMILY_BITS`) its tower
@@ -273,8 +272,9 @@ def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator, t
         if not spec or rng.random() >= float(spec["probability"]):
             return pts
         tw = np.flatnonzero(is_tower[pts])
-        k = round(float(np.exp(rng.uniform(*np.log(np.asarray(spec["keep"], float))))) * tw.size)
-        return np.delete(pts, np.setdiff1d(tw, rng.choice(tw, min(tw.size, max(k, min_tower + 10)), replace=False)))
+        rate = float(np.exp(rng.uniform(*np.log(np.asarray(spec["keep"], float)))))
+        kept = rng.choice(tw, min(tw.size, max(round(rate * tw.size), min_tower + 10)), replace=False)
+        return np.delete(pts, np.setdiff1d(tw, kept))
 
     def occlude(pts: np.ndarray, tower_c: np.ndarray) -> np.ndarray:
         """A face of the tower in scan shadow (see the module docstring)."""
