@@ -261,6 +261,9 @@ class TowersConfig(Section):
     #: A cluster the shape check drops is clustered again from its points at or above each
     #: of these probabilities in turn, and each part is judged (empty: never).
     split_thresholds: Sequence[float]
+    #: Rule 12: a cluster the shape check drops and no split replaces is kept when the conductors
+    #: pointing at it lie at least this far (m, median) below its top (0: never).
+    vouch_height: float
     #: Rule 10: clusters no accepted tower holds, from the points at or above this
     #: probability, are judged again (0: never; see :func:`towerpipe.towers.extract.extract_towers`).
     rescue_threshold: float

@@ -1,5 +1,5 @@
 """Tests of towerpipe.towers.shape: the shape descriptor, the verifier, and the shape rule of
-the tower extraction."""
+the tower extraction, with rule 12 (the conductors vouch for a tower the shape rule drops)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import shapely
 from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
+from test_wires import spans
 
 from conftest import UAV_TOWERS, extract
 from towerpipe.errors import ModelError
@@ -310,3 +311,77 @@ def test_peak_scores_of_a_peak_without_an_object_are_zero():
     exclude = np.ones(len(x), bool)  # every point an overhead wire: no object anywhere
     objects = peak_objects(np.array([[0.0, 0.0]]), x, y, hag, exclude=exclude)
     assert (peak_scores(v, objects, x, y, hag) == 0).all()
+
+
+# rule 12, the conductors' vouch (towers.vouch_height)
+BASE_Z = 100.0  # flat ground: HAG is z - BASE_Z
+
+
+class _Rejects:
+    """A verifier that takes every object for a tree."""
+
+    def score(self, x, y, hag):
+        return 0.0
+
+
+@pytest.mark.parametrize(("vouch_height", "kept"), [(0.0, 0), (5.0, 1), (12.0, 0)])
+def test_conductors_vouch_for_a_tower_the_shape_check_drops(monkeypatch, vouch_height, kept):
+    """A 30 m tower carrying conductors at 28 m, scored as a tree by the verifier: kept when its top
+    stands ``vouch_height`` m above the wires in its ring (about 8 m here), dropped otherwise."""
+    import towerpipe.towers.extract as ex
+
+    monkeypatch.setattr(ex, "load_verifier", lambda spec: _Rejects())
+    rng = np.random.default_rng(2)
+    cx, cy = X0 + 250, Y0 + 250
+    t_xyz, t_hag = synthetic_tower(cx, cy, base_z=BASE_Z, seed=3)
+    wires = spans(cx, cy, BASE_Z + 28.0, rng)
+    ctx = {
+        "x": np.r_[t_xyz[:, 0], wires[:, 0]],
+        "y": np.r_[t_xyz[:, 1], wires[:, 1]],
+        "z": np.r_[t_xyz[:, 2], wires[:, 2]],
+        "hag": np.r_[t_hag, wires[:, 2] - BASE_Z].astype(np.float64),
+    }
+
+    def context(x, y):
+        return ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)
+
+    rules = {"min_shape_score": 0.5, "split_thresholds": [], "vouch_height": vouch_height}
+    found = extract([pred_pair(t_xyz, t_hag, 0.95, ["b1"])], "b1", BOUNDS, zone="z1", context=context, **rules)
+    assert len(found.towers) == kept
+    if kept:
+        assert found.towers["shape_score"].iloc[0] == 0.0  # reported with the score it got
+        assert found.towers["wire_support"].iloc[0] == 1.0
+
+
+def test_conductors_do_not_vouch_for_a_crown_under_them_or_for_unknown_support(monkeypatch):
+    """A 14 m crown 40 m along the line, under conductors 20 m up, is not vouched for; nor is a
+    tower whose ring lies outside the data (unknown support)."""
+    import towerpipe.towers.extract as ex
+
+    monkeypatch.setattr(ex, "load_verifier", lambda spec: _Rejects())
+    rng = np.random.default_rng(4)
+    cx, cy = X0 + 250, Y0 + 250
+    wires = spans(cx - 40.0, cy, BASE_Z + 28.0, rng)
+    n = 400
+    r, a = 3.0 * np.sqrt(rng.random(n)), rng.uniform(0, 2 * np.pi, n)
+    crown_hag = rng.uniform(6.0, 14.0, n)
+    crown = np.c_[cx + r * np.cos(a), cy + r * np.sin(a), BASE_Z + crown_hag]
+    ctx = {
+        "x": np.r_[crown[:, 0], wires[:, 0]],
+        "y": np.r_[crown[:, 1], wires[:, 1]],
+        "z": np.r_[crown[:, 2], wires[:, 2]],
+        "hag": np.r_[crown_hag, wires[:, 2] - BASE_Z],
+    }
+    rules = {"min_shape_score": 0.5, "split_thresholds": [], "vouch_height": 5.0, "min_height": 5.0}
+    pair = pred_pair(crown, crown_hag.astype(np.float32), 0.95, ["b1"])
+    found = extract(
+        [pair], "b1", BOUNDS, zone="z1", context=lambda x, y: (ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)), **rules
+    )
+    assert len(found.towers) == 0
+
+    t_xyz, t_hag = synthetic_tower(cx, cy, base_z=BASE_Z, seed=3)
+    tower = {"x": t_xyz[:, 0], "y": t_xyz[:, 1], "z": t_xyz[:, 2], "hag": t_hag.astype(np.float64)}
+    inside = (cx - 30, cy - 30, cx + 30, cy + 30)  # no data in the 80-160 m ring: support unknown
+    pair = pred_pair(t_xyz, t_hag, 0.95, ["b1"])
+    found = extract([pair], "b1", BOUNDS, zone="z1", context=lambda x, y: (tower, inside), **rules)
+    assert len(found.towers) == 0

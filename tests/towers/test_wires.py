@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from towerpipe.towers.wires import wire_points, wire_support
+from towerpipe.towers.wires import conductor_heights, wire_points, wire_support
 
 X0, Y0 = 400_000.0, 4_600_000.0
 
@@ -45,6 +45,16 @@ def line_through(
         p0 = np.array([cx, cy]) + a * n - length * d
         p1 = np.array([cx, cy]) + a * n + length * d
         parts.append(conductor(*p0, *p1, z0, rng=rng))
+    return np.concatenate(parts)
+
+
+def spans(cx: float, cy: float, top: float, rng: np.random.Generator) -> np.ndarray:
+    """Three conductors leaving (cx, cy) at height ``top`` both ways along x, 300 m spans sagging 8 m
+    (flat ground at 0: z is HAG)."""
+    parts = []
+    for dy in (-5.0, 0.0, 5.0):
+        for far in (cx - 300.0, cx + 300.0):
+            parts.append(conductor(cx, cy + dy, far, cy + dy, top, sag=8.0, rng=rng))
     return np.concatenate(parts)
 
 
@@ -265,3 +275,14 @@ def test_conductor_points_of_a_block_are_those_its_inference_jobs_write(tmp_path
     for k in block:
         np.testing.assert_array_equal(block[k], gathered[k])
         assert gathered[k].dtype == np.float64
+
+
+def test_conductor_heights_are_those_of_the_wires_aimed_at_the_candidate():
+    rng = np.random.default_rng(1)
+    wires = spans(X0, Y0, 28.0, rng)
+    h = conductor_heights(wires[:, 0], wires[:, 1], wires[:, 2], wires[:, 2], X0, Y0)
+    # 80-160 m out of 300 m spans sagging 8 m: 8 * 4 * s * (1 - s) = 6.3-7.9 m below the top
+    assert len(h) > 100
+    assert 19.5 <= np.median(h) <= 22.0 and h.max() <= 28.0
+    # 60 m beside the line no wire points at the candidate
+    assert len(conductor_heights(wires[:, 0], wires[:, 1], wires[:, 2], wires[:, 2], X0, Y0 + 60.0)) == 0

@@ -46,6 +46,12 @@ holds are clustered and each cluster is judged by rules 4-8 (its highest probabi
 ``rescue_threshold``: a thin pole or a sparse real lattice that the segmenter paints mostly
 at 0.1-0.3 is found and outlined when its object is shaped like a tower.
 
+Rule 12, the conductors' vouch (``vouch_height``, off at 0): a cluster the shape check drops,
+not a rescue's, and with no split part to judge instead, is kept when conductors point at it
+(a known support of at least ``min_wire_support``) and its top stands ``vouch_height`` m or more
+above their median height in its 80-160 m ring (:func:`towerpipe.towers.wires.conductor_heights`): a tower carries
+its conductors at its top, a crown under a line stays below them.
+
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
 tower's points and the registry, never on file or processing order nor on the zone's
@@ -113,6 +119,23 @@ def _decided(trace: list[dict[str, Any]], xyz: np.ndarray, rescue: bool, rule: s
 
 def _not_traced(rule: str, value: float) -> None:
     """No trace asked for."""
+
+
+def _vouched(rules: TowersConfig, arr: Mapping[str, np.ndarray], extent: Any, xy: np.ndarray, hag: np.ndarray) -> bool:
+    """Rule 12: do the conductors vouch for a cluster the shape check dropped? They point at it
+    (a known support of at least ``min_wire_support``) and its top stands ``vouch_height`` m
+    or more above their median height in its ring (:func:`towerpipe.towers.wires.conductor_heights`)."""
+    if rules.vouch_height <= 0:
+        return False
+    from towerpipe.towers.wires import conductor_heights, wire_support
+
+    low = hag <= hag.min() + (hag.max() - hag.min()) / 3.0
+    bx, by = (float(v) for v in np.median(xy[low], axis=0))
+    support = wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], bx, by, extent=extent)
+    if not support >= rules.min_wire_support:  # NaN (unknown) never vouches
+        return False
+    heights = conductor_heights(arr["x"], arr["y"], arr["z"], arr["hag"], bx, by)
+    return len(heights) > 0 and float(hag.max()) - float(np.median(heights)) >= rules.vouch_height
 
 
 def _split_by_confidence(
@@ -184,6 +207,7 @@ def extract_towers(
         - ``split_thresholds``: a cluster the shape check drops is clustered again from its
           points at or above each of these in turn, and each part is judged (``()``: never);
         - ``rescue_threshold``: rule 10 (module docstring; 0 never rescues);
+        - ``vouch_height``: rule 12 (module docstring; 0 never vouches);
         - ``foot``, ``column``: which of a tower's points are reported (:mod:`towerpipe.towers.foot`,
           :mod:`towerpipe.towers.column`: rule 11); never whether the tower is.
     zone
@@ -339,15 +363,15 @@ def extract_towers(
                 if len(obj):
                     shape = verifier.score(arr["x"][obj], arr["y"][obj], arr["hag"][obj])
                 if shape < rules.min_shape_score or (is_rescue and np.isnan(shape)):
-                    decided("shape", shape)
                     # the object under it is shaped like a tree, a roof or a crane; or it is a
                     # tower standing in crowns the segmenter painted with it: its more
                     # confident points are clustered again and each part judged
-                    queue.extend(
-                        (part, rest, is_rescue)
-                        for part, rest in _split_by_confidence(g, pts["prob_single"], cluster, splits)
-                    )
-                    continue
+                    parts = _split_by_confidence(g, pts["prob_single"], cluster, splits)
+                    vouched = not parts and not is_rescue and _vouched(rules, arr, extent, xy, hag)
+                    if not vouched:
+                        decided("shape", shape)
+                        queue.extend((part, rest, is_rescue) for part, rest in parts)
+                        continue
             # measured from the tower's base (median xy of its lowest third): a crane's
             # footprint centroid lies out along its jib, its base is the mast
             low = hag <= hag.min() + (hag.max() - hag.min()) / 3.0

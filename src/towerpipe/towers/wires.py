@@ -53,6 +53,7 @@ from towerpipe.towers.coverage import Coverage
 __all__ = [
     "wire_points",
     "wire_support",
+    "conductor_heights",
     "tile_conductor_points",
     "conductor_points",
     "CONDUCTOR_FIELDS",
@@ -243,22 +244,62 @@ def wire_support(
     scored = avail >= min_bins
     if not scored.any() or inside.mean() < min_ring_coverage:
         return float("nan")
-    idx = np.flatnonzero(sel)
-    wire, u = wire_points(x[idx], y[idx], np.asarray(z, dtype=np.float64)[idx])
-    idx, u = idx[wire], u[wire]
+    idx = _aimed_wire_points(x, y, z, dx, dy, sel, max_offset)
     if len(idx) == 0:
         return 0.0
-    px, py = dx[idx], dy[idx]
-    offset = np.abs(px * u[:, 1] - py * u[:, 0])
-    aim = offset <= max_offset
-    ang = np.degrees(np.arctan2(py[aim], px[aim])) % 360.0
-    rb = np.minimum(((d[idx][aim] - r_min) // step).astype(np.int64), nbins - 1)
+    ang = np.degrees(np.arctan2(dy[idx], dx[idx])) % 360.0
+    rb = np.minimum(((d[idx] - r_min) // step).astype(np.int64), nbins - 1)
     hit = np.zeros((len(starts), nbins), dtype=bool)
     for s, a0 in enumerate(starts):
         in_sector = ((ang - a0) % 360.0) < sector
         hit[s, rb[in_sector]] = True
     share = (hit & inside).sum(axis=1) / np.maximum(avail, 1)
     return float(share[scored].max())
+
+
+def _aimed_wire_points(
+    x: np.ndarray, y: np.ndarray, z: np.ndarray, dx: np.ndarray, dy: np.ndarray, sel: np.ndarray, max_offset: float
+) -> np.ndarray:
+    """Indices of the wire points among ``sel`` (judged among themselves) whose wire passes within
+    ``max_offset`` m of the centre, ``(dx, dy)`` being each point's offset from it."""
+    idx = np.flatnonzero(sel)
+    wire, u = wire_points(x[idx], y[idx], np.asarray(z, dtype=np.float64)[idx])
+    idx, u = idx[wire], u[wire]
+    return idx[np.abs(dx[idx] * u[:, 1] - dy[idx] * u[:, 0]) <= max_offset]
+
+
+def conductor_heights(
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    hag: np.ndarray,
+    cx: float,
+    cy: float,
+    *,
+    r_min: float = 80.0,
+    r_max: float = 160.0,
+    max_offset: float = 12.0,
+    min_hag: float = 5.0,
+) -> np.ndarray:
+    """Heights above ground (m) of the wire points that :func:`wire_support` counts for ``(cx, cy)``:
+    in the ring ``[r_min, r_max)`` m, at least ``min_hag`` high, their wire passing within
+    ``max_offset`` m of it (the same defaults).
+
+    A tower carries its conductors at its top and they sag toward the next tower, so these lie
+    well below a tower's top; a crown under a line stays below them (rule 12 of
+    :func:`towerpipe.towers.extract.extract_towers`, ``towers.vouch_height``).
+
+    Returns
+    -------
+    numpy.ndarray
+        float64, one value per such point (empty when there is none).
+    """
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    hag = np.asarray(hag, dtype=np.float64)
+    dx, dy = x - cx, y - cy
+    d = np.hypot(dx, dy)
+    sel = (d >= r_min) & (d < r_max) & (hag >= min_hag)
+    return hag[_aimed_wire_points(x, y, z, dx, dy, sel, max_offset)]
 
 
 def _clearance(
