@@ -157,11 +157,11 @@ def test_block_report_page_and_json(tmp_path):
     assert infer["seconds"] == 12.5 and infer["max_rss_mb"] == pytest.approx(1534.2)
     assert {"code": "warnings", "reason": "1 warning(s) during processing"} in doc["flags"]
     assert doc["status"] == "look"
-    # the schema's limits (its qa section and three tower rules), keys in this order
+    # the schema's limits (its qa section and four tower rules), keys in this order
     assert json.dumps(on_disk["limits"]) == (
         '{"min_density": 2.0, "min_ground_ratio": 0.05, "edge_margin_m": 2.0, "min_tower_prob": 0.6, '
         '"min_wire_support": 0.5, "wire_min_height": 20.0, "max_gate_ratio": 0.25, "min_recall": 1.0, '
-        '"min_precision": 1.0, "min_truth_points": 20}'
+        '"min_precision": 1.0, "min_truth_points": 20, "min_shape_score": 0.95}'
     )
     assert doc["summary"].startswith("2 towers found")
     for text in ("40006004600060", "tile t3: 2 holes filled", "Accuracy against", "peak memory (MB)"):
@@ -174,6 +174,7 @@ def test_block_flags(tmp_path):
     gdf = towers_of(pts)
     assert len(gdf) == 1
     gdf["wire_support"] = 0.25  # a low tower kept without conductors (exempt from the rule)
+    gdf["shape_score"] = 0.31  # kept by its conductors (rule 12) though shaped like a tree
     tiles, preds = metas(ground_source="smrf", passed=20)
     doc = report(tmp_path, "b", tile_metas=tiles, pred_metas=preds, towers=gdf, classified=pts)
     codes = {f["code"] for f in doc["flags"]}
@@ -181,6 +182,7 @@ def test_block_flags(tmp_path):
     reasons = " ".join(f["reason"] for f in doc["flags"])
     assert "from the edge of the data" in reasons and "low mean probability" in reasons
     assert "no conductors found (support 0.25)" in reasons
+    assert "kept by its conductors, shaped like a tree (shape score 0.31)" in reasons
     assert doc["towers"][0]["flags"] and "1 needs a look" in doc["summary"]
 
 

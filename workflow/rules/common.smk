@@ -9,6 +9,7 @@ from pathlib import Path
 from snakemake.exceptions import WorkflowError
 
 from towerpipe.products import layout
+from towerpipe.products.qa.metrics import Limits
 from towerpipe.config import exit_with as config_exit
 from towerpipe.errors import PdalError, TowerpipeError
 from towerpipe.jobs import runlock
@@ -298,6 +299,8 @@ def publication(zone):
 
 INFER = config["inference"]
 TOWERS = config["towers"]
+#: the tower rules the QA pages flag against (towerpipe.products.qa.metrics.Limits)
+QA_TOWER_RULES = tuple(Limits.FROM_TOWERS.values())
 
 
 def model_spec_of(zone):

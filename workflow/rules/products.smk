@@ -67,7 +67,7 @@ rule qa_block:
         threshold=INFER["threshold"],
         # what flags the block or a tower for a look (towerpipe.products.qa.metrics.Limits)
         qa=config["qa"],
-        towers={k: TOWERS[k] for k in ("min_wire_support", "wire_min_height", "min_points")},
+        towers={k: TOWERS[k] for k in QA_TOWER_RULES},
         # the edge of the data: a tower reaching it may be cut (a seam tower is not)
         block_bounds=lambda wc: {b: bounds(wc.zone).get(b) for b in [wc.block, *block_neighbours(wc.zone, wc.block)]},
     script:

@@ -239,7 +239,7 @@ def qa_step(
 
     The preprocessing summary is summed from the metadata of the block's cache and tiles
     (:func:`towerpipe.preprocess.tile.summarize_block`).
-    ``limits`` (the config's ``qa`` section and three tower rules) flag the block or a tower
+    ``limits`` (the config's ``qa`` section and four tower rules) flag the block or a tower
     for a look. ``block_bounds`` (block → header bounds, the block's and its neighbours') gives the
     edge of the data: a tower reaching it may be cut. Only the neighbours that gave
     points to the block's tiles count (a neighbour that failed did not).

@@ -323,6 +323,12 @@ def block_report(
             tflags.append(
                 "a line through it could leave the data unseen: conductor support (80-160 m) not measured, kept"
             )
+        shape = float(getattr(r, "shape_score", float("nan")))
+        if math.isfinite(shape) and shape < limits.min_shape_score:
+            tflags.append(
+                f"kept by its conductors, shaped like a tree (shape score {shape:.2f}): a tower among "
+                "crowns, or a tall tree beside a line?"
+            )
         for t in tflags:
             flag("tower", f"tower {i} ({r.tower_id}): {t}")
         tower_rows.append(

@@ -47,12 +47,16 @@ class Limits:
     min_precision: float
     #: Labelled clusters with fewer points are not towers (``towers.min_points``).
     min_truth_points: int
+    #: Shape score of a tower below this: flagged (``towers.min_shape_score``); only a tower its
+    #: conductors vouched for (rule 12, ``towers.vouch_height``) is reported with such a score.
+    min_shape_score: float
 
     #: The limits that are tower rules: field → key of the config's ``towers`` section.
     FROM_TOWERS: ClassVar[Mapping[str, str]] = {
         "min_wire_support": "min_wire_support",
         "wire_min_height": "wire_min_height",
         "min_truth_points": "min_points",
+        "min_shape_score": "min_shape_score",
     }
 
     @classmethod
