@@ -121,21 +121,24 @@ def _not_traced(rule: str, value: float) -> None:
     """No trace asked for."""
 
 
-def _vouched(rules: TowersConfig, arr: Mapping[str, np.ndarray], extent: Any, xy: np.ndarray, hag: np.ndarray) -> bool:
-    """Rule 12: do the conductors vouch for a cluster the shape check dropped? They point at it
-    (a known support of at least ``min_wire_support``) and its top stands ``vouch_height`` m
-    or more above their median height in its ring (:func:`towerpipe.towers.wires.conductor_heights`)."""
+def _vouching_support(
+    rules: TowersConfig, arr: Mapping[str, np.ndarray], extent: Any, hag: np.ndarray, bx: float, by: float
+) -> float | None:
+    """Rule 12: the conductor support of a cluster the shape check dropped, when its conductors
+    vouch for it (a known support of at least ``min_wire_support``, and its top ``hag.max()``
+    ``vouch_height`` m or more above their median height in its ring,
+    :func:`towerpipe.towers.wires.conductor_heights`); else ``None``. ``(bx, by)``: its base."""
     if rules.vouch_height <= 0:
-        return False
+        return None
     from towerpipe.towers.wires import conductor_heights, wire_support
 
-    low = hag <= hag.min() + (hag.max() - hag.min()) / 3.0
-    bx, by = (float(v) for v in np.median(xy[low], axis=0))
     support = wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], bx, by, extent=extent)
     if not support >= rules.min_wire_support:  # NaN (unknown) never vouches
-        return False
+        return None
     heights = conductor_heights(arr["x"], arr["y"], arr["z"], arr["hag"], bx, by)
-    return len(heights) > 0 and float(hag.max()) - float(np.median(heights)) >= rules.vouch_height
+    if len(heights) == 0 or float(hag.max()) - float(np.median(heights)) < rules.vouch_height:
+        return None
+    return support
 
 
 def _split_by_confidence(
@@ -357,6 +360,11 @@ def extract_towers(
             from towerpipe.towers.wires import wire_support
 
             arr, extent = ctx
+            # the conductors are measured from the tower's base (median xy of its lowest third): a
+            # crane's footprint centroid lies out along its jib, its base is the mast
+            low = hag <= hag.min() + (hag.max() - hag.min()) / 3.0
+            bx, by = (float(v) for v in np.median(xy[low], axis=0))
+            vouch = None  # the conductor support, when rule 12 keeps a cluster the shape check drops
             # the shape check first: it is cheap, and it drops most clusters (crowns)
             if verifier is not None:
                 obj = object_points(footprint, arr["x"], arr["y"])
@@ -367,16 +375,17 @@ def extract_towers(
                     # tower standing in crowns the segmenter painted with it: its more
                     # confident points are clustered again and each part judged
                     parts = _split_by_confidence(g, pts["prob_single"], cluster, splits)
-                    vouched = not parts and not is_rescue and _vouched(rules, arr, extent, xy, hag)
-                    if not vouched:
+                    if not parts and not is_rescue:
+                        vouch = _vouching_support(rules, arr, extent, hag, bx, by)
+                    if vouch is None:
                         decided("shape", shape)
                         queue.extend((part, rest, is_rescue) for part, rest in parts)
                         continue
-            # measured from the tower's base (median xy of its lowest third): a crane's
-            # footprint centroid lies out along its jib, its base is the mast
-            low = hag <= hag.min() + (hag.max() - hag.min()) / 3.0
-            bx, by = np.median(xy[low], axis=0)
-            support = wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], float(bx), float(by), extent=extent)
+            support = (
+                wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], bx, by, extent=extent)
+                if vouch is None
+                else vouch
+            )
             if hag.max() >= rules.wire_min_height and support < rules.min_wire_support:
                 decided("wires", support)
                 continue
