@@ -60,6 +60,12 @@ __all__ = [
 ]
 
 
+#: The defaults of the ring the conductors are looked for in (m, from the candidate), of the aim (m:
+#: a wire counts when its line passes this close to the candidate) and of a wire point's height
+#: floor (m above ground): :func:`wire_support`, :func:`conductor_heights`, :func:`tile_conductor_points`.
+RING_MIN_M, RING_MAX_M, AIM_M, WIRE_MIN_HAG_M = 80.0, 160.0, 12.0, 5.0
+
+
 #: Fields of a conductor point (layer ``conductor_points`` of a block's GeoPackage; Point geometry).
 CONDUCTOR_FIELDS: dict[str, Field] = {
     "block": Field("str", "Block", "Block of the point"),
@@ -175,12 +181,12 @@ def wire_support(
     cy: float,
     *,
     extent: Sequence[float] | Coverage | None = None,
-    r_min: float = 80.0,
-    r_max: float = 160.0,
+    r_min: float = RING_MIN_M,
+    r_max: float = RING_MAX_M,
     step: float = 10.0,
     sector: float = 20.0,
-    max_offset: float = 12.0,
-    min_hag: float = 5.0,
+    max_offset: float = AIM_M,
+    min_hag: float = WIRE_MIN_HAG_M,
     min_bins: int = 4,
     min_ring_coverage: float = 0.0,
 ) -> float:
@@ -220,10 +226,6 @@ def wire_support(
         The best sector's share of bins holding a wire point that points at the
         candidate, in ``[0, 1]``; ``nan`` when no sector has ``min_bins`` bins in the data.
     """
-    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
-    dx, dy = x - cx, y - cy
-    d = np.hypot(dx, dy)
-    sel = (d >= r_min) & (d < r_max) & (np.asarray(hag) >= min_hag)
     nbins = int(round((r_max - r_min) / step))
     starts = np.arange(0.0, 360.0, 5.0)
     # bins of each sector inside the data: test the bin centres on the sector's mid ray
@@ -244,11 +246,11 @@ def wire_support(
     scored = avail >= min_bins
     if not scored.any() or inside.mean() < min_ring_coverage:
         return float("nan")
-    idx = _aimed_wire_points(x, y, z, dx, dy, sel, max_offset)
-    if len(idx) == 0:
+    _, px, py = _aimed_wire_points(x, y, z, hag, cx, cy, r_min, r_max, min_hag, max_offset)
+    if len(px) == 0:
         return 0.0
-    ang = np.degrees(np.arctan2(dy[idx], dx[idx])) % 360.0
-    rb = np.minimum(((d[idx] - r_min) // step).astype(np.int64), nbins - 1)
+    ang = np.degrees(np.arctan2(py, px)) % 360.0
+    rb = np.minimum(((np.hypot(px, py) - r_min) // step).astype(np.int64), nbins - 1)
     hit = np.zeros((len(starts), nbins), dtype=bool)
     for s, a0 in enumerate(starts):
         in_sector = ((ang - a0) % 360.0) < sector
@@ -258,14 +260,28 @@ def wire_support(
 
 
 def _aimed_wire_points(
-    x: np.ndarray, y: np.ndarray, z: np.ndarray, dx: np.ndarray, dy: np.ndarray, sel: np.ndarray, max_offset: float
-) -> np.ndarray:
-    """Indices of the wire points among ``sel`` (judged among themselves) whose wire passes within
-    ``max_offset`` m of the centre, ``(dx, dy)`` being each point's offset from it."""
-    idx = np.flatnonzero(sel)
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    hag: np.ndarray,
+    cx: float,
+    cy: float,
+    r_min: float,
+    r_max: float,
+    min_hag: float,
+    max_offset: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The wire points in the ring ``[r_min, r_max)`` m around ``(cx, cy)``, at least ``min_hag``
+    high (judged among themselves by :func:`wire_points`), whose wire passes within ``max_offset``
+    m of it: their indices and their offsets ``(x - cx, y - cy)``."""
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    dx, dy = x - cx, y - cy
+    d = np.hypot(dx, dy)
+    idx = np.flatnonzero((d >= r_min) & (d < r_max) & (np.asarray(hag) >= min_hag))
     wire, u = wire_points(x[idx], y[idx], np.asarray(z, dtype=np.float64)[idx])
     idx, u = idx[wire], u[wire]
-    return idx[np.abs(dx[idx] * u[:, 1] - dy[idx] * u[:, 0]) <= max_offset]
+    idx = idx[np.abs(dx[idx] * u[:, 1] - dy[idx] * u[:, 0]) <= max_offset]
+    return idx, dx[idx], dy[idx]
 
 
 def conductor_heights(
@@ -276,10 +292,10 @@ def conductor_heights(
     cx: float,
     cy: float,
     *,
-    r_min: float = 80.0,
-    r_max: float = 160.0,
-    max_offset: float = 12.0,
-    min_hag: float = 5.0,
+    r_min: float = RING_MIN_M,
+    r_max: float = RING_MAX_M,
+    max_offset: float = AIM_M,
+    min_hag: float = WIRE_MIN_HAG_M,
 ) -> np.ndarray:
     """Heights above ground (m) of the wire points that :func:`wire_support` counts for ``(cx, cy)``:
     in the ring ``[r_min, r_max)`` m, at least ``min_hag`` high, their wire passing within
@@ -294,12 +310,8 @@ def conductor_heights(
     numpy.ndarray
         float64, one value per such point (empty when there is none).
     """
-    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
-    hag = np.asarray(hag, dtype=np.float64)
-    dx, dy = x - cx, y - cy
-    d = np.hypot(dx, dy)
-    sel = (d >= r_min) & (d < r_max) & (hag >= min_hag)
-    return hag[_aimed_wire_points(x, y, z, dx, dy, sel, max_offset)]
+    idx, _, _ = _aimed_wire_points(x, y, z, hag, cx, cy, r_min, r_max, min_hag, max_offset)
+    return np.asarray(hag, dtype=np.float64)[idx]
 
 
 def _clearance(
@@ -333,7 +345,7 @@ CONDUCTOR_INPUT_COLUMNS: tuple[str, ...] = ("x", "y", "z", "hag", "classificatio
 
 
 def tile_conductor_points(
-    tile: dict[str, np.ndarray], *, min_hag: float = 5.0, clearance_radius: float = 2.0
+    tile: dict[str, np.ndarray], *, min_hag: float = WIRE_MIN_HAG_M, clearance_radius: float = 2.0
 ) -> dict[str, np.ndarray]:
     """The wire points of one tile's core, with their wire's direction and their clearance.
 
