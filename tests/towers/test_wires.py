@@ -286,3 +286,15 @@ def test_conductor_heights_are_those_of_the_wires_aimed_at_the_candidate():
     assert 19.5 <= np.median(h) <= 22.0 and h.max() <= 28.0
     # 60 m beside the line no wire points at the candidate
     assert len(conductor_heights(wires[:, 0], wires[:, 1], wires[:, 2], wires[:, 2], X0, Y0 + 60.0)) == 0
+
+
+def test_wire_support_returns_the_heights_of_the_points_it_counts():
+    rng = np.random.default_rng(1)
+    wires = spans(X0, Y0, 28.0, rng)
+    args = (wires[:, 0], wires[:, 1], wires[:, 2], wires[:, 2], X0, Y0)
+    support, h = wire_support(*args, return_heights=True)
+    assert support == wire_support(*args)
+    np.testing.assert_array_equal(h, conductor_heights(*args))
+    # unknown support (no sector in the data): nan and no heights
+    support, h = wire_support(*args, extent=(0.0, 0.0, 1.0, 1.0), return_heights=True)
+    assert np.isnan(support) and len(h) == 0

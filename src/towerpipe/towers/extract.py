@@ -127,15 +127,17 @@ def _vouching_support(
     """Rule 12: the conductor support of a cluster the shape check dropped, when its conductors
     vouch for it (a known support of at least ``min_wire_support``, and its top ``hag.max()``
     ``vouch_height`` m or more above their median height in its ring,
-    :func:`towerpipe.towers.wires.conductor_heights`); else ``None``. ``(bx, by)``: its base."""
+    :func:`towerpipe.towers.wires.conductor_heights`, from the support's own search); else ``None``.
+    ``(bx, by)``: its base."""
     if rules.vouch_height <= 0:
         return None
-    from towerpipe.towers.wires import conductor_heights, wire_support
+    from towerpipe.towers.wires import wire_support
 
-    support = wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], bx, by, extent=extent)
+    support, heights = wire_support(
+        arr["x"], arr["y"], arr["z"], arr["hag"], bx, by, extent=extent, return_heights=True
+    )
     if not support >= rules.min_wire_support:  # NaN (unknown) never vouches
         return None
-    heights = conductor_heights(arr["x"], arr["y"], arr["z"], arr["hag"], bx, by)
     if len(heights) == 0 or float(hag.max()) - float(np.median(heights)) < rules.vouch_height:
         return None
     return support

@@ -189,7 +189,8 @@ def wire_support(
     min_hag: float = WIRE_MIN_HAG_M,
     min_bins: int = 4,
     min_ring_coverage: float = 0.0,
-) -> float:
+    return_heights: bool = False,
+) -> float | tuple[float, np.ndarray]:
     """Share of the ring ``[r_min, r_max)`` m around ``(cx, cy)`` reached by a conductor.
 
     Parameters
@@ -219,13 +220,23 @@ def wire_support(
         ``survey`` also leaves the support ``nan`` when fewer than its ``min_line_share``
         of the lines through the candidate show in the surveyed area (:meth:`~towerpipe.towers.coverage.Coverage.lines_seen`):
         a conductor may then leave the tower where no data is.
+    return_heights
+        Also return the heights above ground of the wire points counted (those
+        :func:`conductor_heights` gives; empty when the support is ``nan``), from the same search.
 
     Returns
     -------
     float
         The best sector's share of bins holding a wire point that points at the
         candidate, in ``[0, 1]``; ``nan`` when no sector has ``min_bins`` bins in the data.
+    numpy.ndarray
+        With ``return_heights``: float64 heights (m), one per wire point counted.
     """
+
+    def out(support: float, idx: np.ndarray) -> float | tuple[float, np.ndarray]:
+        return (support, np.asarray(hag, dtype=np.float64)[idx]) if return_heights else support
+
+    none = np.zeros(0, dtype=np.int64)
     nbins = int(round((r_max - r_min) / step))
     starts = np.arange(0.0, 360.0, 5.0)
     # bins of each sector inside the data: test the bin centres on the sector's mid ray
@@ -238,17 +249,17 @@ def wire_support(
     elif isinstance(extent, Coverage):
         inside = extent.contains(bx, by)
         if extent.survey and extent.lines_seen(bx, by, min_bins) < extent.min_line_share:
-            return float("nan")
+            return out(float("nan"), none)
     else:
         xmin, ymin, xmax, ymax = extent
         inside = (bx >= xmin) & (bx < xmax) & (by >= ymin) & (by < ymax)
     avail = inside.sum(axis=1)
     scored = avail >= min_bins
     if not scored.any() or inside.mean() < min_ring_coverage:
-        return float("nan")
-    _, px, py = _aimed_wire_points(x, y, z, hag, cx, cy, r_min, r_max, min_hag, max_offset)
+        return out(float("nan"), none)
+    idx, px, py = _aimed_wire_points(x, y, z, hag, cx, cy, r_min, r_max, min_hag, max_offset)
     if len(px) == 0:
-        return 0.0
+        return out(0.0, idx)
     ang = np.degrees(np.arctan2(py, px)) % 360.0
     rb = np.minimum(((np.hypot(px, py) - r_min) // step).astype(np.int64), nbins - 1)
     hit = np.zeros((len(starts), nbins), dtype=bool)
@@ -256,7 +267,7 @@ def wire_support(
         in_sector = ((ang - a0) % 360.0) < sector
         hit[s, rb[in_sector]] = True
     share = (hit & inside).sum(axis=1) / np.maximum(avail, 1)
-    return float(share[scored].max())
+    return out(float(share[scored].max()), idx)
 
 
 def _aimed_wire_points(
