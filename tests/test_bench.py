@@ -1,10 +1,11 @@
-"""The projection of a night's cost from measured benchmarks (towerpipe.bench.project)."""
+"""The benchmarks' own logic: the projection of a night (towerpipe.bench.scale), the SLURM
+benchmark's helpers (towerpipe.bench.slurm), the planning benchmark's zone."""
 
 from __future__ import annotations
 
 import pytest
 
-from towerpipe.bench import project
+from towerpipe.bench.scale import profile_packs, project
 
 E2E = {  # a 1 km² block: 4 tile jobs x 2 rules + 9 others, 100 s of job time
     "stages": {
@@ -16,8 +17,10 @@ E2E = {  # a 1 km² block: 4 tile jobs x 2 rules + 9 others, 100 s of job time
 BLOCKS = {"blocks": 50, "jobs": 350, "job_s_median": 1.0, "scheduler_s_per_job": 0.5}
 
 
-def _project(block_m):
-    return project(E2E, BLOCKS, area_km2=100.0, block_m=block_m, nodes=2, node_cores=10, max_jobs=200, submit_per_s=5.0)
+def _project(block_m, **kw):
+    return project(
+        E2E, BLOCKS, area_km2=100.0, block_m=block_m, nodes=2, node_cores=10, max_jobs=200, submit_per_s=5.0, **kw
+    )
 
 
 def test_large_blocks_take_the_e2e_jobs_per_km2():
@@ -41,6 +44,38 @@ def test_a_cluster_is_bound_by_cores_or_by_submission():
     cores_s, submit_s = r["core_h"] * 3600 / 20, 1700 / 5.0
     assert r["wall_h_slurm"] * 3600 == pytest.approx(max(cores_s, submit_s))
     assert r["slurm_bound"] == ("submission" if submit_s > cores_s else "cores")
+
+
+def test_a_slurm_job_pays_its_start_on_its_node():
+    bare, started = _project(1000.0), _project(1000.0, slurm_start_s=6.0)
+    assert started["slurm_jobs"] == bare["slurm_jobs"] == pytest.approx(1700)  # one SLURM job per rule job
+    assert (started["slurm_core_h"] - bare["slurm_core_h"]) * 3600 == pytest.approx(1700 * 6.0)
+    assert started["core_h"] == bare["core_h"]  # the work of the jobs is the same
+
+
+def test_grouped_slurm_jobs_per_block():
+    packs = {"split": 8, "tile": 4}
+    # 1 km² blocks: four tiles (the e2e block's), so 1/8 of a split job, one tile job, one block job
+    big = _project(1000.0, slurm_start_s=6.0, packs=packs)
+    assert big["slurm_jobs"] == pytest.approx(100 * (1 / 8 + 4 / 4 + 1))
+    # 250 m blocks: one tile each
+    small = _project(250.0, slurm_start_s=6.0, packs=packs)
+    assert small["slurm_jobs"] == pytest.approx(1600 * (1 / 8 + 1 / 4 + 1))
+    assert small["slurm_core_h"] < _project(250.0, slurm_start_s=6.0)["slurm_core_h"]
+
+
+def test_the_cluster_profile_packs_splits_and_tiles():
+    assert profile_packs() == {"split": 8, "tile": 8}
+
+
+def test_slurm_bench_reads_slurm_times_and_strips_the_groups(tmp_path):
+    import yaml
+
+    from towerpipe.bench.slurm import GROUP_KEYS, _seconds, profile_without_groups
+
+    assert _seconds("00:00:07") == 7 and _seconds("1:02:03") == 3723 and _seconds("2-00:00:01") == 172801
+    cfg = yaml.safe_load((profile_without_groups(tmp_path / "p") / "config.yaml").read_text())
+    assert not set(GROUP_KEYS) & set(cfg) and cfg["executor"] == "slurm"
 
 
 def test_plan_bench_copies_a_block_on_a_grid(tmp_path):

@@ -9,6 +9,7 @@ seconds (the machines are shared and noisy)::
     python -m towerpipe.bench blocks --json blocks.json             # 50 blocks of ~2,000 points
     python -m towerpipe.bench scale --e2e e2e.json --blocks blocks.json   # a night, on paper
     python -m towerpipe.bench plan --blocks 4000    # snakemake -n over 4,000 planned blocks
+    python -m towerpipe.bench slurm --json slurm.json   # small blocks on SLURM: per rule vs grouped
 
 For each block it times ``pdal translate in.laz out.laz`` (LAZ → LAZ, one
 process) and the Snakemake preprocessing of the same block (``--cores 2``,
@@ -353,90 +354,6 @@ def bench_blocks(args: argparse.Namespace) -> int:
     return finish(args, tmp, res)
 
 
-def project(
-    e2e: dict,
-    blocks: dict,
-    *,
-    area_km2: float,
-    block_m: float,
-    nodes: int,
-    node_cores: int,
-    max_jobs: int,
-    submit_per_s: float,
-    e2e_km2: float = 1.0,
-) -> dict:
-    """What ``area_km2`` costs as blocks of ``block_m`` m, from an e2e and a small-blocks benchmark.
-
-    The work of the jobs scales with the points (the area, at the e2e block's density); each job
-    also pays the start-up of a small job (the small-blocks benchmark's median job) and, on one
-    machine, the time Snakemake spends between jobs. On SLURM, concurrency is the smaller of the
-    partition's cores and the profile's ``jobs``, and Snakemake submits ``submit_per_s`` jobs a
-    second at most.
-    """
-    e2e_jobs = sum(d["jobs"] for d in e2e["stages"].values())
-    e2e_s = sum(d["s"] for d in e2e["stages"].values())
-    start_s = blocks["job_s_median"]
-    work_per_km2 = max(e2e_s - e2e_jobs * start_s, 0.0) / e2e_km2
-    share = block_m * block_m / 1e6 / e2e_km2  # of the e2e block's points in one block
-    n_blocks = area_km2 * 1e6 / (block_m * block_m)
-    # a block smaller than the e2e block has the small blocks' jobs; a larger one, the e2e block's per km²
-    jobs = n_blocks * (blocks["jobs"] / blocks["blocks"] if share < 1 else e2e_jobs * share)
-    # memory: a tile job holds at most one tile (<= preprocess.tile_size) and its buffer, so the e2e
-    # block's peak bounds smaller blocks; I/O follows the points
-    rss = max(d["max_rss_mb"] for d in e2e["stages"].values())
-    io = sum(d.get("io_mb", 0.0) for d in e2e["stages"].values()) * share
-    job_core_s = area_km2 * work_per_km2 + jobs * start_s
-    local_core_s = job_core_s + jobs * blocks["scheduler_s_per_job"]
-    concurrency = min(nodes * node_cores, max_jobs)
-    return {
-        "area_km2": area_km2,
-        "block_m": block_m,
-        "blocks": n_blocks,
-        "jobs": jobs,
-        "core_h": job_core_s / 3600,
-        "wall_h_2_cores": local_core_s / 2 / 3600,
-        "wall_h_slurm": max(job_core_s / concurrency, jobs / submit_per_s) / 3600,
-        "slurm_bound": "submission" if jobs / submit_per_s > job_core_s / concurrency else "cores",
-        "peak_rss_mb_per_job": rss,
-        "io_mb_per_block": io,
-    }
-
-
-def bench_scale(args: argparse.Namespace) -> int:
-    """Project a night's area from measured benchmarks (``bench e2e --json``, ``bench blocks --json``)."""
-    e2e = json.loads(Path(args.e2e).read_text())
-    blocks = json.loads(Path(args.blocks).read_text())
-    rows = [
-        project(
-            e2e,
-            blocks,
-            area_km2=args.area,
-            block_m=b,
-            nodes=args.nodes,
-            node_cores=args.node_cores,
-            max_jobs=args.max_jobs,
-            submit_per_s=args.submit_per_s,
-            e2e_km2=args.e2e_km2,
-        )
-        for b in args.block_m
-    ]
-    print(
-        f"| {args.area:,.0f} km² as blocks of | blocks | jobs | core-hours | wall on 2 cores | wall on "
-        f"{args.nodes} × {args.node_cores} cores (jobs ≤ {args.max_jobs}, ≤ {args.submit_per_s:g} submits/s) "
-        "| peak RSS per job | I/O per block |"
-    )
-    print("|---|---|---|---|---|---|---|---|")
-    for r in rows:
-        print(
-            f"| {r['block_m']:.0f} m | {r['blocks']:,.0f} | {r['jobs']:,.0f} | {r['core_h']:,.0f} | "
-            f"{r['wall_h_2_cores']:,.1f} h | {r['wall_h_slurm']:,.2f} h ({r['slurm_bound']}-bound) | "
-            f"≤ {r['peak_rss_mb_per_job']:,.0f} MiB | {r['io_mb_per_block']:,.0f} MB |"
-        )
-    if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1))
-    return 0
-
-
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="benchmarks against a plain `pdal translate` (see towerpipe.bench)")
     bsub = p.add_subparsers(dest="bench", metavar="BENCH", required=True)
@@ -463,21 +380,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     pb.add_argument("--cores", type=int, default=2)
     run_args(pb)
     pb.set_defaults(func=bench_blocks)
-    ps = bsub.add_parser("scale", help="project a night's area from the e2e and blocks benchmarks' JSON")
-    ps.add_argument("--e2e", required=True, help="JSON of `bench e2e --json`")
-    ps.add_argument("--e2e-km2", type=float, default=1.0, help="area of the e2e block (km²)")
-    ps.add_argument("--blocks", required=True, help="JSON of `bench blocks --json`")
-    ps.add_argument("--area", type=float, default=1000.0, help="km² a night")
-    ps.add_argument("--block-m", type=float, nargs="+", default=[1000.0, 500.0, 250.0], help="block sides (m)")
-    ps.add_argument("--nodes", type=int, default=20)
-    ps.add_argument("--node-cores", type=int, default=32)
-    ps.add_argument("--max-jobs", type=int, default=200, help="the SLURM profile's `jobs`")
-    ps.add_argument("--submit-per-s", type=float, default=10.0, help="jobs Snakemake submits per second")
-    ps.add_argument("--json")
-    ps.set_defaults(func=bench_scale)
-    from towerpipe.bench import plan
+    from towerpipe.bench import plan, scale, slurm
 
+    scale.register(bsub)
     plan.register(bsub)
+    slurm.register(bsub)
 
 
 def main(argv: list[str] | None = None) -> int:
