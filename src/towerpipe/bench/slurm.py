@@ -8,9 +8,10 @@ single-node cluster of ``scripts/slurm_local.sh``: first with the profile's ``gr
 ``group-components`` removed (the baseline: one SLURM job per rule and wildcard), then as the
 profile stands. For each run it reports the wall time, the SLURM jobs submitted, the
 core-seconds SLURM allocated to them (run time × CPUs, read from ``scontrol show job`` while
-the run goes) and, for the baseline, the node-side start of a SLURM job: its run time less
-the rule's own (Snakemake's ``benchmark:`` files), a median over the jobs. ``bench scale
---slurm`` projects a night on a cluster from this JSON.
+the run goes) and what a SLURM job spends on its node besides its rules' scripts (the
+Snakemake that runs it there): the SLURM jobs' run time less their rules' own (Snakemake's
+``benchmark:`` files), per SLURM job. ``bench scale --slurm`` projects a night on a cluster
+from this JSON.
 
 The local cluster is one node with this machine's cores: the wall times say little about a
 partition of many nodes (and SLURM's status checks back off while nothing finishes); the
@@ -68,10 +69,8 @@ def slurm_jobs() -> dict[int, dict[str, Any]]:
         f = dict(re.findall(r"(\w+)=(\S*)", line))
         if "JobId" in f:
             jobs[int(f["JobId"])] = {
-                "state": f.get("JobState", ""),
                 "run_s": _seconds(f.get("RunTime", "0:0:0")),
                 "cpus": int(f.get("NumCPUs", "1") or 1),
-                "comment": f.get("Comment", ""),
             }
     return jobs
 
@@ -141,16 +140,17 @@ def run_on_slurm(indir: Path, tmp: Path, zone: str, profile: Path) -> dict[str, 
         raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {(proc.stdout + proc.stderr)[-3000:]}")
     rows = read_benchmarks(work)
     submitted = re.findall(r"submitted with SLURM jobid (\d+)", proc.stdout + proc.stderr)
+    run_s, rule_s = sum(j["run_s"] for j in jobs.values()), sum(r["s"] for r in rows)
     return {
         "wall_s": wall,
         "slurm_jobs": len(submitted),
         "rule_jobs": len(rows),
         "slurm_core_s": sum(j["run_s"] * j["cpus"] for j in jobs.values()),
-        "slurm_run_s": sum(j["run_s"] for j in jobs.values()),
+        "slurm_run_s": run_s,
         "jobs_seen": len(jobs),
-        "rule_s": sum(r["s"] for r in rows),
+        "rule_s": rule_s,
         # what a SLURM job spends on its node besides its rules' scripts (its Snakemake)
-        "node_start_s": (sum(j["run_s"] for j in jobs.values()) - sum(r["s"] for r in rows)) / max(len(jobs), 1),
+        "node_start_s": (run_s - rule_s) / max(len(jobs), 1),
     }
 
 
