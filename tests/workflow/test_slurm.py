@@ -4,7 +4,8 @@
 (``make test`` installs them with ``scripts/install_slurm.sh``); the zone is run with
 ``--profile workflow/profiles/slurm`` (snakemake-executor-plugin-slurm: ``sbatch`` jobs,
 grouped as the profile says) and its point data and GeoPackage features must equal a local
-run's; a file that cannot be read must fail only its own block. Skipped, with the reason, only where SLURM cannot start (not root, no slurm-wlm).
+run's; a file that cannot be read must fail only its own block. Skipped, with the reason,
+only where SLURM cannot start (not root, no slurm-wlm).
 
 The local cluster has no accounting database, so the run names no account (the
 profile's ``mapping`` would need ``sacctmgr``), asks ``squeue`` for job states and

@@ -35,6 +35,9 @@ import yaml
 
 from towerpipe.bench import REPO, finish, read_benchmarks, run_args, small_block_args
 
+#: The cluster profile the benchmark runs (and ``bench scale`` reads its groups from).
+SLURM_PROFILE = REPO / "workflow" / "profiles" / "slurm"
+
 #: The profile's keys that group jobs (removed for the baseline run).
 GROUP_KEYS = ("groups", "group-components")
 
@@ -102,9 +105,8 @@ class JobWatch:
 
 def profile_without_groups(dst: Path) -> Path:
     """A copy of ``workflow/profiles/slurm`` without :data:`GROUP_KEYS`: one SLURM job per rule."""
-    src = REPO / "workflow" / "profiles" / "slurm"
-    shutil.copytree(src, dst, dirs_exist_ok=True)
-    cfg = yaml.safe_load((src / "config.yaml").read_text())
+    shutil.copytree(SLURM_PROFILE, dst, dirs_exist_ok=True)
+    cfg = yaml.safe_load((SLURM_PROFILE / "config.yaml").read_text())
     (dst / "config.yaml").write_text(yaml.safe_dump({k: v for k, v in cfg.items() if k not in GROUP_KEYS}))
     return dst
 
@@ -168,7 +170,7 @@ def bench_slurm(args: argparse.Namespace) -> int:
     generate_zone(indir, seed=args.seed, blocks=args.blocks, size=args.size, density=args.density)
     runs = {
         "per_rule": run_on_slurm(indir, tmp, "slurm_rules", profile_without_groups(tmp / "profile_rules")),
-        "grouped": run_on_slurm(indir, tmp, "slurm_groups", REPO / "workflow" / "profiles" / "slurm"),
+        "grouped": run_on_slurm(indir, tmp, "slurm_groups", SLURM_PROFILE),
     }
     base = runs["per_rule"]
     res: dict[str, Any] = {"blocks": args.blocks, **runs}
