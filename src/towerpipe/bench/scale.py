@@ -15,8 +15,9 @@ from towerpipe.bench.slurm import SLURM_PROFILE
 
 
 def profile_packs(profile: Path = SLURM_PROFILE) -> dict[str, int] | None:
-    """How many splits and how many tiles the profile folder ``profile`` puts in one SLURM job (``group-components``
-    of the groups of ``split_block`` and ``preprocess_tile``), ``None`` when it does not group jobs."""
+    """How many splits and how many tiles the profile folder ``profile`` puts in one SLURM job
+    (``group-components`` of the groups of ``split_block`` and ``preprocess_tile``), ``None``
+    when it does not group jobs."""
     cfg = yaml.safe_load((Path(profile) / "config.yaml").read_text())
     groups, components = cfg.get("groups") or {}, cfg.get("group-components") or {}
     if not groups:
