@@ -7,10 +7,9 @@ import pytest
 
 from towerpipe.bench.scale import profile_packs, project
 
-E2E = {  # a 1 km² block: 4 tile jobs x 2 rules + 9 others, 100 s of job time
+E2E = {  # a 1 km² block: 4 tile jobs + 9 others, 100 s of job time
     "stages": {
-        "infer_tile": {"jobs": 4, "s": 40.0, "max_rss_mb": 700.0, "io_mb": 20.0},
-        "preprocess_tile": {"jobs": 4, "s": 30.0, "max_rss_mb": 600.0, "io_mb": 900.0},
+        "infer_tile": {"jobs": 4, "s": 70.0, "max_rss_mb": 700.0, "io_mb": 920.0},
         "other": {"jobs": 9, "s": 30.0, "max_rss_mb": 850.0, "io_mb": 80.0},
     }
 }
@@ -25,10 +24,10 @@ def _project(block_m, **kw):
 
 def test_large_blocks_take_the_e2e_jobs_per_km2():
     r = _project(1000.0)
-    assert r["blocks"] == pytest.approx(100) and r["jobs"] == pytest.approx(1700)
-    # work without the start-up of its 17 jobs, then every job's start-up again
-    assert r["core_h"] * 3600 == pytest.approx(100 * (100.0 - 17 * 1.0) + 1700 * 1.0)
-    assert r["wall_h_2_cores"] * 3600 == pytest.approx((100 * 83.0 + 1700 * 1.5) / 2)
+    assert r["blocks"] == pytest.approx(100) and r["jobs"] == pytest.approx(1300)
+    # work without the start-up of its 13 jobs, then every job's start-up again
+    assert r["core_h"] * 3600 == pytest.approx(100 * (100.0 - 13 * 1.0) + 1300 * 1.0)
+    assert r["wall_h_2_cores"] * 3600 == pytest.approx((100 * 87.0 + 1300 * 1.5) / 2)
     assert r["peak_rss_mb_per_job"] == 850.0 and r["io_mb_per_block"] == pytest.approx(1000.0)
 
 
@@ -41,15 +40,15 @@ def test_small_blocks_pay_the_start_up_of_their_jobs():
 
 def test_a_cluster_is_bound_by_cores_or_by_submission():
     r = _project(1000.0)
-    cores_s, submit_s = r["core_h"] * 3600 / 20, 1700 / 5.0
+    cores_s, submit_s = r["core_h"] * 3600 / 20, 1300 / 5.0
     assert r["wall_h_slurm"] * 3600 == pytest.approx(max(cores_s, submit_s))
     assert r["slurm_bound"] == ("submission" if submit_s > cores_s else "cores")
 
 
 def test_a_slurm_job_pays_its_start_on_its_node():
     bare, started = _project(1000.0), _project(1000.0, slurm_start_s=6.0)
-    assert started["slurm_jobs"] == bare["slurm_jobs"] == pytest.approx(1700)  # one SLURM job per rule job
-    assert (started["slurm_core_h"] - bare["slurm_core_h"]) * 3600 == pytest.approx(1700 * 6.0)
+    assert started["slurm_jobs"] == bare["slurm_jobs"] == pytest.approx(1300)  # one SLURM job per rule job
+    assert (started["slurm_core_h"] - bare["slurm_core_h"]) * 3600 == pytest.approx(1300 * 6.0)
     assert started["core_h"] == bare["core_h"]  # the work of the jobs is the same
 
 

@@ -130,7 +130,8 @@ def test_absurd_header_does_not_shape_the_job_graph(headers_run):
     dry = headers_run["dry"]
     assert dry.returncode == 0, dry.stderr[-2000:]
     # before the split only the splits and the plan are known: no tile job from the header
-    assert re.search(r"^split_block\s+3$", dry.stdout, re.M) and "preprocess_tile" not in dry.stdout
+    assert re.search(r"^split_block\s+3$", dry.stdout, re.M)
+    assert "infer_tile" not in dry.stdout and "preprocess_tile" not in dry.stdout
     plan = json.loads((headers_run["work"] / headers_run["zone"] / "plan.json").read_text())["blocks"]
     assert plan[CI_BLOCKS[1]]["tiles"] == ["0_0"]
 

@@ -71,7 +71,7 @@ def test_zone_on_slurm_equals_local_run(slurm, ci_scene, ci_reference, tmp_path)
         # each block's towers, merge and QA page; the plan and the assembly alone
         submitted = re.findall(r"submitted with SLURM jobid \d+ \(log: \S*/slurm_logs/((?:rule|group)_\w+)/", text)
         assert sorted(submitted) == sorted(
-            ["group_split_split_block", "group_tile_infer_tile_preprocess_tile", "rule_plan_zone", "rule_assemble_zone"]
+            ["group_split_split_block", "group_tile_infer_tile", "rule_plan_zone", "rule_assemble_zone"]
             + ["group_block_merge_block_qa_block_towers_block"] * len(CI_BLOCKS)
         ), text[-4000:]
         for block in CI_BLOCKS:

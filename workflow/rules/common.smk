@@ -4,6 +4,7 @@
 import functools
 import json
 import os
+import re
 from pathlib import Path
 
 from snakemake.exceptions import WorkflowError
@@ -22,6 +23,7 @@ PREP = config["preprocess"]
 # Patterns (wildcards zone, block, tile) of the per-block and per-tile intermediates, and of
 # the logs and benchmarks of the rules: work/<zone>/logs/<rule>[/<block>[/<tile>]].log
 ZONE_DIR = f"{WORK}/{{zone}}"
+ZONE_NAME = r"[A-Za-z0-9][A-Za-z0-9_.-]*"
 #: the published zone (written by zone_results), what users open
 RESULTS = "results/{zone}"
 TILE = f"{ZONE_DIR}/tiles/{{block}}/{{tile}}.npz"
@@ -56,7 +58,7 @@ def _per_job(base, rule, per):
 
 
 wildcard_constraints:
-    zone=r"[A-Za-z0-9][A-Za-z0-9_.-]*",
+    zone=ZONE_NAME,
     # block ids are safe file names (towerpipe.io.inputs), whatever the input files are called
     block=r"[A-Za-z0-9_][A-Za-z0-9_.-]*",
     tile=r"-?\d+_-?\d+",
@@ -219,6 +221,16 @@ def tile_blocks(zone, block, tile):
     return planned(zone, block)["tile_blocks"][tile]
 
 
+def tile_caches(wc):
+    """The caches of the blocks whose points a tile gathers (its block's and its neighbours')."""
+    return [cache_dir(wc.zone, b) for b in tile_blocks(wc.zone, wc.block, wc.tile)]
+
+
+def missing_neighbours(wc):
+    """The blocks near a tile that could not be split (named in the tile's warnings)."""
+    return {b: cache_dir(wc.zone, b) for b in planned(wc.zone, wc.block)["missing_neighbours"]}
+
+
 def block_points(zone, block):
     """Points of a block for sizing resources: measured once split, else bounded by the file size."""
     n = ((plan_or_none(zone) or {}).get(block) or {}).get("points")
@@ -263,6 +275,12 @@ def registry_sources(zone):
 
 def zone_products(zone):
     """Relative path in results/<zone>/ -> per-block product."""
+    if zone in PREPARED_ONLY:
+        raise WorkflowError(
+            f"zone {zone!r} is one the models train on or the real-shape benchmark reads (training.zones, "
+            "training.verifier_zones, realshape_*): its tiles are only preprocessed, it has no products; "
+            f"give its input another zone name to run it as a zone"
+        )
     files = {}
     for b in blocks(zone):
         files[layout.block_product(layout.BLOCK_LAZ, b)] = BLOCK_LAZ.format(zone=zone, block=b)
@@ -369,8 +387,8 @@ def block_benchmarks(zone, block):
 
     return {
         "split": [benchmark_of("split_block", "block").format(zone=zone, block=block)],
-        "preprocess": of("preprocess_tile", "tile"),
-        "inference": of("infer_tile", "tile"),
+        # a tile's preprocessing and inference are one job (rule infer_tile)
+        "preprocess + inference": of("infer_tile", "tile"),
         "towers": [benchmark_of("towers_block", "block").format(zone=zone, block=block)],
     }
 
@@ -486,3 +504,18 @@ def loso_models():
     return {
         TRAIN["models"][name]["feature_set"]: {f: f"{WORK}/models/{name}{LOSO}{f}" for f in FAMILIES} for name in judged
     }
+
+
+def prepared_only_zones():
+    """The zones whose tiles are only preprocessed, by preprocess_tile jobs: those the networks and
+    the shape verifier train on and those of the real-shape benchmark, which read tiles and never
+    products. Every other zone's tiles are preprocessed and inferred in one job (rule infer_tile)."""
+    return sorted({*purpose_zones("verifier"), *realshape_zones()} & set(config["zones"]))
+
+
+PREPARED_ONLY = frozenset(prepared_only_zones())
+_PREPARED_RE = "|".join(re.escape(z) for z in sorted(PREPARED_ONLY))
+#: the zone wildcard of rule preprocess_tile (a prepared-only zone) and of rule infer_tile (any
+#: other; the name is followed by the "/" of its folder in every path of the two rules)
+PREPARED_ZONE = f"(?:{_PREPARED_RE})" if PREPARED_ONLY else "(?!)"
+PRODUCT_ZONE = (f"(?!(?:{_PREPARED_RE})/)" if PREPARED_ONLY else "") + ZONE_NAME

@@ -1,4 +1,5 @@
-# Inference: the zone's model, then gated window inference per tile (paper 3.2-3.3).
+# Inference: the zone's model, then each tile's preprocessing and gated window inference
+# (paper 3.1-3.3).
 
 
 rule choose_model:
@@ -28,15 +29,21 @@ rule choose_model:
         "../scripts/choose_model.py"
 
 
+# A tile of a zone with products: its preprocessing (as rule preprocess_tile's), the tile written
+# for the block's towers and QA jobs, then its inference on the tile in memory: one process and one
+# read of the points less than two jobs. Zones that are only prepared (training, the real-shape
+# benchmark: prepared_only_zones) run rule preprocess_tile instead.
 rule infer_tile:
     input:
-        tile=TILE,
+        caches=tile_caches,
         model=lambda wc: model_files(wc.zone),
         # after the zone's model is chosen; a rewritten choice alone reruns nothing
         choice=lambda wc: ancient(model_choice_file(wc.zone)),
         # the shape gate's verifier (inference.shape_gate, towers.verifier)
         verifier=verifier_files(),
     output:
+        tile=TILE,
+        dtm=DTM,
         pred=PRED,
         # the tile's conductor points (the wire search needs only the tile): the towers job's
         # conductor_points layer
@@ -45,13 +52,19 @@ rule infer_tile:
         log_of("infer_tile", "tile"),
     benchmark:
         benchmark_of("infer_tile", "tile")
+    wildcard_constraints:
+        zone=PRODUCT_ZONE,
     conda:
         "../envs/towerpipe.yaml"
     threads: 1
     resources:
-        mem_mb=tile_mem_mb(120, base_mb=800),
-        runtime=60,
+        # the preprocessing's peak (PDAL's heights of the tile's points), then the networks
+        mem_mb=tile_mem_mb(260, base_mb=800),
+        runtime=90,
     params:
+        blocks=lambda wc: tile_blocks(wc.zone, wc.block, wc.tile),
+        missing=missing_neighbours,
+        preprocess=PREP,
         # the point threshold applies after the windows (towers, merge): changing it
         # does not rerun the inference
         inference={k: v for k, v in INFER.items() if k != "threshold"},

@@ -52,9 +52,12 @@ checkpoint plan_zone:
         "../scripts/plan_zone.py"
 
 
+# The tiles of a zone that is only prepared (prepared_only_zones: the training zones, the
+# real-shape benchmark's); a zone with products preprocesses each tile in its inference job
+# (rule infer_tile), which writes the same tile.
 rule preprocess_tile:
     input:
-        caches=lambda wc: [cache_dir(wc.zone, b) for b in tile_blocks(wc.zone, wc.block, wc.tile)],
+        caches=tile_caches,
     output:
         tile=TILE,
         dtm=DTM,
@@ -62,9 +65,8 @@ rule preprocess_tile:
         log_of("preprocess_tile", "tile"),
     benchmark:
         benchmark_of("preprocess_tile", "tile")
-    # all tiles before any inference: the longer inference jobs then fill both cores to the
-    # end instead of one core idling while a late tile is preprocessed
-    priority: 10
+    wildcard_constraints:
+        zone=PREPARED_ZONE,
     conda:
         "../envs/towerpipe.yaml"
     threads: 1
@@ -73,15 +75,14 @@ rule preprocess_tile:
         runtime=30,
     params:
         blocks=lambda wc: tile_blocks(wc.zone, wc.block, wc.tile),
-        # blocks nearby that could not be split: named in the tile's warnings
-        missing=lambda wc: {b: cache_dir(wc.zone, b) for b in planned(wc.zone, wc.block)["missing_neighbours"]},
+        missing=missing_neighbours,
         preprocess=PREP,
     script:
         "../scripts/preprocess_tile.py"
 
 
 rule prepared_zone:
-    """Every tile of a zone, preprocessed (what calibration and the benchmark read)."""
+    """Every tile of a zone, preprocessed (and, for a zone with products, inferred)."""
     input:
         tiles=lambda wc: tile_files(wc.zone),
     output:

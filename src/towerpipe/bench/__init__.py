@@ -196,7 +196,16 @@ def bench_preprocess(args: argparse.Namespace) -> int:
         tr, wf, rss = [], [], []
         for r in range(args.repeat):
             tr.append(pdal_translate(block, tmp))
-            dt, rows = run_workflow(block, tmp, zone=f"bench{r}", target="{work}/{zone}/prepared.done")
+            # a zone the verifier trains on is only prepared (split, plan, preprocess_tile); a zone
+            # with products preprocesses its tiles in its inference jobs
+            zone = f"bench{r}"
+            dt, rows = run_workflow(
+                block,
+                tmp,
+                zone=zone,
+                target="{work}/{zone}/prepared.done",
+                extra_config={"training": {"verifier_zones": [zone]}},
+            )
             wf.append(dt)
             rss.append(max(row["max_rss_mb"] for row in rows))
         res = {

@@ -16,15 +16,14 @@ from towerpipe.bench.slurm import SLURM_PROFILE
 
 def profile_packs(profile: Path = SLURM_PROFILE) -> dict[str, int] | None:
     """How many splits and how many tiles the profile folder ``profile`` puts in one SLURM job
-    (``group-components`` of the groups of ``split_block`` and ``preprocess_tile``), ``None``
+    (``group-components`` of the groups of ``split_block`` and ``infer_tile``), ``None``
     when it does not group jobs."""
     cfg = yaml.safe_load((Path(profile) / "config.yaml").read_text())
     groups, components = cfg.get("groups") or {}, cfg.get("group-components") or {}
     if not groups:
         return None
     return {
-        k: int(components.get(groups.get(rule), 1))
-        for k, rule in (("split", "split_block"), ("tile", "preprocess_tile"))
+        k: int(components.get(groups.get(rule), 1)) for k, rule in (("split", "split_block"), ("tile", "infer_tile"))
     }
 
 
@@ -61,7 +60,7 @@ def project(
     n_blocks = area_km2 * 1e6 / (block_m * block_m)
     # a block smaller than the e2e block has the small blocks' jobs; a larger one, the e2e block's per km²
     jobs = n_blocks * (blocks["jobs"] / blocks["blocks"] if share < 1 else e2e_jobs * share)
-    tiles = max(1.0, e2e["stages"].get("preprocess_tile", {}).get("jobs", 1) * share)  # a block's tiles
+    tiles = max(1.0, e2e["stages"].get("infer_tile", {}).get("jobs", 1) * share)  # a block's tiles
     slurm_jobs = jobs if packs is None else n_blocks * (1.0 / packs["split"] + tiles / packs["tile"] + 1.0)
     # memory: a tile job holds at most one tile (<= preprocess.tile_size) and its buffer, so the e2e
     # block's peak bounds smaller blocks; I/O follows the points

@@ -35,6 +35,7 @@ window centre (UTM northings lose ~0.5 m in float32).
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass, field
 from typing import Any
@@ -101,10 +102,16 @@ def empty_arrays(n: int = 0) -> dict[str, np.ndarray]:
     return {k: np.zeros(n, dtype=d) for k, d in TILE_ARRAYS.items()}
 
 
-def save_tile(path: str | os.PathLike[str], tile: Tile) -> None:
-    """Write ``tile`` atomically (temporary file, then rename) as uncompressed ``.npz``."""
+def save_tile(path: str | os.PathLike[str], tile: Tile) -> Tile:
+    """Write ``tile`` atomically (temporary file, then rename) as uncompressed ``.npz``.
+
+    Returns the tile as :func:`load_tile` reads it back (the same arrays; the metadata as
+    stored), for a job that goes on with it in memory.
+    """
     tile.validate(path)
-    save_columns(path, tile.arrays, dict(tile.meta, format_version=FORMAT_VERSION))
+    meta = dict(tile.meta, format_version=FORMAT_VERSION)
+    save_columns(path, tile.arrays, meta)
+    return Tile({k: tile.arrays[k] for k in TILE_ARRAYS}, json.loads(json.dumps(meta)))
 
 
 def load_tile(path: str | os.PathLike[str], columns: list[str] | None = None) -> Tile:

@@ -26,7 +26,7 @@ from towerpipe.io.blockcache import BlockCache
 from towerpipe.io.columns import read_meta
 
 if TYPE_CHECKING:
-    from towerpipe.config import InferenceConfig
+    from towerpipe.config import InferenceConfig, PreprocessConfig
     from towerpipe.products.qa.metrics import Limits
 
 log = logging.getLogger(__name__)
@@ -163,7 +163,8 @@ def infer_step(
 
     if out_wires is not None:  # the tile is read once, for the wire search and the inference
         t0 = time.perf_counter()
-        kw["tile"] = load_tile(tile_path)
+        if kw.get("tile") is None:
+            kw["tile"] = load_tile(tile_path)
         wires = tile_conductor_points(kw["tile"].arrays)
         save_conductors(out_wires, wires, {k: kw["tile"].meta.get(k) for k in ("zone", "block", "tile")})
         log.info("conductor points: %d in %.1f s", len(wires["x"]), time.perf_counter() - t0)
@@ -190,6 +191,36 @@ def infer_step(
         )
         save_pred(out_path, {k: np.zeros(0, d) for k, d in PRED_ARRAYS.items()}, rec)
         return rec
+
+
+def tile_step(
+    zone: str,
+    block: str,
+    tile: str,
+    cache_dirs: Mapping[str, str | os.PathLike[str]],
+    out_tile: str | os.PathLike[str],
+    out_pred: str | os.PathLike[str],
+    *,
+    dtm_path: str | os.PathLike[str],
+    preprocess: PreprocessConfig,
+    inference: InferenceConfig,
+    out_wires: str | os.PathLike[str],
+    missing: Mapping[str, str | os.PathLike[str]] | None = None,
+    model: str | os.PathLike[str] | None = None,
+    **kw: Any,
+) -> dict[str, Any]:
+    """A tile of a zone with products, in one job: its preprocessing
+    (:func:`towerpipe.preprocess.tile.prepare_tile`), written to ``out_tile`` for the block's towers
+    and QA jobs, then its conductor points and its inference (:func:`infer_step`, ``kw``) on the
+    tile in memory. One process and one read of the points less per tile than a preprocessing job
+    and an inference job; the predictions are those of the written tile. ``model`` as in
+    :func:`infer_step` (``None``: the zone's choice, ``kw["choice"]``).
+    """
+    from towerpipe.io.tiles import save_tile
+    from towerpipe.preprocess.tile import prepare_tile
+
+    t = prepare_tile(zone, block, tile, cache_dirs, dtm_path=dtm_path, settings=preprocess, missing=missing)
+    return infer_step(out_tile, model, out_pred, inference, out_wires=out_wires, tile=save_tile(out_tile, t), **kw)
 
 
 def classified_points(

@@ -1,10 +1,11 @@
 """Preprocessing a tile (paper section 3.1, second step): ground, DTM, heights, noise.
 
-:func:`preprocess_tile` (one Snakemake job per tile, in parallel) gathers the tile's
+:func:`prepare_tile` (in one Snakemake job per tile, in parallel) gathers the tile's
 core and buffer points from the block's cache (:func:`towerpipe.preprocess.split.split_block`)
 and its neighbours' (:func:`gather_tile`, :func:`buffer_attributes`), classifies ground
 where the block lacks it, builds a DTM and heights above ground with PDAL
-(:mod:`towerpipe.preprocess.ground`), flags noise, and writes a :mod:`towerpipe.io.tiles`.
+(:mod:`towerpipe.preprocess.ground`) and flags noise; :func:`preprocess_tile` also writes
+the tile (:mod:`towerpipe.io.tiles`).
 :func:`summarize_block` sums a block's tiles for the QA; :func:`tile_noise` reads back
 which points of a written tile it called noise.
 
@@ -181,7 +182,24 @@ def preprocess_tile(
     settings: PreprocessConfig,
     missing: Mapping[str, str | os.PathLike[str]] | None = None,
 ) -> dict[str, Any]:
-    """Ground, DTM, HAG and noise flags for one tile; writes the tile file.
+    """Ground, DTM, HAG and noise flags for one tile (:func:`prepare_tile`); writes the tile file
+    ``out_path`` (:mod:`towerpipe.io.tiles`) and returns its metadata."""
+    t = prepare_tile(zone, block, tile, cache_dirs, dtm_path=dtm_path, settings=settings, missing=missing)
+    save_tile(out_path, t)
+    return t.meta
+
+
+def prepare_tile(
+    zone: str,
+    block: str,
+    tile: str,
+    cache_dirs: Mapping[str, str | os.PathLike[str]],
+    *,
+    dtm_path: str | os.PathLike[str] | None = None,
+    settings: PreprocessConfig,
+    missing: Mapping[str, str | os.PathLike[str]] | None = None,
+) -> Tile:
+    """Ground, DTM, HAG and noise flags for one tile, in memory.
 
     Parameters
     ----------
@@ -190,8 +208,6 @@ def preprocess_tile(
     cache_dirs
         Block name → cache directory from :func:`towerpipe.preprocess.split.split_block`, for ``block``
         and every neighbour that may hold buffer points.
-    out_path
-        The tile ``.npz`` (:mod:`towerpipe.io.tiles`).
     dtm_path
         Where to keep the filled DTM GeoTIFF (for QA maps); a temporary file if ``None``.
     settings
@@ -202,8 +218,8 @@ def preprocess_tile(
 
     Returns
     -------
-    dict
-        The tile's metadata (counts, timings, DTM info), also stored in the file.
+    Tile
+        Its arrays (``hag`` and ``model_input`` added) and metadata (counts, timings, DTM info).
     """
     cfg = settings
     what = f"{zone}/{block}/{tile}"
@@ -320,8 +336,7 @@ def preprocess_tile(
         hag_min=cfg.hag_min,
         warnings=warnings,
     )
-    save_tile(out_path, t)
-    return t.meta
+    return t
 
 
 def summarize_block(cache_dir: str | os.PathLike[str], tile_paths: Sequence[str]) -> dict[str, Any]:
