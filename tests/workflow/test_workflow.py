@@ -14,6 +14,7 @@ import pytest
 import yaml
 
 from conftest import REPO, RGBNIR_BLOCK, write_zone_config
+from towerpipe.io.columns import read_meta
 from towerpipe.towers.shape import VERIFIER_RELEASE
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow]
@@ -150,6 +151,23 @@ def test_zone_runs_and_adding_a_block_reruns_only_it(zone, random_model):
     n_tiles = len(list((tmp / "work" / name / "tiles").rglob("*.npz")))
     assert job_count(proc, "infer_tile") >= n_tiles, proc.stdout[-3000:]
     assert job_count(proc, "merge_block") == 3
+
+
+@pytest.mark.shared
+def test_another_model_reruns_every_tile(zone, random_model, random_model_factory):
+    """A zone given another model (``inference.model``) runs its tiles again with it, and its
+    products after them: the choice is a checkpoint, the tile jobs are judged once it is made."""
+    name, tmp = zone
+    indir = tmp / "in"
+    split_in_blocks(RGBNIR_BLOCK, indir, n=2)
+    snakemake("--cores", "2", f"results/{name}/", f"--configfile={write_config(tmp, name, indir, random_model)}")
+    n_tiles = len(list((tmp / "work" / name / "tiles").rglob("*.npz")))
+    other = random_model_factory("shape")
+    proc = snakemake("--cores", "2", f"results/{name}/", f"--configfile={write_config(tmp, name, indir, other)}")
+    jobs = [r for r, _ in executed(proc)]
+    assert jobs.count("infer_tile") == n_tiles and jobs.count("merge_block") == 2, jobs
+    preds = sorted((tmp / "work" / name / "pred").rglob("*.npz"))
+    assert {read_meta(p)["model"]["name"] for p in preds} == {"towerpipe-random-shape"}
 
 
 @pytest.mark.shared

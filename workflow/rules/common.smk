@@ -39,6 +39,8 @@ QA_HTML = f"{ZONE_DIR}/qa/{{block}}.html"
 QA_JSON = f"{ZONE_DIR}/qa/{{block}}.json"
 # the manifest of the zone's last publication (rule assemble_zone)
 PUBLISHED = f"{ZONE_DIR}/published.json"
+# the zone's model and why (checkpoint choose_model, towerpipe.model.choice)
+MODEL_CHOICE = f"{ZONE_DIR}/model.json"
 
 
 def log_of(rule, per=""):
@@ -89,10 +91,10 @@ def executes_jobs():
     return workflow.is_main_process and workflow.executor_plugin is not None and not workflow.dryrun
 
 
-#: Zone -> what a checkpoint of it returned once complete (zone_input, plan). Snakemake's
-#: completed checkpoints only grow during a run, so the answer holds; asked for every job's
-#: input, ``.get()`` expanded the rule's output each time (600,000 times for 4,000 blocks).
-_COMPLETE = {"input": {}, "plan": {}}
+#: Zone -> what a checkpoint of it returned once complete (zone_input, plan, model_choice_file).
+#: Snakemake's completed checkpoints only grow during a run, so the answer holds; asked for every
+#: job's input, ``.get()`` expanded the rule's output each time (600,000 times for 4,000 blocks).
+_COMPLETE = {"input": {}, "plan": {}, "choice": {}}
 
 
 def zone_input(zone):
@@ -279,7 +281,7 @@ def zone_products(zone):
         raise WorkflowError(
             f"zone {zone!r} is one the models train on or the real-shape benchmark reads (training.zones, "
             "training.verifier_zones, realshape_*): its tiles are only preprocessed, it has no products; "
-            f"give its input another zone name to run it as a zone"
+            "give its input another zone name to run it as a zone"
         )
     files = {}
     for b in blocks(zone):
@@ -297,6 +299,9 @@ def planned_products(zone):
     the plan (the rule's parameters need the blocks)."""
     products = list(zone_products(zone).values())
     plan(zone)
+    # the tile jobs read the model choice, a checkpoint too: Snakemake judges again only the jobs
+    # that ask a checkpoint themselves, so the assembly asks it for them
+    model_choice_file(zone)
     return products
 
 
@@ -328,7 +333,11 @@ def model_spec_of(zone):
 
 
 def model_choice_file(zone):
-    return f"{WORK}/{zone}/model.json"
+    """The zone's model choice (checkpoint choose_model), remembered once made."""
+    path = _COMPLETE["choice"].get(zone)
+    if path is None:
+        path = _COMPLETE["choice"][zone] = checkpoints.choose_model.get(zone=zone).output.choice
+    return path
 
 
 def model_files(zone):

@@ -2,11 +2,15 @@
 # (paper 3.1-3.3).
 
 
-rule choose_model:
+# A checkpoint: the tile jobs, which read the choice, are planned once it is made. As a rule, when
+# it had to run, Snakemake judged nothing behind it, and the tile jobs wait on it through an
+# ancient() input: nothing marked them for their missing outputs or changed parameters (a new
+# block was split and no more; a changed inference.model reran only the choice).
+checkpoint choose_model:
     input:
         caches=lambda wc: [cache_dir(wc.zone, b) for b in blocks(wc.zone)],
     output:
-        choice=f"{ZONE_DIR}/model.json",
+        choice=MODEL_CHOICE,
     log:
         log_of("choose_model"),
     benchmark:
@@ -37,7 +41,8 @@ rule infer_tile:
     input:
         caches=tile_caches,
         model=lambda wc: model_files(wc.zone),
-        # after the zone's model is chosen; a rewritten choice alone reruns nothing
+        # after the zone's model is chosen (a checkpoint); a rewritten choice alone reruns nothing,
+        # a changed model reruns the tile through its model files and parameters
         choice=lambda wc: ancient(model_choice_file(wc.zone)),
         # the shape gate's verifier (inference.shape_gate, towers.verifier)
         verifier=verifier_files(),
