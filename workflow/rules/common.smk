@@ -515,14 +515,10 @@ def loso_models():
     }
 
 
-def prepared_only_zones():
-    """The zones whose tiles are only preprocessed, by preprocess_tile jobs: those the networks and
-    the shape verifier train on and those of the real-shape benchmark, which read tiles and never
-    products. Every other zone's tiles are preprocessed and inferred in one job (rule infer_tile)."""
-    return sorted({*purpose_zones("verifier"), *realshape_zones()} & set(config["zones"]))
-
-
-PREPARED_ONLY = frozenset(prepared_only_zones())
+#: The zones whose tiles are only preprocessed, by preprocess_tile jobs: those the networks and the
+#: shape verifier train on and those of the real-shape benchmark, which read tiles and never
+#: products. Every other zone's tiles are preprocessed and inferred in one job (rule infer_tile).
+PREPARED_ONLY = frozenset({*purpose_zones("verifier"), *realshape_zones()} & set(config["zones"]))
 _PREPARED_RE = "|".join(re.escape(z) for z in sorted(PREPARED_ONLY))
 #: the zone wildcard of rule preprocess_tile (a prepared-only zone) and of rule infer_tile (any
 #: other; the name is followed by the "/" of its folder in every path of the two rules)

@@ -2,10 +2,11 @@
 # (paper 3.1-3.3).
 
 
-# A checkpoint: the tile jobs, which read the choice, are planned once it is made. As a rule, when
-# it had to run, Snakemake judged nothing behind it, and the tile jobs wait on it through an
-# ancient() input: nothing marked them for their missing outputs or changed parameters (a new
-# block was split and no more; a changed inference.model reran only the choice).
+# A checkpoint: the tile jobs, which read the choice, are planned once it is made. Made by a rule
+# that had to run, the choice hid them: Snakemake judges nothing behind a job that must run, and
+# their ancient() input on the choice marks nothing to run, so neither their missing outputs nor
+# their changed parameters counted (a new block was split and no more; a changed
+# inference.model reran only the choice).
 checkpoint choose_model:
     input:
         caches=lambda wc: [cache_dir(wc.zone, b) for b in blocks(wc.zone)],
@@ -15,8 +16,7 @@ checkpoint choose_model:
         log_of("choose_model"),
     benchmark:
         benchmark_of("choose_model")
-    # right after the splits (it reads only their metadata), beside the preprocessing: the
-    # inference jobs then start as soon as their tiles are done
+    # right after the splits (it reads only their metadata): every tile job waits on it
     priority: 20
     localrule: True
     conda:
@@ -36,7 +36,7 @@ checkpoint choose_model:
 # A tile of a zone with products: its preprocessing (as rule preprocess_tile's), the tile written
 # for the block's towers and QA jobs, then its inference on the tile in memory: one process and one
 # read of the points less than two jobs. Zones that are only prepared (training, the real-shape
-# benchmark: prepared_only_zones) run rule preprocess_tile instead.
+# benchmark: PREPARED_ONLY) run rule preprocess_tile instead.
 rule infer_tile:
     input:
         caches=tile_caches,

@@ -52,7 +52,7 @@ checkpoint plan_zone:
         "../scripts/plan_zone.py"
 
 
-# The tiles of a zone that is only prepared (prepared_only_zones: the training zones, the
+# The tiles of a zone that is only prepared (PREPARED_ONLY: the training zones, the
 # real-shape benchmark's); a zone with products preprocesses each tile in its inference job
 # (rule infer_tile), which writes the same tile.
 rule preprocess_tile:
