@@ -95,3 +95,32 @@ def test_plan_bench_copies_a_block_on_a_grid(tmp_path):
         assert len(las.points) == len(one.points)
         shift = np.array([(k % 3) * 16.0, (k // 3) * 16.0])
         assert np.allclose(np.c_[las.x, las.y] - shift, np.c_[one.x, one.y])
+
+
+@pytest.mark.shared
+@pytest.mark.usefixtures("pdal_cli")
+def test_infer_bench_runs_the_tile_jobs_inference_on_a_zones_tiles(tmp_path, capsys):
+    """``bench infer`` reads a zone's tiles and runs their inference as the tile jobs do, with
+    the zone's model choice; a working directory without tiles is refused with the fix."""
+    import argparse
+    import json
+
+    from conftest import RGBNIR_SMALL, preprocess_settings
+    from towerpipe.bench.infer import bench_infer
+    from towerpipe.model.choice import write_choice
+    from towerpipe.preprocess.split import split_block
+    from towerpipe.preprocess.tile import preprocess_tile
+
+    work, prep = tmp_path / "work" / "z", preprocess_settings(tile_size=100.0)
+    args = argparse.Namespace(work=str(work), repeat=2, workdir=None, keep=False, json=str(tmp_path / "infer.json"))
+    with pytest.raises(SystemExit, match="no tiles"):
+        bench_infer(args)
+    meta = split_block(RGBNIR_SMALL, work / "cache" / "b", block="b", zone="z", settings=prep)
+    for t in meta["tiles"]:
+        preprocess_tile("z", "b", t, {"b": work / "cache" / "b"}, work / "tiles" / "b" / f"{t}.npz", settings=prep)
+    write_choice("shape", {"b": work / "cache" / "b"}, work / "model.json", zone="z", key="inference.model")
+    assert bench_infer(args) == 0
+    res = json.loads((tmp_path / "infer.json").read_text())
+    assert res["tiles"] == len(meta["tiles"]) and len(res["infer_runs"]) == 2
+    assert res["ratio"] == pytest.approx(res["infer_s"] / res["read_s"])
+    assert "infer: " in capsys.readouterr().out

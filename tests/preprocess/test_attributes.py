@@ -114,3 +114,13 @@ def test_split_of_a_zeroed_reexport(tmp_path):
     meta = split_block(path, tmp_path / "cache", block="b", zone="z", settings=preprocess_settings())
     assert meta["degenerate_attributes"] == ["intensity", "returns"]
     assert valid_set(meta["attributes"]) == {"rgb", "nir"}
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.uint32, np.int16, np.float32])
+def test_distinct_values_are_numpys_whatever_the_dimension_type(dtype):
+    """The LAS dimensions' distinct values (counted for 8- and 16-bit ones) are ``np.unique``'s."""
+    from towerpipe.preprocess.attributes import _distinct
+
+    for n in (0, 1, 5_000):
+        v = np.random.default_rng(n).integers(0, 250, n).astype(dtype)
+        assert _distinct(v).tolist() == np.unique(v).tolist()

@@ -56,3 +56,20 @@ def test_plan_comes_from_the_points_never_from_a_header():
     assert plan["a"]["neighbours"] == ["b"] and plan["c"]["neighbours"] == []
     assert plan["a"]["tile_blocks"]["1_0"] == ["a", "b"] and plan["a"]["tile_blocks"]["0_0"] == ["a"]
     assert all(p["missing_neighbours"] == ["bad"] for b, p in plan.items() if b != "bad")
+
+
+def test_occupied_tiles_by_count_or_by_sort_are_the_same():
+    """A block's few tiles are counted, a grid widened by a stray point is sorted: the same tiles."""
+    import numpy as np
+
+    from towerpipe.preprocess.tiling import TileGrid, occupied_tiles
+
+    rng = np.random.default_rng(2)
+    x, y = rng.uniform(0, 1000, 20_000), rng.uniform(0, 1000, 20_000)
+    keep = ~((x > 500) & (y < 500))  # tile 1_0 left empty
+    grid = TileGrid((0.0, 0.0, 1000.0, 1000.0), 250.0)
+    want = sorted(
+        {(int(a), int(b)) for a, b in zip(*grid.index(x[keep], y[keep]), strict=True)}, key=lambda t: (t[1], t[0])
+    )
+    assert occupied_tiles(grid, x[keep], y[keep], chunk=7_000) == [f"{a}_{b}" for a, b in want]
+    assert "2_0" not in occupied_tiles(grid, x[keep], y[keep]) and len(want) == 12

@@ -23,7 +23,20 @@ from towerpipe.towers.shape import (
     peak_scores,
     resolve_verifier,
     shape_descriptor,
+    unique_rows,
 )
+
+
+@pytest.mark.parametrize(
+    ("n", "k", "span"),
+    [(0, 3, 5), (1, 3, 5), (50, 3, 2), (2000, 3, 40), (3000, 2, 400), (9, 3, 10**9), (5, 1, 3)],
+)
+def test_unique_rows_is_numpy_row_unique_in_the_same_order(n, k, span):
+    """The descriptor's voxels come out as ``np.unique(axis=0)`` gives them, row for row (every
+    sum over them rounds the same), also when no integer key fits (the largest span)."""
+    cells = np.random.default_rng(n + k).integers(-span, span, (n, k))
+    np.testing.assert_array_equal(unique_rows(cells), np.unique(cells, axis=0))
+    assert unique_rows(cells).dtype == np.int64
 
 
 def tree(cx: float, cy: float, *, height: float = 12.0, crown: float = 3.5, n: int = 600, seed: int = 0):

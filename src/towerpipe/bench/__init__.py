@@ -10,6 +10,7 @@ seconds (the machines are shared and noisy)::
     python -m towerpipe.bench scale --e2e e2e.json --blocks blocks.json   # a night, on paper
     python -m towerpipe.bench plan --blocks 4000    # snakemake -n over 4,000 planned blocks
     python -m towerpipe.bench slurm --json slurm.json   # small blocks on SLURM: per rule vs grouped
+    python -m towerpipe.bench infer --work work/<zone>  # a zone's tile inference, in one process
 
 For each block it times ``pdal translate in.laz out.laz`` (LAZ → LAZ, one
 process) and the Snakemake preprocessing of the same block (``--cores 2``,
@@ -389,8 +390,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     pb.add_argument("--cores", type=int, default=2)
     run_args(pb)
     pb.set_defaults(func=bench_blocks)
-    from towerpipe.bench import plan, scale, slurm
+    from towerpipe.bench import infer, plan, scale, slurm
 
+    infer.register(bsub)
     scale.register(bsub)
     plan.register(bsub)
     slurm.register(bsub)

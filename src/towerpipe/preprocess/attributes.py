@@ -45,6 +45,14 @@ DIMENSIONS: dict[str, tuple[str, ...]] = {
 }
 
 
+def _distinct(values: np.ndarray) -> np.ndarray:
+    """The distinct values of a chunk (a count per possible value for 8- and 16-bit unsigned
+    dimensions, the LAS colours, intensities and return numbers: one pass, no sort)."""
+    if values.dtype.kind == "u" and values.dtype.itemsize <= 2:
+        return np.flatnonzero(np.bincount(values.ravel(), minlength=1))
+    return np.unique(values)
+
+
 class AttributeStats:
     """Accumulates, chunk by chunk, what decides each attribute's validity.
 
@@ -67,7 +75,7 @@ class AttributeStats:
         for dim, seen in self._distinct.items():
             if len(seen) > MIN_DISTINCT or dim not in chunk:
                 continue  # decided already: enough distinct values seen
-            seen.update(np.unique(np.asarray(chunk[dim])).tolist())
+            seen.update(_distinct(np.asarray(chunk[dim])).tolist())
 
     def _distinct_count(self, attribute: str) -> int:
         return len(set().union(*(self._distinct[d] for d in DIMENSIONS[attribute])))

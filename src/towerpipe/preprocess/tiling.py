@@ -122,11 +122,15 @@ def occupied_tiles(grid: TileGrid, x: np.ndarray, y: np.ndarray, chunk: int = 4_
     A stray point far from the others widens the grid but adds one tile, not the
     thousands of empty ones between.
     """
-    nx, _ = grid.shape
+    nx, ny = grid.shape
     cells: set[int] = set()
     for start in range(0, len(x), chunk):
         ix, iy = grid.index(x[start : start + chunk], y[start : start + chunk])
-        cells.update(np.unique(iy.astype(np.int64) * nx + ix).tolist())
+        flat = iy.astype(np.int64) * nx + ix
+        if nx * ny <= 1 << 20:  # a count per tile: one pass, no sort (a block has a few tiles)
+            cells.update(np.flatnonzero(np.bincount(flat, minlength=nx * ny)).tolist())
+        else:  # a grid widened by a stray point: the occupied tiles only
+            cells.update(np.unique(flat).tolist())
     return [f"{c % nx}_{c // nx}" for c in sorted(cells)]
 
 

@@ -89,6 +89,28 @@ DESCRIPTOR_NAMES: tuple[str, ...] = (
 )
 
 
+def unique_rows(cells: np.ndarray) -> np.ndarray:
+    """``np.unique(cells, axis=0)`` of ``(n, k)`` integer cells, through one integer key per row.
+
+    The rows come out in the same lexicographic order (so every sum over them rounds as
+    before), at a fraction of the cost of NumPy's row-wise unique (a structured sort).
+    """
+    cells = np.asarray(cells, np.int64)
+    if len(cells) == 0:
+        return cells.reshape(0, cells.shape[1])
+    lo = cells.min(axis=0)
+    span = cells.max(axis=0) - lo + 1
+    if float(np.prod(span.astype(np.float64))) >= 2.0**62:  # no key fits in int64: NumPy's way
+        return np.unique(cells, axis=0)
+    # mixed radix, the first column most significant: keys sort as the rows do
+    weights = np.cumprod(np.r_[span[1:], 1][::-1])[::-1]
+    keys = np.unique((cells - lo) @ weights)
+    out = np.empty((len(keys), cells.shape[1]), np.int64)
+    for j, w in enumerate(weights):
+        out[:, j], keys = np.divmod(keys, w)
+    return out + lo
+
+
 def shape_descriptor(x: np.ndarray, y: np.ndarray, hag: np.ndarray) -> np.ndarray:
     """The shape descriptor of one object (:data:`DESCRIPTOR_NAMES`).
 
@@ -109,7 +131,7 @@ def shape_descriptor(x: np.ndarray, y: np.ndarray, hag: np.ndarray) -> np.ndarra
     if len(x) == 0:
         raise ValueError("shape_descriptor: an object without points")
     pts = np.c_[x - x.mean(), y - y.mean(), hag]
-    vox = np.unique(np.floor(pts / VOXEL_M).astype(np.int64), axis=0)
+    vox = unique_rows(np.floor(pts / VOXEL_M).astype(np.int64))
     q = (vox + 0.5) * VOXEL_M
     height = max(float(hag.max()), 1.0)
     rel = np.clip(q[:, 2] / height, 0.0, 1.0 - 1e-9)
@@ -127,7 +149,7 @@ def shape_descriptor(x: np.ndarray, y: np.ndarray, hag: np.ndarray) -> np.ndarra
         ev, vec = np.array([1.0, 1e-9, 1e-9]), np.eye(3)[:, ::-1]
     slices = np.unique(np.floor(q[:, 2]).astype(np.int64))
     gaps = np.diff(np.sort(np.r_[0.0, q[:, 2], height]))
-    columns = np.unique(vox[:, :2], axis=0)
+    columns = unique_rows(vox[:, :2])
     hull = shapely.convex_hull(shapely.multipoints(q[:, :2]))
     area = max(float(hull.area), VOXEL_M * VOXEL_M)
     top, middle = rel >= 0.8, (rel >= 0.3) & (rel < 0.7)
