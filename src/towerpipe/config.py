@@ -258,6 +258,9 @@ class TowersConfig(Section):
     verifier: str
     #: Towers whose shape score is lower are dropped (0 keeps all).
     min_shape_score: float
+    #: Rule 13: the shape score a cluster at least ``wire_min_height`` high needs instead
+    #: (``None``: ``min_shape_score``); the conductor rule judges it next.
+    tall_shape_score: float | None
     #: A cluster the shape check drops is clustered again from its points at or above each
     #: of these probabilities in turn, and each part is judged (empty: never).
     split_thresholds: Sequence[float]

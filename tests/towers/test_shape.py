@@ -398,3 +398,87 @@ def test_conductors_do_not_vouch_for_a_crown_under_them_or_for_unknown_support(m
     pair = pred_pair(t_xyz, t_hag, 0.95, ["b1"])
     found = extract([pair], "b1", BOUNDS, zone="z1", context=lambda x, y: (tower, inside), **rules)
     assert len(found.towers) == 0
+
+
+# rule 13, tall clusters (towers.tall_shape_score)
+class _Scores:
+    """A verifier that gives every object the same score."""
+
+    def __init__(self, value: float):
+        self.value = value
+
+    def score(self, x, y, hag):
+        return self.value
+
+
+@pytest.mark.parametrize(
+    ("tall_shape_score", "wire_z", "kept"),
+    [(None, 28.0, 0), (0.9, 28.0, 1), (0.93, 28.0, 0), (0.9, None, 0)],
+)
+def test_a_tall_cluster_passes_the_shape_check_lower_with_conductors(monkeypatch, tall_shape_score, wire_z, kept):
+    """A 30 m tower scored 0.92 (under ``min_shape_score`` 0.95): kept at ``tall_shape_score`` 0.9
+    when conductors point at it, dropped by default, above 0.92, or without conductors (rule 7)."""
+    import towerpipe.towers.extract as ex
+
+    monkeypatch.setattr(ex, "load_verifier", lambda spec: _Scores(0.92))
+    rng = np.random.default_rng(2)
+    cx, cy = X0 + 250, Y0 + 250
+    t_xyz, t_hag = synthetic_tower(cx, cy, base_z=BASE_Z, seed=3)
+    assert t_hag.max() >= 20.0  # the conductor rule's height (towers.wire_min_height)
+    wires = spans(cx, cy, BASE_Z + wire_z, rng) if wire_z is not None else np.empty((0, 3))
+    ctx = {
+        "x": np.r_[t_xyz[:, 0], wires[:, 0]],
+        "y": np.r_[t_xyz[:, 1], wires[:, 1]],
+        "z": np.r_[t_xyz[:, 2], wires[:, 2]],
+        "hag": np.r_[t_hag, wires[:, 2] - BASE_Z].astype(np.float64),
+    }
+    rules = {"min_shape_score": 0.95, "split_thresholds": [], "tall_shape_score": tall_shape_score}
+    rules["min_wire_support"] = 0.5  # the schema's: the conductor rule judges the tall cluster
+    found = extract(
+        [pred_pair(t_xyz, t_hag, 0.95, ["b1"])],
+        "b1",
+        BOUNDS,
+        zone="z1",
+        context=lambda x, y: (ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)),
+        **rules,
+    )
+    assert len(found.towers) == kept
+    if kept:
+        assert found.towers["shape_score"].iloc[0] == pytest.approx(0.92)
+        assert found.towers["wire_support"].iloc[0] == 1.0
+
+
+def test_a_low_cluster_needs_the_full_shape_score_whatever_the_tall_one():
+    """A 14 m cluster scored 0.92 stays under ``min_shape_score`` (0.95) with ``tall_shape_score``
+    0.9: rule 13 is for clusters the conductor rule judges (``towers.wire_min_height``, 20 m)."""
+    import towerpipe.towers.extract as ex
+
+    rng = np.random.default_rng(4)
+    cx, cy = X0 + 250, Y0 + 250
+    n = 400
+    r, a = 1.0 * np.sqrt(rng.random(n)), rng.uniform(0, 2 * np.pi, n)
+    hag = rng.uniform(0.5, 14.0, n)
+    pole = np.c_[cx + r * np.cos(a), cy + r * np.sin(a), BASE_Z + hag]
+    ctx = {"x": pole[:, 0], "y": pole[:, 1], "z": pole[:, 2], "hag": hag}
+    rules = {"min_shape_score": 0.95, "split_thresholds": [], "tall_shape_score": 0.9, "min_height": 5.0}
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(ex, "load_verifier", lambda spec: _Scores(0.92))
+        found = extract(
+            [pred_pair(pole, hag.astype(np.float32), 0.95, ["b1"])],
+            "b1",
+            BOUNDS,
+            zone="z1",
+            context=lambda x, y: (ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)),
+            **rules,
+        )
+        assert len(found.towers) == 0
+        mp.setattr(ex, "load_verifier", lambda spec: _Scores(0.96))
+        found = extract(
+            [pred_pair(pole, hag.astype(np.float32), 0.95, ["b1"])],
+            "b1",
+            BOUNDS,
+            zone="z1",
+            context=lambda x, y: (ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)),
+            **rules,
+        )
+        assert len(found.towers) == 1  # the same cluster at the full score

@@ -52,6 +52,11 @@ not a rescue's, and with no split part to judge instead, is kept when conductors
 above their median height in its 80-160 m ring (:func:`towerpipe.towers.wires.conductor_heights`): a tower carries
 its conductors at its top, a crown under a line stays below them.
 
+Rule 13, tall clusters (``tall_shape_score``, ``None``: off): a cluster at least ``wire_min_height``
+high passes the shape check at ``tall_shape_score`` instead of ``min_shape_score``; rule 7 then
+judges it, so a tall object passes only with conductors pointing at it: the conductors are a
+second opinion that a crane, a mast or a tree shaped like a tower lacks.
+
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
 tower's points and the registry, never on file or processing order nor on the zone's
@@ -209,6 +214,9 @@ def extract_towers(
         - ``verifier``, ``min_shape_score``: with a ``context``, towers whose shape score
           (:class:`towerpipe.towers.shape.ShapeVerifier`) is below ``min_shape_score`` are
           dropped (``verifier: none`` or 0 keeps all; without a context the score is NaN).
+        - ``tall_shape_score``: rule 13, the shape score a cluster at least ``wire_min_height`` high
+          needs instead of ``min_shape_score`` (``None``: ``min_shape_score``); the conductor rule
+          judges it next;
         - ``split_thresholds``: a cluster the shape check drops is clustered again from its
           points at or above each of these in turn, and each part is judged (``()``: never);
         - ``rescue_threshold``: rule 10 (module docstring; 0 never rescues);
@@ -372,7 +380,11 @@ def extract_towers(
                 obj = object_points(footprint, arr["x"], arr["y"])
                 if len(obj):
                     shape = verifier.score(arr["x"][obj], arr["y"][obj], arr["hag"][obj])
-                if shape < rules.min_shape_score or (is_rescue and np.isnan(shape)):
+                # rule 13: a cluster as high as the conductor rule judges passes at a lower score,
+                # the conductors pointing at it being the second opinion
+                tall = rules.tall_shape_score is not None and hag.max() >= rules.wire_min_height
+                needed = rules.tall_shape_score if tall else rules.min_shape_score
+                if shape < needed or (is_rescue and np.isnan(shape)):
                     # the object under it is shaped like a tree, a roof or a crane; or it is a
                     # tower standing in crowns the segmenter painted with it: its more
                     # confident points are clustered again and each part judged
