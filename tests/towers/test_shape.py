@@ -461,24 +461,15 @@ def test_a_low_cluster_needs_the_full_shape_score_whatever_the_tall_one():
     pole = np.c_[cx + r * np.cos(a), cy + r * np.sin(a), BASE_Z + hag]
     ctx = {"x": pole[:, 0], "y": pole[:, 1], "z": pole[:, 2], "hag": hag}
     rules = {"min_shape_score": 0.95, "split_thresholds": [], "tall_shape_score": 0.9, "min_height": 5.0}
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(ex, "load_verifier", lambda spec: _Scores(0.92))
-        found = extract(
-            [pred_pair(pole, hag.astype(np.float32), 0.95, ["b1"])],
-            "b1",
-            BOUNDS,
-            zone="z1",
-            context=lambda x, y: (ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)),
-            **rules,
-        )
-        assert len(found.towers) == 0
-        mp.setattr(ex, "load_verifier", lambda spec: _Scores(0.96))
-        found = extract(
-            [pred_pair(pole, hag.astype(np.float32), 0.95, ["b1"])],
-            "b1",
-            BOUNDS,
-            zone="z1",
-            context=lambda x, y: (ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)),
-            **rules,
-        )
-        assert len(found.towers) == 1  # the same cluster at the full score
+    for score, kept in ((0.92, 0), (0.96, 1)):  # under the full score; the same cluster at it
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(ex, "load_verifier", lambda spec, score=score: _Scores(score))
+            found = extract(
+                [pred_pair(pole, hag.astype(np.float32), 0.95, ["b1"])],
+                "b1",
+                BOUNDS,
+                zone="z1",
+                context=lambda x, y: (ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)),
+                **rules,
+            )
+        assert len(found.towers) == kept, score

@@ -54,8 +54,9 @@ its conductors at its top, a crown under a line stays below them.
 
 Rule 13, tall clusters (``tall_shape_score``, ``None``: off): a cluster at least ``wire_min_height``
 high passes the shape check at ``tall_shape_score`` instead of ``min_shape_score``; rule 7 then
-judges it, so a tall object passes only with conductors pointing at it: the conductors are a
-second opinion that a crane, a mast or a tree shaped like a tower lacks.
+judges it, so a tall object passes only with conductors pointing at it, or with its ring outside
+the data (an unknown support never drops): the conductors are a second opinion that a crane, a
+mast or a tree shaped like a tower lacks.
 
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
