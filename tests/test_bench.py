@@ -63,6 +63,28 @@ def test_grouped_slurm_jobs_per_block():
     assert small["slurm_core_h"] < _project(250.0, slurm_start_s=6.0)["slurm_core_h"]
 
 
+def test_batched_small_blocks_on_slurm_group_only_their_splits():
+    packs = {"split": 8, "tile": 4}
+    batched = {"blocks": 50, "batches": 2, "jobs": 58, "job_s_median": 0.3, "scheduler_s_per_job": 0.5}
+    r = project(
+        E2E,
+        batched,
+        area_km2=1.0,
+        block_m=16.0,
+        nodes=2,
+        node_cores=10,
+        max_jobs=200,
+        submit_per_s=5.0,
+        slurm_start_s=6.0,
+        packs=packs,
+        batched=True,
+    )
+    blocks = 1e6 / 256
+    assert r["batched"] and r["jobs"] == pytest.approx(blocks * 58 / 50)
+    # a split job for 8 blocks; the batches' jobs (58 - 50 per 50 blocks) one each
+    assert r["slurm_jobs"] == pytest.approx(blocks / 8 + blocks * 8 / 50)
+
+
 def test_the_cluster_profile_packs_splits_and_tiles():
     assert profile_packs() == {"split": 8, "tile": 8}
 

@@ -38,7 +38,7 @@ def test_unknown_keys_name_the_closest_valid_one():
         "config: inference.treshold: unknown key; did you mean 'threshold'?"
     ]
     assert problems({"zones": {"z": {"input": "in"}}, "colour": 1}) == [
-        "config: colour: unknown key; valid keys: zones, workdir, preprocess, inference, towers, qa, training"
+        "config: colour: unknown key; valid keys: zones, workdir, preprocess, batch, inference, towers, qa, training"
     ]
     assert problems({"zones": {"z": {"input": "in"}}, "qa": {"min_densty": 1.0}}) == [
         "config: qa.min_densty: unknown key; did you mean 'min_density'?"

@@ -291,3 +291,26 @@ rule split_block:
     logs = sorted((run_dir / ".snakemake/log").glob("*.snakemake.log"))
     assert logs
     assert failures_from_log(logs, "work") == {"demo": {"broken": "split_block: InputError: broken.laz: truncated"}}
+
+
+FAILED_BATCH = _failed(
+    "products_batch",
+    4,
+    "work/demo/batches/b5000_57501/products",
+    "work/demo/logs/products_batch/b5000_57501.log",
+    "zone=demo, batch=b5000_57501",
+    20,
+)
+
+
+def test_a_failed_batch_fails_each_of_its_blocks(run_dir):
+    main = _write(run_dir / "smk.log", HEADER + FAILED_BATCH + FOOTER)
+    _write(
+        run_dir / "work/demo/logs/products_batch/b5000_57501.log",
+        "2026-11-23 21:06:22,000 ERROR towerpipe: MemoryError: Unable to allocate 3.20 GiB\n",
+    )
+    reason = "products_batch: MemoryError: Unable to allocate 3.20 GiB (batch b5000_57501)"
+    batches = {"demo": {"b5000_57500": ["a"], "b5000_57501": ["b", "c"]}}
+    assert failures_from_log(main, "work", batches=batches) == {"demo": {"b": reason, "c": reason}}
+    # without the zone's batches (no plan), the batch is named as it is
+    assert failures_from_log(main, "work") == {"demo": {"b5000_57501": reason.removesuffix(" (batch b5000_57501)")}}

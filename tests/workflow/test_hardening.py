@@ -283,6 +283,10 @@ def test_unit_and_clash_refused_at_split_with_one_line(names_run, rel):
 def test_neighbour_without_nir_costs_only_itself(names_run):
     out, work, zone = names_run["out"], names_run["work"], names_run["zone"]
     assert "nonir_mid: " in (out / "INCOMPLETE.txt").read_text()
+    # the plan batches these small blocks, but the model cannot run on one of them: every block
+    # then has jobs of its own (a batch fails with any of its blocks), and that one fails alone
+    assert json.loads((work / zone / "plan.json").read_text())["batches"]
+    assert not (work / zone / "batches").exists()
     for b in ("nir_west", "nir_east"):
         assert (out / "blocks" / f"{b}.laz").is_file()
         tiles = list((work / zone / "tiles" / b).glob("*.npz"))

@@ -14,6 +14,8 @@ from towerpipe.products.qa.metrics import Limits
 from towerpipe.config import exit_with as config_exit
 from towerpipe.errors import PdalError, TowerpipeError
 from towerpipe.jobs import runlock
+from towerpipe.jobs.batch import timing_file
+from towerpipe.io import workdir
 from towerpipe.io.inputs import describe, scan_zone
 from towerpipe.preprocess.pdal import pdal_version
 
@@ -26,17 +28,21 @@ ZONE_DIR = f"{WORK}/{{zone}}"
 ZONE_NAME = r"[A-Za-z0-9][A-Za-z0-9_.-]*"
 #: the published zone (written by zone_results), what users open
 RESULTS = "results/{zone}"
-TILE = f"{ZONE_DIR}/tiles/{{block}}/{{tile}}.npz"
-PRED = f"{ZONE_DIR}/pred/{{block}}/{{tile}}.npz"
-WIRES = f"{ZONE_DIR}/wires/{{block}}/{{tile}}.npz"
-TOWERS_GPKG = f"{ZONE_DIR}/towers/{{block}}.gpkg"
-TOWERS_NEIGHBOURS = f"{ZONE_DIR}/towers/{{block}}.neighbours.json"
-TOWER_MEMBERS = f"{ZONE_DIR}/towers/{{block}}.points.npz"
-BLOCK_LAZ = f"{ZONE_DIR}/out/{{block}}.laz"
-CACHE = f"{ZONE_DIR}/cache/{{block}}"
-DTM = f"{ZONE_DIR}/dtm/{{block}}/{{tile}}.tif"
-QA_HTML = f"{ZONE_DIR}/qa/{{block}}.html"
-QA_JSON = f"{ZONE_DIR}/qa/{{block}}.json"
+# (the layout relative to the zone's directory is towerpipe.io.workdir's)
+TILE = f"{ZONE_DIR}/{workdir.TILE}"
+PRED = f"{ZONE_DIR}/{workdir.PRED}"
+WIRES = f"{ZONE_DIR}/{workdir.WIRES}"
+TOWERS_GPKG = f"{ZONE_DIR}/{workdir.TOWERS_GPKG}"
+TOWERS_NEIGHBOURS = f"{ZONE_DIR}/{workdir.TOWERS_NEIGHBOURS}"
+TOWER_MEMBERS = f"{ZONE_DIR}/{workdir.TOWER_MEMBERS}"
+BLOCK_LAZ = f"{ZONE_DIR}/{workdir.BLOCK_LAZ}"
+CACHE = f"{ZONE_DIR}/{workdir.CACHE}"
+DTM = f"{ZONE_DIR}/{workdir.DTM}"
+QA_HTML = f"{ZONE_DIR}/{workdir.QA_HTML}"
+QA_JSON = f"{ZONE_DIR}/{workdir.QA_JSON}"
+# a batch's directories (wildcard batch): the same per-block files, in the zone's layout
+BATCH_INFER = f"{ZONE_DIR}/{workdir.BATCH_INFER}"
+BATCH_PRODUCTS = f"{ZONE_DIR}/{workdir.BATCH_PRODUCTS}"
 # the manifest of the zone's last publication (rule assemble_zone)
 PUBLISHED = f"{ZONE_DIR}/published.json"
 # the zone's model and why (checkpoint choose_model, towerpipe.model.choice)
@@ -44,18 +50,19 @@ MODEL_CHOICE = f"{ZONE_DIR}/model.json"
 
 
 def log_of(rule, per=""):
-    """``log:`` of a rule: per "" (zone), "block" or "tile"."""
+    """``log:`` of a rule: per "" (zone), "block", "tile" or "batch"."""
     return _per_job(f"{ZONE_DIR}/logs", rule, per) + ".log"
 
 
 def benchmark_of(rule, per=""):
-    """``benchmark:`` of a rule: per "" (zone), "block" or "tile"."""
+    """``benchmark:`` of a rule: per "" (zone), "block", "tile" or "batch"."""
     return _per_job(f"{ZONE_DIR}/benchmarks", rule, per) + ".tsv"
 
 
 def _per_job(base, rule, per):
-    """``base/rule``, then ``{block}`` and ``{tile}`` as the rule's jobs are per zone, block or tile."""
-    wildcards = {"": [], "block": ["{block}"], "tile": ["{block}", "{tile}"]}[per]
+    """``base/rule``, then ``{block}`` and ``{tile}`` as the rule's jobs are per zone, block or tile
+    (``{batch}``: per batch)."""
+    wildcards = {"": [], "block": ["{block}"], "tile": ["{block}", "{tile}"], "batch": ["{batch}"]}[per]
     return os.path.join(base, rule, *wildcards)
 
 
@@ -64,6 +71,8 @@ wildcard_constraints:
     # block ids are safe file names (towerpipe.io.inputs), whatever the input files are called
     block=r"[A-Za-z0-9_][A-Za-z0-9_.-]*",
     tile=r"-?\d+_-?\d+",
+    # batch ids (towerpipe.preprocess.batches.BATCH_ID)
+    batch=r"b-?\d+_-?\d+(?:_\d+)?",
     # model names (training.models, -without-<family>): no dot, so never a file of work/models
     name=r"[A-Za-z0-9][A-Za-z0-9_-]*",
     purpose=r"training|verifier",
@@ -182,8 +191,9 @@ def plan_file(zone):
 
 @functools.cache
 def _read_plan(path, mtime_ns):
+    """The plan file's content, read once per version of the file."""
     with open(path) as fh:
-        return json.load(fh)["blocks"]
+        return json.load(fh)
 
 
 def plan(zone):
@@ -192,6 +202,10 @@ def plan(zone):
     Nothing in the job graph comes from a block's header: until every block is split,
     the jobs after the split are not known (a dry run lists the splits and the plan).
     """
+    return _plan_doc(zone)["blocks"]
+
+
+def _plan_doc(zone):
     path = _COMPLETE["plan"].get(zone)
     if path is None:
         path = _COMPLETE["plan"][zone] = checkpoints.plan_zone.get(zone=zone).output[0]
@@ -201,7 +215,7 @@ def plan(zone):
 def plan_or_none(zone):
     """The zone's plan when it exists (no checkpoint: for resources and the error handler)."""
     path = plan_file(zone)
-    return _read_plan(path, os.stat(path).st_mtime_ns) if os.path.exists(path) else None
+    return _read_plan(path, os.stat(path).st_mtime_ns)["blocks"] if os.path.exists(path) else None
 
 
 def planned(zone, block):
@@ -211,7 +225,69 @@ def planned(zone, block):
         "tile_blocks": {},
         "points": 0,
         "missing_neighbours": [],
+        "batch": None,
     }
+
+
+def batches(zone):
+    """Batch id -> its blocks (towerpipe.preprocess.batches); empty for a zone not batched, and
+    for one whose model cannot run on some block: each block then has jobs of its own, and that
+    block fails alone at its towers job (a batch fails with any of its blocks)."""
+    return _batch_index(zone)[0]
+
+
+def batch_of(zone, block, known=None):
+    """The block's batch, or None (a job per tile and per block); ``known``: an index from
+    known_batches (a rule's parameters, the error handler), else the checkpoints are asked."""
+    return (known or _batch_index(zone))[1].get(block)
+
+
+def _batch_index(zone):
+    plan(zone)  # the checkpoint, once
+    path = _COMPLETE["plan"][zone]
+    mtime = os.stat(path).st_mtime_ns
+    if not _read_plan(path, mtime).get("batches"):  # no choice asked: a zone only prepared has none
+        return _NO_BATCHES
+    choice = model_choice_file(zone)
+    return _batch_index_of(path, mtime, choice, os.stat(choice).st_mtime_ns)
+
+
+def known_batches(zone):
+    """The zone's batch index from the files its checkpoints wrote, asking no checkpoint: for a
+    rule's parameters (a parameter may only ask the checkpoint its rule's input asked; the job
+    is planned again once the checkpoints are made) and for the error handler."""
+    path, choice = plan_file(zone), MODEL_CHOICE.format(zone=zone)
+    if not (os.path.exists(path) and os.path.exists(choice)):
+        return _NO_BATCHES
+    return _batch_index_of(path, os.stat(path).st_mtime_ns, choice, os.stat(choice).st_mtime_ns)
+
+
+_NO_BATCHES = ({}, {})
+
+
+@functools.cache
+def _batch_index_of(plan_path, plan_mtime_ns, choice_path, choice_mtime_ns):
+    """(batches, block -> batch) of a plan and a model choice, built once per version of each."""
+    planned_batches = _read_plan(plan_path, plan_mtime_ns).get("batches") or {}
+    with open(choice_path) as fh:
+        if json.load(fh).get("incompatible_blocks"):
+            return _NO_BATCHES
+    return planned_batches, {b: i for i, bs in planned_batches.items() for b in bs}
+
+
+def block_root(zone, block, stage, known=None):
+    """Where a block's files of ``stage`` ("infer": tiles, DTMs, predictions, conductor points;
+    "products": towers, LAZ, QA) are: its batch's directory, or the zone's."""
+    batch = batch_of(zone, block, known)
+    if batch is None:
+        return ZONE_DIR.format(zone=zone)
+    return (BATCH_INFER if stage == "infer" else BATCH_PRODUCTS).format(zone=zone, batch=batch)
+
+
+def block_file(zone, block, pattern, tile=None, known=None):
+    """A per-block file (a towerpipe.io.workdir pattern) where the block's jobs or batch write it."""
+    stage = "infer" if pattern in (workdir.TILE, workdir.DTM, workdir.PRED, workdir.WIRES) else "products"
+    return f"{block_root(zone, block, stage, known)}/{pattern.format(block=block, tile=tile)}"
 
 
 def tiles(zone, block):
@@ -244,10 +320,13 @@ def cache_dir(zone, block):
 
 
 def tile_file(zone, block, tile):
-    return TILE.format(zone=zone, block=block, tile=tile)
+    return block_file(zone, block, workdir.TILE, tile)
 
 
 def tile_files(zone):
+    """What makes every tile of the zone: the tile files, or the directories of its batches."""
+    if batches(zone):
+        return [BATCH_INFER.format(zone=zone, batch=i) for i in batches(zone)]
     return [tile_file(zone, b, t) for b in blocks(zone) for t in tiles(zone, b)]
 
 
@@ -275,8 +354,9 @@ def registry_sources(zone):
     return [registry_file(zone), f"{RESULTS.format(zone=zone)}/towers.gpkg"]
 
 
-def zone_products(zone):
-    """Relative path in results/<zone>/ -> per-block product."""
+def zone_products(zone, known=None):
+    """Relative path in results/<zone>/ -> per-block product (in its batch's directory for a
+    batched block); ``known`` as for batch_of."""
     if zone in PREPARED_ONLY:
         raise WorkflowError(
             f"zone {zone!r} is one the models train on or the real-shape benchmark reads (training.zones, "
@@ -285,10 +365,13 @@ def zone_products(zone):
         )
     files = {}
     for b in blocks(zone):
-        files[layout.block_product(layout.BLOCK_LAZ, b)] = BLOCK_LAZ.format(zone=zone, block=b)
-        files[layout.block_product(layout.BLOCK_GPKG, b)] = TOWERS_GPKG.format(zone=zone, block=b)
-        files[layout.block_product(layout.QA_PAGE, b)] = QA_HTML.format(zone=zone, block=b)
-        files[layout.block_product(layout.QA_JSON, b)] = QA_JSON.format(zone=zone, block=b)
+        for product, work_file in (
+            (layout.BLOCK_LAZ, workdir.BLOCK_LAZ),
+            (layout.BLOCK_GPKG, workdir.TOWERS_GPKG),
+            (layout.QA_PAGE, workdir.QA_HTML),
+            (layout.QA_JSON, workdir.QA_JSON),
+        ):
+            files[layout.block_product(product, b)] = block_file(zone, b, work_file, known=known)
     return files
 
 
@@ -297,8 +380,11 @@ def planned_products(zone):
     the splits and the plan only, so a dry run of a new zone of thousands of blocks stays small.
     The blocks come first: a synthetic zone's generation is the checkpoint waited for before
     the plan (the rule's parameters need the blocks)."""
-    products = list(zone_products(zone).values())
+    zone_blocks = blocks(zone)
     plan(zone)
+    # a batched block's products are files of its batch's directory: the batch is the input
+    products = [f for b in zone_blocks if batch_of(zone, b) is None for f in block_products(zone, b)]
+    products += [BATCH_PRODUCTS.format(zone=zone, batch=i) for i in batches(zone)]
     # the tile jobs read the model choice, a checkpoint too: Snakemake judges again only the jobs
     # that ask a checkpoint themselves, so the assembly asks it for them
     model_choice_file(zone)
@@ -366,8 +452,13 @@ def verifier_files():
     return [] if path is None else [str(path / VERIFIER_FILE)]
 
 
+def block_products(zone, block):
+    """The block's four products in the work directory (of a block with jobs of its own)."""
+    return [p.format(zone=zone, block=block) for p in (BLOCK_LAZ, TOWERS_GPKG, QA_HTML, QA_JSON)]
+
+
 def pred_file(zone, block, tile):
-    return PRED.format(zone=zone, block=block, tile=tile)
+    return block_file(zone, block, workdir.PRED, tile)
 
 
 def block_preds(zone, block):
@@ -375,7 +466,7 @@ def block_preds(zone, block):
 
 
 def block_wires(zone, block):
-    return [WIRES.format(zone=zone, block=block, tile=t) for t in tiles(zone, block)]
+    return [block_file(zone, block, workdir.WIRES, t) for t in tiles(zone, block)]
 
 
 def block_neighbours(zone, block):
@@ -394,17 +485,94 @@ def block_benchmarks(zone, block):
     def of(rule, per):
         return [benchmark_of(rule, per).format(zone=zone, block=block, tile=t) for t in tiles(zone, block)]
 
+    split = [benchmark_of("split_block", "block").format(zone=zone, block=block)]
+    batch = batch_of(zone, block)
+    if batch is not None:  # the block's time in its batch (products_batch adds its towers')
+        infer_dir = BATCH_INFER.format(zone=zone, batch=batch)
+        return {"split": split, "preprocess + inference": [timing_file(infer_dir, block, "infer")]}
     return {
-        "split": [benchmark_of("split_block", "block").format(zone=zone, block=block)],
+        "split": split,
         # a tile's preprocessing and inference are one job (rule infer_tile)
         "preprocess + inference": of("infer_tile", "tile"),
         "towers": [benchmark_of("towers_block", "block").format(zone=zone, block=block)],
     }
 
 
-def merge_benchmarks(zone):
-    """Block → benchmark file of its merge (the zone's QA index reports its time and memory)."""
-    return {b: benchmark_of("merge_block", "block").format(zone=zone, block=b) for b in blocks(zone)}
+def merge_benchmarks(zone, known=None):
+    """Block → benchmark file of its merge (the zone's QA index reports its time and memory);
+    ``known`` as for batch_of."""
+    out = {}
+    for b in blocks(zone):
+        batch = batch_of(zone, b, known)
+        if batch is None:
+            out[b] = benchmark_of("merge_block", "block").format(zone=zone, block=b)
+        else:
+            out[b] = timing_file(BATCH_PRODUCTS.format(zone=zone, batch=batch), b, "merge")
+    return out
+
+
+def batch_tiles(zone, batch):
+    """The arguments of each tile of a batch (towerpipe.jobs.batch.infer_batch), as rule
+    infer_tile's: its block, the blocks whose points it gathers, the missing neighbours."""
+    out = []
+    for b in batches(zone)[batch]:
+        missing = {n: cache_dir(zone, n) for n in planned(zone, b)["missing_neighbours"]}
+        for t in tiles(zone, b):
+            out.append({"block": b, "tile": t, "blocks": tile_blocks(zone, b, t), "missing": missing})
+    return out
+
+
+def batch_caches(zone, batch):
+    """Block -> split cache of every block a batch's tiles gather."""
+    gathered = sorted({n for t in batch_tiles(zone, batch) for n in t["blocks"]})
+    return {n: cache_dir(zone, n) for n in gathered}
+
+
+def batch_infer_inputs(zone, batch):
+    """The inference directories the products of a batch read: its own and its neighbours'."""
+    from towerpipe.preprocess.batches import batch_neighbours
+
+    near = batch_neighbours(batches(zone)[batch], plan(zone))
+    return [BATCH_INFER.format(zone=zone, batch=i) for i in [batch, *near]]
+
+
+def batch_blocks_args(zone, batch):
+    """The arguments of each block of a batch (towerpipe.jobs.batch.products_batch), as rules
+    towers_block, merge_block and qa_block give them."""
+    out = []
+    for b in batches(zone)[batch]:
+        around = [b, *block_neighbours(zone, b)]
+        out.append(
+            {
+                "block": b,
+                "bounds": planned(zone, b)["bounds"],
+                "survey": [planned(zone, n)["bounds"] for n in around],
+                "source_files": {n: block_path(zone, n) for n in around},
+                "preds": [p for n in around for p in block_preds(zone, n)],
+                "tiles": [tile_file(zone, n, t) for n in around for t in tiles(zone, n)],
+                "wires": block_wires(zone, b),
+                "cache": cache_dir(zone, b),
+                "file": block_path(zone, b),
+                "crs": zone_config(zone).get("crs"),
+                "own_tiles": [tile_file(zone, b, t) for t in tiles(zone, b)],
+                "own_preds": block_preds(zone, b),
+                "dtms": [block_file(zone, b, workdir.DTM, t) for t in tiles(zone, b)],
+                "benchmarks": block_benchmarks(zone, b),
+                "block_bounds": {n: bounds(zone).get(n) for n in around},
+            }
+        )
+    return out
+
+
+def batch_mem_mb(per_point_bytes, base_mb=400):
+    """``resources: mem_mb`` of a batch job: its largest block's (the blocks run one after another)."""
+
+    def mem_mb(wc):
+        return max(
+            mem_mb_for_points(block_points(wc.zone, b), per_point_bytes, base_mb) for b in batches(wc.zone)[wc.batch]
+        )
+
+    return mem_mb
 
 
 TRAIN = config["training"]

@@ -28,8 +28,8 @@ rule split_block:
         "../scripts/split_block.py"
 
 
-# The zone's tiles and neighbours from the bounds the split measured: the jobs after the
-# split are planned from the points, never from the headers.
+# The zone's tiles, neighbours and batches from the bounds and points the split measured: the
+# jobs after the split are planned from the points, never from the headers.
 checkpoint plan_zone:
     input:
         caches=lambda wc: [cache_dir(wc.zone, b) for b in blocks(wc.zone)],
@@ -48,6 +48,9 @@ checkpoint plan_zone:
     params:
         blocks=lambda wc: list(blocks(wc.zone)),
         preprocess=PREP,
+        # a zone of small blocks: its batches (rules infer_batch, products_batch); never for a
+        # zone that is only prepared (its tiles are read one by one)
+        batch=lambda wc: None if wc.zone in PREPARED_ONLY else config["batch"],
     script:
         "../scripts/plan_zone.py"
 

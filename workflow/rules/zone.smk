@@ -24,11 +24,14 @@ rule assemble_zone:
         results=RESULTS,
         # the published zone is kept beside its manifest: work/<zone>/published/
         stage=lambda wc, output: os.path.splitext(output.manifest)[0],
-        files=lambda wc: zone_products(wc.zone),
-        gpkgs=lambda wc: [TOWERS_GPKG.format(zone=wc.zone, block=b) for b in blocks(wc.zone)],
-        qa=lambda wc: [QA_JSON.format(zone=wc.zone, block=b) for b in blocks(wc.zone)],
+        # (where a block's products are: its batch's directory or the zone's, known_batches)
+        files=lambda wc: zone_products(wc.zone, known_batches(wc.zone)),
+        gpkgs=lambda wc: [
+            block_file(wc.zone, b, workdir.TOWERS_GPKG, known=known_batches(wc.zone)) for b in blocks(wc.zone)
+        ],
+        qa=lambda wc: [block_file(wc.zone, b, workdir.QA_JSON, known=known_batches(wc.zone)) for b in blocks(wc.zone)],
         # the merge runs beside the block's QA page: the zone's index reports its time
-        merge_benchmarks=lambda wc: merge_benchmarks(wc.zone),
+        merge_benchmarks=lambda wc: merge_benchmarks(wc.zone, known_batches(wc.zone)),
         sources=lambda wc: {b: i.relpath for b, i in inputs(wc.zone).items()},
         run=run_params(),
         block_bounds=lambda wc: bounds(wc.zone),

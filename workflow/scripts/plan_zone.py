@@ -1,4 +1,5 @@
 from towerpipe.jobs.smk import run_step
+from towerpipe.preprocess.batches import BatchConfig
 from towerpipe.preprocess.tiling import plan_zone_step
 
 run_step(
@@ -8,5 +9,6 @@ run_step(
         snakemake.output.plan,
         tile_size=snakemake.params.preprocess["tile_size"],
         buffer=snakemake.params.preprocess["buffer"],
+        batch=BatchConfig.from_config({"batch": snakemake.params.batch}) if snakemake.params.batch else None,
     ),
 )

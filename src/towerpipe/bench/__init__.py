@@ -319,7 +319,9 @@ def bench_e2e(args: argparse.Namespace) -> int:
 
 
 def bench_blocks(args: argparse.Namespace) -> int:
-    """A zone of many small blocks: the fixed cost of a job, whatever its work."""
+    """A zone of many small blocks: the fixed cost of a job, whatever its work (in batches of
+    blocks, as the shipped ``batch`` section plans them, or ``--block-points 0``: a job per tile
+    and per block)."""
     from towerpipe.synth import generate_zone
 
     tmp = Path(args.workdir or tempfile.mkdtemp(prefix="towerpipe-bench-"))
@@ -328,21 +330,22 @@ def bench_blocks(args: argparse.Namespace) -> int:
     shutil.rmtree(indir, ignore_errors=True)
     truth = generate_zone(indir, seed=args.seed, blocks=args.blocks, size=args.size, density=args.density)
     n = sum(b["n_points"] for b in truth.blocks)
-    walls, rows = [], []
+    walls, rows, batches = [], [], 0
+    extra: dict[str, Any] = {"inference": {"model": args.model}}
+    if args.block_points is not None:
+        extra["batch"] = {"block_points": args.block_points}
     for r in range(args.repeat):
         dt, rows = run_zone(
-            indir,
-            tmp,
-            zone=f"blocks{r}",
-            target="results/{zone}/",
-            cores=args.cores,
-            extra_config={"inference": {"model": args.model}},
+            indir, tmp, zone=f"blocks{r}", target="results/{zone}/", cores=args.cores, extra_config=extra
         )
         walls.append(dt)
+        plan = tmp / f"work_blocks{r}" / f"blocks{r}" / "plan.json"
+        batches = len(json.loads(plan.read_text()).get("batches") or {}) if plan.exists() else 0
         shutil.rmtree(REPO / "results" / f"blocks{r}", ignore_errors=True)
     job_s = sorted(row["s"] for row in rows)
     res = {
         "blocks": args.blocks,
+        "batches": batches,
         "points": n,
         "cores": args.cores,
         "wall_s": statistics.median(walls),
@@ -357,7 +360,7 @@ def bench_blocks(args: argparse.Namespace) -> int:
     res["core_s_per_job"] = res["wall_s"] * args.cores / res["jobs"]
     res["scheduler_s_per_job"] = max(res["wall_s"] * args.cores - res["job_s_sum"], 0.0) / res["jobs"]
     print(
-        f"blocks: {args.blocks} blocks, {n:,} points, {res['jobs']} jobs in {res['wall_s']:.1f} s on --cores "
+        f"blocks: {args.blocks} blocks ({batches} batches), {n:,} points, {res['jobs']} jobs in {res['wall_s']:.1f} s on --cores "
         f"{args.cores}: {res['core_s_per_job']:.2f} core-s per job (job itself: median {res['job_s_median']:.2f} s; "
         f"outside the jobs: {res['scheduler_s_per_job']:.2f} core-s per job)"
     )
@@ -388,6 +391,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     small_block_args(pb)
     pb.add_argument("--model", default="geometry", help="inference.model for the run")
     pb.add_argument("--cores", type=int, default=2)
+    pb.add_argument(
+        "--block-points",
+        type=int,
+        help="batch.block_points for the run (0: a job per tile and per block; default: the config's)",
+    )
     run_args(pb)
     pb.set_defaults(func=bench_blocks)
     from towerpipe.bench import infer, plan, scale, slurm

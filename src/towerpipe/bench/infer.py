@@ -25,14 +25,15 @@ from towerpipe.bench import finish, run_args
 
 def bench_infer(args: argparse.Namespace) -> int:
     from towerpipe.config import InferenceConfig, effective_config
+    from towerpipe.io import workdir
     from towerpipe.io.columns import read_meta
     from towerpipe.io.tiles import load_tile
     from towerpipe.jobs.steps import infer_step
 
     work = Path(args.work)
-    tiles = sorted(work.glob("tiles/*/*.npz"))
+    tiles = workdir.zone_files(work.parent, work.name, workdir.TILE)
     if not tiles:
-        raise SystemExit(f"bench infer: no tiles under {work}/tiles/: run the zone first")
+        raise SystemExit(f"bench infer: no tiles under {work}: run the zone first")
     cfg = effective_config()
     settings = InferenceConfig.from_config(cfg)
     tmp = Path(args.workdir or tempfile.mkdtemp(prefix="towerpipe-bench-"))

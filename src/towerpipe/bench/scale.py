@@ -40,6 +40,7 @@ def project(
     e2e_km2: float = 1.0,
     slurm_start_s: float = 0.0,
     packs: dict[str, int] | None = None,
+    batched: bool = False,
 ) -> dict:
     """What ``area_km2`` costs as blocks of ``block_m`` m, from an e2e and a small-blocks benchmark.
 
@@ -51,6 +52,8 @@ def project(
     ``submit_per_s`` jobs a second at most. With ``packs`` (the cluster profile's groups,
     :func:`profile_packs`) a SLURM job holds ``packs["split"]`` splits, ``packs["tile"]`` tiles'
     preprocessing and inference, or one block's towers, merge and QA page; without, one rule's job.
+    ``batched``: the blocks run in batches (:mod:`towerpipe.preprocess.batches`), as ``blocks``
+    measured them; the profile then groups only their splits.
     """
     e2e_jobs = sum(d["jobs"] for d in e2e["stages"].values())
     e2e_s = sum(d["s"] for d in e2e["stages"].values())
@@ -61,7 +64,12 @@ def project(
     # a block smaller than the e2e block has the small blocks' jobs; a larger one, the e2e block's per km²
     jobs = n_blocks * (blocks["jobs"] / blocks["blocks"] if share < 1 else e2e_jobs * share)
     tiles = max(1.0, e2e["stages"].get("infer_tile", {}).get("jobs", 1) * share)  # a block's tiles
-    slurm_jobs = jobs if packs is None else n_blocks * (1.0 / packs["split"] + tiles / packs["tile"] + 1.0)
+    if packs is None:
+        slurm_jobs = jobs
+    elif batched:  # the splits grouped; a batch's two jobs are already many blocks'
+        slurm_jobs = n_blocks / packs["split"] + max(jobs - n_blocks, 0.0)
+    else:
+        slurm_jobs = n_blocks * (1.0 / packs["split"] + tiles / packs["tile"] + 1.0)
     # memory: a tile job holds at most one tile (<= preprocess.tile_size) and its buffer, so the e2e
     # block's peak bounds smaller blocks; I/O follows the points
     rss = max(d["max_rss_mb"] for d in e2e["stages"].values())
@@ -73,6 +81,7 @@ def project(
     return {
         "area_km2": area_km2,
         "block_m": block_m,
+        "batched": batched,
         "blocks": n_blocks,
         "jobs": jobs,
         "core_h": job_core_s / 3600,
@@ -89,12 +98,20 @@ def project(
 def bench_scale(args: argparse.Namespace) -> int:
     """Project a night's area from measured benchmarks (``bench e2e --json``, ``bench blocks --json``,
     optionally ``bench slurm --json``), on SLURM with a job per rule and with the profile's groups."""
+    from towerpipe.config import effective_config
+
     e2e = json.loads(Path(args.e2e).read_text())
     blocks = json.loads(Path(args.blocks).read_text())
+    # blocks of more points than batch.block_points have jobs of their own: measured by a
+    # small-blocks run with --block-points 0 when given
+    per_block = json.loads(Path(args.blocks_per_block).read_text()) if args.blocks_per_block else blocks
+    block_points = effective_config()["batch"]["block_points"]
     slurm = json.loads(Path(args.slurm).read_text()) if args.slurm else None
     start = {k: slurm[k]["node_start_s"] if slurm else 0.0 for k in ("per_rule", "grouped")}
     rows = []
     for b in args.block_m:
+        batched = bool(blocks.get("batches")) and e2e["points"] * b * b / 1e6 / args.e2e_km2 <= block_points
+        small = blocks if batched else per_block
         common = dict(
             area_km2=args.area,
             block_m=b,
@@ -104,8 +121,8 @@ def bench_scale(args: argparse.Namespace) -> int:
             submit_per_s=args.submit_per_s,
             e2e_km2=args.e2e_km2,
         )
-        per_rule = project(e2e, blocks, **common, slurm_start_s=start["per_rule"])
-        grouped = project(e2e, blocks, **common, slurm_start_s=start["grouped"], packs=profile_packs())
+        per_rule = project(e2e, small, **common, slurm_start_s=start["per_rule"], batched=batched)
+        grouped = project(e2e, small, **common, slurm_start_s=start["grouped"], packs=profile_packs(), batched=batched)
         rows.append(
             {
                 **per_rule,
@@ -126,7 +143,8 @@ def bench_scale(args: argparse.Namespace) -> int:
 
     for r in rows:
         print(
-            f"| {r['block_m']:.0f} m | {r['blocks']:,.0f} | {r['jobs']:,.0f} | {r['core_h']:,.0f} | "
+            f"| {r['block_m']:.0f} m{' (batches)' if r['batched'] else ''} | {r['blocks']:,.0f} | {r['jobs']:,.0f} | "
+            f"{r['core_h']:,.0f} | "
             f"{r['wall_h_2_cores']:,.1f} h | {cluster(r)} | {cluster(r['grouped'])} | "
             f"≤ {r['peak_rss_mb_per_job']:,.0f} MiB | {r['io_mb_per_block']:,.0f} MB |"
         )
@@ -142,9 +160,13 @@ def register(bsub: argparse._SubParsersAction) -> None:
     ps.add_argument("--e2e", required=True, help="JSON of `bench e2e --json`")
     ps.add_argument("--e2e-km2", type=float, default=1.0, help="area of the e2e block (km²)")
     ps.add_argument("--blocks", required=True, help="JSON of `bench blocks --json`")
+    ps.add_argument(
+        "--blocks-per-block",
+        help="JSON of `bench blocks --block-points 0 --json` (jobs of blocks too large for batches; default: --blocks)",
+    )
     ps.add_argument("--slurm", help="JSON of `bench slurm --json` (a SLURM job's start on its node)")
     ps.add_argument("--area", type=float, default=1000.0, help="km² a night")
-    ps.add_argument("--block-m", type=float, nargs="+", default=[1000.0, 500.0, 250.0], help="block sides (m)")
+    ps.add_argument("--block-m", type=float, nargs="+", default=[1000.0, 500.0, 250.0, 50.0], help="block sides (m)")
     ps.add_argument("--nodes", type=int, default=20)
     ps.add_argument("--node-cores", type=int, default=32)
     ps.add_argument("--max-jobs", type=int, default=200, help="the SLURM profile's `jobs`")

@@ -33,6 +33,7 @@ import numpy as np
 from towerpipe import classes
 from towerpipe.config import InferenceConfig
 from towerpipe.errors import InputError
+from towerpipe.io import workdir
 
 __all__ = [
     "Candidate",
@@ -73,12 +74,9 @@ def zone_survey(work: str | os.PathLike[str], zone: str) -> list[list[float]]:
 
 
 def zone_tiles(work: str | os.PathLike[str], zone: str) -> list[Path]:
-    tiles = sorted(Path(work, zone, "tiles").glob("*/*.npz"))
-    if not tiles:
-        raise InputError(
-            Path(work, zone, "tiles"), f"no tiles of zone {zone!r}; run `snakemake --cores 2 results/{zone}/` first"
-        )
-    return tiles
+    if tiles := workdir.zone_files(work, zone, workdir.TILE):
+        return tiles
+    raise InputError(Path(work, zone), f"no tiles of zone {zone!r}; run `snakemake --cores 2 results/{zone}/` first")
 
 
 def zone_predictions(
@@ -93,7 +91,7 @@ def zone_predictions(
     Parameters
     ----------
     work
-        The workdir (``work``); tiles are read from ``<work>/<zone>/tiles/*/*.npz``.
+        The workdir (``work``); tiles are read from the zone's last run (:func:`towerpipe.io.workdir.zone_files`).
     zone
         Zone name.
     model

@@ -99,10 +99,11 @@ def trace_zone(
 
     from towerpipe.config import TowersConfig
     from towerpipe.evaluation.calibrate import NEAR_TOWER_M, zone_survey, zone_tiles, zone_towers
+    from towerpipe.io import workdir
     from towerpipe.io.predictions import load_pred
     from towerpipe.towers.matching import match_towers
 
-    pred_files = list(predictions) if predictions is not None else sorted(Path(work, zone, "pred").glob("*/*.npz"))
+    pred_files = list(predictions) if predictions is not None else workdir.zone_files(work, zone, workdir.PRED)
     if not pred_files:
         from towerpipe.errors import InputError
 

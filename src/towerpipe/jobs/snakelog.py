@@ -9,15 +9,23 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+#: The rules whose jobs each take a batch of blocks (their log is ``logs/<rule>/<batch>.log``).
+BATCH_RULES = ("infer_batch", "products_batch")
 
-def failures_from_log(snakemake_log: str | os.PathLike[str] | Sequence[str], work: str) -> dict[str, dict[str, str]]:
+
+def failures_from_log(
+    snakemake_log: str | os.PathLike[str] | Sequence[str],
+    work: str,
+    batches: Mapping[str, Mapping[str, Sequence[str]]] | None = None,
+) -> dict[str, dict[str, str]]:
     """Failed blocks per zone, with their one-line reason, from Snakemake's main log.
 
     The reason is the job log's ``towerpipe`` error line (``InputError: <file>: <cause>``)
-    or its last line.
+    or its last line. ``batches`` (zone → batch → blocks, :mod:`towerpipe.preprocess.batches`)
+    names the blocks of a failed batch job: each fails, with the batch's reason.
     """
     failures: dict[str, dict[str, str]] = {}
     logs = [snakemake_log] if isinstance(snakemake_log, (str, os.PathLike)) else list(snakemake_log or [])
@@ -31,12 +39,14 @@ def failures_from_log(snakemake_log: str | os.PathLike[str] | Sequence[str], wor
             continue
         if len(rel) < 4 or rel[1] != "logs":
             continue
-        zone, block = rel[0], rel[3].removesuffix(".log")
+        zone, job = rel[0], rel[3].removesuffix(".log")  # a block, or a batch of blocks
+        in_batch = list(((batches or {}).get(zone) or {}).get(job) or []) if rule in BATCH_RULES else []
         reason = f"{rule} failed"
         if p.exists():
             lines = [ln.strip() for ln in p.read_text(errors="replace").splitlines() if ln.strip()]
             err = [ln for ln in lines if re.search(r"\b\w*Error: ", ln)]
             if err or lines:
                 reason = f"{rule}: " + re.sub(r"^.*? ERROR towerpipe: ", "", (err or lines)[-1])[:300]
-        failures.setdefault(zone, {}).setdefault(block, reason)
+        for b in in_batch or [job]:
+            failures.setdefault(zone, {}).setdefault(b, f"{reason} (batch {job})" if in_batch else reason)
     return failures

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from towerpipe.preprocess.batches import BatchConfig, batch_blocks
+
 Bounds = tuple[float, float, float, float]  # xmin, ymin, xmax, ymax
 
 
@@ -134,7 +136,7 @@ def occupied_tiles(grid: TileGrid, x: np.ndarray, y: np.ndarray, chunk: int = 4_
     return [f"{c % nx}_{c // nx}" for c in sorted(cells)]
 
 
-def plan_zone(blocks: Mapping[str, Mapping], tile_size: float, buffer: float) -> dict:
+def plan_zone(blocks: Mapping[str, Mapping], tile_size: float, buffer: float, batch: BatchConfig | None = None) -> dict:
     """The zone's jobs from what the split measured (never from the headers).
 
     Parameters
@@ -145,14 +147,17 @@ def plan_zone(blocks: Mapping[str, Mapping], tile_size: float, buffer: float) ->
         its ``header_bounds``, when known, only name it as a missing neighbour).
     tile_size, buffer
         The preprocessing's tile size and buffer (m).
+    batch
+        When and how small blocks are grouped into batches (:mod:`towerpipe.preprocess.batches`;
+        ``None``: never).
 
     Returns
     -------
     dict
         ``{"blocks": {id: {"tiles", "points", "bounds", "neighbours", "tile_blocks":
-        {tile: [ids]}, "missing_neighbours": [ids]}}}``; ``tile_blocks`` lists the block
-        itself first, then the blocks with an occupied tile within ``buffer`` of the
-        tile's core.
+        {tile: [ids]}, "missing_neighbours": [ids], "batch": id or None}}, "batches": {id:
+        [ids]}}``; ``tile_blocks`` lists the block itself first, then the blocks with an
+        occupied tile within ``buffer`` of the tile's core.
     """
     from shapely import box as shp_box
     from shapely.strtree import STRtree
@@ -194,10 +199,16 @@ def plan_zone(blocks: Mapping[str, Mapping], tile_size: float, buffer: float) ->
             "tile_blocks": tile_blocks,
             "missing_neighbours": sorted(f for f, hb in failed.items() if hb and intersects(reach, tuple(hb))),
         }
-    return {"tile_size": tile_size, "buffer": buffer, "blocks": out}
+    batches = batch_blocks(out, batch) if batch is not None else {}
+    of = {b: i for i, bs in batches.items() for b in bs}
+    for b, p in out.items():
+        p["batch"] = of.get(b)
+    return {"tile_size": tile_size, "buffer": buffer, "blocks": out, "batches": batches}
 
 
-def plan_zone_step(cache_dirs: Mapping[str, str], out_json: str, *, tile_size: float, buffer: float) -> dict:
+def plan_zone_step(
+    cache_dirs: Mapping[str, str], out_json: str, *, tile_size: float, buffer: float, batch: BatchConfig | None = None
+) -> dict:
     """:func:`plan_zone` from the split caches' ``meta.json`` → ``out_json`` (written atomically)."""
     import json
 
@@ -205,6 +216,10 @@ def plan_zone_step(cache_dirs: Mapping[str, str], out_json: str, *, tile_size: f
     from towerpipe.io.blockcache import BlockCache
 
     metas = {b: BlockCache(d).read_meta() for b, d in cache_dirs.items()}
-    plan = plan_zone(metas, tile_size, buffer)
+    plan = plan_zone(metas, tile_size, buffer, batch)
     write_text_atomic(out_json, json.dumps(plan, indent=0, sort_keys=True))
-    return {"blocks": len(metas), "tiles": sum(len(v["tiles"]) for v in plan["blocks"].values())}
+    return {
+        "blocks": len(metas),
+        "tiles": sum(len(v["tiles"]) for v in plan["blocks"].values()),
+        "batches": len(plan["batches"]),
+    }

@@ -1,0 +1,42 @@
+"""The layout of a zone's working directory, ``<workdir>/<zone>/``: defined here once.
+
+The workflow's rules write their intermediates at these places (``workflow/rules/common.smk``
+builds its paths from them), and the tools that read a zone's last run (calibration, the
+trace, the benchmarks) find them with :func:`zone_files`. A zone run in batches
+(:mod:`towerpipe.preprocess.batches`) keeps the same layout inside each batch's directories:
+``batches/<batch>/infer/`` holds :data:`TILE`, :data:`DTM`, :data:`PRED` and :data:`WIRES` of
+its blocks, ``batches/<batch>/products/`` their :data:`TOWERS_GPKG` … :data:`QA_JSON`.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+#: Per-block intermediates, relative to ``<workdir>/<zone>/`` or to a batch's directory.
+CACHE = "cache/{block}"
+TILE = "tiles/{block}/{tile}.npz"
+DTM = "dtm/{block}/{tile}.tif"
+PRED = "pred/{block}/{tile}.npz"
+WIRES = "wires/{block}/{tile}.npz"
+TOWERS_GPKG = "towers/{block}.gpkg"
+TOWERS_NEIGHBOURS = "towers/{block}.neighbours.json"
+TOWER_MEMBERS = "towers/{block}.points.npz"
+BLOCK_LAZ = "out/{block}.laz"
+QA_HTML = "qa/{block}.html"
+QA_JSON = "qa/{block}.json"
+
+#: A batch's directories (rules ``infer_batch`` and ``products_batch``), relative to ``<workdir>/<zone>/``.
+BATCH_INFER = "batches/{batch}/infer"
+BATCH_PRODUCTS = "batches/{batch}/products"
+
+
+def zone_files(work: str | os.PathLike[str], zone: str, pattern: str) -> list[Path]:
+    """Every file of a per-block ``pattern`` (:data:`TILE`, :data:`PRED` …) of a zone's last
+    run, whether its blocks ran one by one or in batches (sorted by block, then tile)."""
+    glob = pattern.format(block="*", tile="*")
+    root = Path(work, zone)
+    found = list(root.glob(glob))
+    for batch_dir in (BATCH_INFER, BATCH_PRODUCTS):
+        found += root.glob(f"{batch_dir.format(batch='*')}/{glob}")
+    return sorted(found, key=lambda p: (p.parent.name, p.name) if "{tile}" in pattern else (p.name,))

@@ -1,0 +1,106 @@
+"""A zone of small blocks in batches (:mod:`towerpipe.preprocess.batches`): two jobs a batch
+make the products of a job per tile and per block, point for point; a block that cannot be read
+still costs only itself."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import uuid
+from collections import Counter
+
+import pytest
+
+from conftest import CI_BLOCKS, REPO, same_points, snakemake_run, tower_features, write_zone_config
+
+pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow]
+
+#: the CI blocks (about 115,000 points each) count as small: one batch of both
+BATCHED = {"block_points": 1_000_000}
+
+
+def stable(obj):
+    """A QA record without what names the run or measures the machine (zone, times, memory)."""
+    if isinstance(obj, dict):
+        return {k: stable(v) for k, v in obj.items() if k not in ("zone", "timings", "peak_rss_mb", "generated_at")}
+    return [stable(v) for v in obj] if isinstance(obj, list) else obj
+
+
+def finished_rules(proc):
+    return Counter(re.findall(r"Finished jobid: \d+ \(Rule: (\w+)\)", proc.stdout + proc.stderr))
+
+
+@pytest.fixture
+def batched_zone(ci_scene, tmp_path):
+    """Run a zone of ``indir`` in batches (``zone``: again): ``(proc, results dir, work dir)``."""
+    zones = []
+
+    def run(indir, *args, zone=None):
+        zone = zone or f"pytest_batch_{uuid.uuid4().hex[:6]}"
+        zones.append(zone)
+        cfg = write_zone_config(
+            tmp_path / f"{zone}.yaml",
+            {zone: {"input": str(indir)}},
+            tmp_path / "work",
+            preprocess={"tile_size": 120},
+            batch=BATCHED,
+        )
+        proc = snakemake_run("--cores", "2", *args, f"results/{zone}/", f"--configfile={cfg}")
+        return proc, REPO / "results" / zone, tmp_path / "work" / zone
+
+    yield run
+    for zone in zones:
+        shutil.rmtree(REPO / "results" / zone, ignore_errors=True)
+
+
+def test_a_batched_zone_equals_the_per_block_run(ci_scene, ci_reference, batched_zone):
+    proc, out, work = batched_zone(ci_scene)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    # the two blocks' tiles, towers, LAZ and QA pages: one inference job and one products job
+    assert finished_rules(proc) == {
+        "split_block": 2,
+        "plan_zone": 1,
+        "choose_model": 1,
+        "infer_batch": 1,
+        "products_batch": 1,
+        "assemble_zone": 1,
+        "zone_results": 1,
+    }
+    assert list(json.loads((work / "plan.json").read_text())["batches"].values()) == [list(CI_BLOCKS)]
+    for block in CI_BLOCKS:
+        same_points(ci_reference / "blocks" / f"{block}.laz", out / "blocks" / f"{block}.laz")
+        ref, got = (json.loads((d / "qa" / f"{block}.json").read_text()) for d in (ci_reference, out))
+        assert stable(got["stats"]) == stable(ref["stats"]) and got["flags"] == ref["flags"]
+        # its page reports the time of each of its stages, as a block with jobs of its own
+        stages = {t["stage"]: t for t in got["timings"]}
+        assert {"split", "preprocess + inference", "towers"} <= set(stages)
+        assert all(stages[s]["seconds"] > 0 for s in ("split", "preprocess + inference", "towers"))
+    for layer in ("towers", "tower_points"):
+        fa, fb = tower_features(ci_reference / "towers.gpkg", layer), tower_features(out / "towers.gpkg", layer)
+        assert len(fa) > 0
+        assert fa.drop(columns="geometry").equals(fb.drop(columns="geometry"))
+        assert fa.geometry.geom_equals_exact(fb.geometry, 0.0).all()
+    # the tools that read a zone's last run find its batches' files (towerpipe.io.workdir)
+    from towerpipe.io import workdir
+
+    assert len(workdir.zone_files(work.parent, work.name, workdir.PRED)) == len(CI_BLOCKS)
+    # a second run has nothing to do
+    again, _, _ = batched_zone(ci_scene, "-n", zone=work.name)
+    assert again.returncode == 0 and "Nothing to be done" in again.stdout + again.stderr, again.stdout[-2000:]
+
+
+def test_a_bad_block_of_a_batched_zone_costs_only_itself(ci_scene, tmp_path, batched_zone):
+    indir = tmp_path / "in"
+    indir.mkdir()
+    for block in CI_BLOCKS:
+        (indir / f"{block}.laz").symlink_to(ci_scene / f"{block}.laz")
+    (indir / "broken.laz").write_bytes(b"not a point cloud" * 100)
+    proc, out, work = batched_zone(indir, "--keep-going")
+    assert proc.returncode != 0
+    # the good blocks ran in their batch; the bad one, in no batch, failed at its towers job
+    assert list(json.loads((work / "plan.json").read_text())["batches"].values()) == [list(CI_BLOCKS)]
+    rules = finished_rules(proc)
+    assert rules["infer_batch"] == 1 and rules["products_batch"] == 1
+    assert "broken: towers_block: InputError" in (out / "INCOMPLETE.txt").read_text()
+    assert sorted(p.name for p in (out / "blocks").iterdir()) == sorted(f"{b}.laz" for b in CI_BLOCKS)

@@ -1,0 +1,66 @@
+# A zone of small blocks (towerpipe.preprocess.batches): per batch of neighbouring blocks, one job
+# for every tile's preprocessing and inference and one for every block's towers, classified LAZ
+# and QA page, instead of a job per tile and three per block. The jobs call the per-block steps
+# with the per-block rules' arguments (batch_tiles, batch_blocks_args) and write the same files
+# into the batch's directories, in the zone's layout (towerpipe.io.workdir).
+
+
+rule infer_batch:
+    input:
+        caches=lambda wc: list(batch_caches(wc.zone, wc.batch).values()),
+        model=lambda wc: model_files(wc.zone),
+        # as for the tile jobs: after the zone's model is chosen (a checkpoint)
+        choice=lambda wc: ancient(model_choice_file(wc.zone)),
+        verifier=verifier_files(),
+    output:
+        directory(BATCH_INFER),
+    log:
+        log_of("infer_batch", "batch"),
+    benchmark:
+        benchmark_of("infer_batch", "batch")
+    wildcard_constraints:
+        zone=PRODUCT_ZONE,
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 1
+    resources:
+        mem_mb=batch_mem_mb(260, base_mb=800),
+        runtime=90,
+    params:
+        tiles=lambda wc: batch_tiles(wc.zone, wc.batch),
+        caches=lambda wc: batch_caches(wc.zone, wc.batch),
+        preprocess=PREP,
+        inference={k: v for k, v in INFER.items() if k != "threshold"},
+        verifier=TOWERS["verifier"],
+    script:
+        "../scripts/infer_batch.py"
+
+
+rule products_batch:
+    input:
+        # the batch's predictions, tiles and conductor points and its neighbouring batches'
+        infer=lambda wc: batch_infer_inputs(wc.zone, wc.batch),
+        caches=lambda wc: [cache_dir(wc.zone, b) for b in batches(wc.zone)[wc.batch]],
+        verifier=verifier_files(),
+    output:
+        directory(BATCH_PRODUCTS),
+    log:
+        log_of("products_batch", "batch"),
+    benchmark:
+        benchmark_of("products_batch", "batch")
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 1
+    resources:
+        mem_mb=batch_mem_mb(120, base_mb=1000),
+        runtime=60,
+    params:
+        blocks=lambda wc: batch_blocks_args(wc.zone, wc.batch),
+        towers=TOWERS,
+        threshold=INFER["threshold"],
+        run=run_params(),
+        qa=config["qa"],
+        # read, not an input, as for the towers jobs
+        registry=lambda wc: registry_sources(wc.zone),
+    script:
+        "../scripts/products_batch.py"
