@@ -8,6 +8,7 @@ import json
 import re
 import shutil
 import uuid
+import zipfile
 from collections import Counter
 
 import pytest
@@ -88,6 +89,13 @@ def test_a_batched_zone_equals_the_per_block_run(ci_scene, ci_reference, batched
     # a second run has nothing to do
     again, _, _ = batched_zone(ci_scene, "-n", zone=work.name)
     assert again.returncode == 0 and "Nothing to be done" in again.stdout + again.stderr, again.stdout[-2000:]
+    # `snakemake --report` holds each block's QA page, as for blocks with jobs of their own
+    report = work.parent / "report.zip"
+    rep, _, _ = batched_zone(ci_scene, "--report", str(report), zone=work.name)
+    assert rep.returncode == 0, rep.stdout[-2000:] + rep.stderr[-2000:]
+    with zipfile.ZipFile(report) as z:
+        pages = {n.rsplit("/", 1)[-1] for n in z.namelist() if "/qa/" in n}
+    assert pages >= {f"{b}.html" for b in CI_BLOCKS} | {"index.html"}, pages
 
 
 def test_a_bad_block_of_a_batched_zone_costs_only_itself(ci_scene, tmp_path, batched_zone):

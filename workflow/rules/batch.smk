@@ -43,7 +43,15 @@ rule products_batch:
         caches=lambda wc: [cache_dir(wc.zone, b) for b in batches(wc.zone)[wc.batch]],
         verifier=verifier_files(),
     output:
-        directory(BATCH_PRODUCTS),
+        # `snakemake --report` shows each block's QA page, as for rule qa_block
+        report(
+            directory(BATCH_PRODUCTS),
+            patterns=["qa/{block}.html"],
+            caption="../report/qa.rst",
+            category="QA",
+            subcategory="{zone}",
+            labels={"zone": "{zone}", "block": "{block}"},
+        ),
     log:
         log_of("products_batch", "batch"),
     benchmark:

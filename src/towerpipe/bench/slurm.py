@@ -118,7 +118,13 @@ def run_on_slurm(indir: Path, tmp: Path, zone: str, profile: Path) -> dict[str, 
     cfg = tmp / f"{zone}.yaml"
     cfg.write_text(
         yaml.safe_dump(
-            {"zones": {zone: {"input": str(indir)}}, "workdir": str(work), "inference": {"model": "geometry"}}
+            {
+                "zones": {zone: {"input": str(indir)}},
+                "workdir": str(work),
+                "inference": {"model": "geometry"},
+                # what it measures is the profile's grouping of the per-block jobs: no batches
+                "batch": {"block_points": 0},
+            }
         )
     )
     cmd = [
