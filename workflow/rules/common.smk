@@ -306,7 +306,12 @@ def tile_caches(wc):
 
 def missing_neighbours(wc):
     """The blocks near a tile that could not be split (named in the tile's warnings)."""
-    return {b: cache_dir(wc.zone, b) for b in planned(wc.zone, wc.block)["missing_neighbours"]}
+    return missing_caches(wc.zone, wc.block)
+
+
+def missing_caches(zone, block):
+    """Block -> cache of the blocks near the block's tiles that could not be split."""
+    return {b: cache_dir(zone, b) for b in planned(zone, block)["missing_neighbours"]}
 
 
 def block_points(zone, block):
@@ -325,8 +330,8 @@ def tile_file(zone, block, tile):
 
 def tile_files(zone):
     """What makes every tile of the zone: the tile files, or the directories of its batches."""
-    if batches(zone):
-        return [BATCH_INFER.format(zone=zone, batch=i) for i in batches(zone)]
+    if zone_batches := batches(zone):
+        return [BATCH_INFER.format(zone=zone, batch=i) for i in zone_batches]
     return [tile_file(zone, b, t) for b in blocks(zone) for t in tiles(zone, b)]
 
 
@@ -473,6 +478,36 @@ def block_neighbours(zone, block):
     return planned(zone, block)["neighbours"]
 
 
+# What the towers job of a block reads of the blocks around it (rule towers_block, and
+# products_batch for each block of a batch): the block first, then its neighbours.
+def around(zone, block):
+    return [block, *block_neighbours(zone, block)]
+
+
+def neighbour_preds(zone, block):
+    return [p for n in block_neighbours(zone, block) for p in block_preds(zone, n)]
+
+
+def around_tiles(zone, block):
+    """The tiles around each tower (its conductor support, towers.min_wire_support)."""
+    return [tile_file(zone, b, t) for b in around(zone, block) for t in tiles(zone, b)]
+
+
+def around_survey(zone, block):
+    """Where data exists around the block (a tower's ring outside it: support unknown)."""
+    return [planned(zone, b)["bounds"] for b in around(zone, block)]
+
+
+def around_sources(zone, block):
+    """The input files of the blocks a tower may touch."""
+    return {b: block_path(zone, b) for b in around(zone, block)}
+
+
+def around_header_bounds(zone, block):
+    """The header bounds of the block and its neighbours: the edge of the data (its QA page)."""
+    return {b: bounds(zone).get(b) for b in around(zone, block)}
+
+
 def run_params():
     """Parameters that change the products (recorded in the GeoPackage as a hash)."""
     return {"preprocess": PREP, "inference": INFER, "towers": TOWERS}
@@ -516,7 +551,7 @@ def batch_tiles(zone, batch):
     infer_tile's: its block, the blocks whose points it gathers, the missing neighbours."""
     out = []
     for b in batches(zone)[batch]:
-        missing = {n: cache_dir(zone, n) for n in planned(zone, b)["missing_neighbours"]}
+        missing = missing_caches(zone, b)
         for t in tiles(zone, b):
             out.append({"block": b, "tile": t, "blocks": tile_blocks(zone, b, t), "missing": missing})
     return out
@@ -541,15 +576,14 @@ def batch_blocks_args(zone, batch):
     towers_block, merge_block and qa_block give them."""
     out = []
     for b in batches(zone)[batch]:
-        around = [b, *block_neighbours(zone, b)]
         out.append(
             {
                 "block": b,
                 "bounds": planned(zone, b)["bounds"],
-                "survey": [planned(zone, n)["bounds"] for n in around],
-                "source_files": {n: block_path(zone, n) for n in around},
-                "preds": [p for n in around for p in block_preds(zone, n)],
-                "tiles": [tile_file(zone, n, t) for n in around for t in tiles(zone, n)],
+                "survey": around_survey(zone, b),
+                "source_files": around_sources(zone, b),
+                "preds": block_preds(zone, b) + neighbour_preds(zone, b),
+                "tiles": around_tiles(zone, b),
                 "wires": block_wires(zone, b),
                 "cache": cache_dir(zone, b),
                 "file": block_path(zone, b),
@@ -558,7 +592,7 @@ def batch_blocks_args(zone, batch):
                 "own_preds": block_preds(zone, b),
                 "dtms": [block_file(zone, b, workdir.DTM, t) for t in tiles(zone, b)],
                 "benchmarks": block_benchmarks(zone, b),
-                "block_bounds": {n: bounds(zone).get(n) for n in around},
+                "block_bounds": around_header_bounds(zone, b),
             }
         )
     return out

@@ -69,6 +69,6 @@ rule qa_block:
         qa=config["qa"],
         towers={k: TOWERS[k] for k in QA_TOWER_RULES},
         # the edge of the data: a tower reaching it may be cut (a seam tower is not)
-        block_bounds=lambda wc: {b: bounds(wc.zone).get(b) for b in [wc.block, *block_neighbours(wc.zone, wc.block)]},
+        block_bounds=lambda wc: around_header_bounds(wc.zone, wc.block),
     script:
         "../scripts/qa_block.py"

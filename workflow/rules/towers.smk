@@ -6,16 +6,12 @@
 rule towers_block:
     input:
         preds=lambda wc: block_preds(wc.zone, wc.block),
-        neighbour_preds=lambda wc: [p for n in block_neighbours(wc.zone, wc.block) for p in block_preds(wc.zone, n)],
+        neighbour_preds=lambda wc: neighbour_preds(wc.zone, wc.block),
         # the block's split: a block that could not be read fails here, with its recorded error
         cache=lambda wc: cache_dir(wc.zone, wc.block),
         # the points around each tower (this block's and its neighbours' tiles, for the
         # towers across an edge): its conductor support (towers.min_wire_support)
-        tiles=lambda wc: [
-            tile_file(wc.zone, b, t)
-            for b in [wc.block, *block_neighbours(wc.zone, wc.block)]
-            for t in tiles(wc.zone, b)
-        ],
+        tiles=lambda wc: around_tiles(wc.zone, wc.block),
         # the block's conductor points, found by its infer_tile jobs: layer conductor_points
         wires=lambda wc: block_wires(wc.zone, wc.block),
         # the shape check of each tower (towers.verifier, towers.min_shape_score)
@@ -38,9 +34,9 @@ rule towers_block:
     params:
         bounds=lambda wc: planned(wc.zone, wc.block)["bounds"],
         # where data exists around the block (a tower's ring outside it: support unknown)
-        survey=lambda wc: [planned(wc.zone, b)["bounds"] for b in [wc.block, *block_neighbours(wc.zone, wc.block)]],
+        survey=lambda wc: around_survey(wc.zone, wc.block),
         # the input files of the blocks a tower may touch (the block's and its neighbours')
-        source_files=lambda wc: {b: block_path(wc.zone, b) for b in [wc.block, *block_neighbours(wc.zone, wc.block)]},
+        source_files=lambda wc: around_sources(wc.zone, wc.block),
         towers=TOWERS,
         threshold=INFER["threshold"],
         run=run_params(),

@@ -20,6 +20,7 @@ block fails alone too.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -111,20 +112,12 @@ def batch_blocks(blocks: Mapping[str, Mapping[str, Any]], config: BatchConfig) -
     gx, gy = np.floor_divide(bx, side), np.floor_divide(by, side)
     order = np.lexsort((np.arange(len(ids)), morton(bx - bx.min(), by - by.min()), gx, gy))
     out: dict[str, list[str]] = {}
-    start = 0
-    while start < len(order):
-        stop = start
-        while stop < len(order) and (gx[order[stop]], gy[order[stop]]) == (gx[order[start]], gy[order[start]]):
-            stop += 1
-        cell = order[start:stop]
-        cell_id = BATCH_ID.format(ix=int(gx[cell[0]]), iy=int(gy[cell[0]]))
+    for (ix, iy), members in itertools.groupby(order, key=lambda k: (int(gx[k]), int(gy[k]))):
+        cell = np.fromiter(members, dtype=np.int64)
         runs = _runs(cell, points, config)
-        if len(runs) == 1:
-            out[cell_id] = [ids[k] for k in cell]
-        else:
-            for r, run in enumerate(runs):
-                out[f"{cell_id}{RUN_SUFFIX.format(run=r)}"] = [ids[k] for k in run]
-        start = stop
+        for r, run in enumerate(runs):
+            suffix = RUN_SUFFIX.format(run=r) if len(runs) > 1 else ""
+            out[BATCH_ID.format(ix=ix, iy=iy) + suffix] = [ids[k] for k in run]
     if all(len(r) == 1 for r in out.values()):
         return {}
     return dict(sorted(out.items()))
