@@ -29,6 +29,8 @@ QA_JSON = "qa/{block}.json"
 #: A batch's directories (rules ``infer_batch`` and ``products_batch``), relative to ``<workdir>/<zone>/``.
 BATCH_INFER = "batches/{batch}/infer"
 BATCH_PRODUCTS = "batches/{batch}/products"
+#: A block's time at one stage of its batch (a Snakemake benchmark TSV), relative to the batch's directory.
+BATCH_TIMING = "timings/{block}.{stage}.tsv"
 
 
 def zone_files(work: str | os.PathLike[str], zone: str, pattern: str) -> list[Path]:

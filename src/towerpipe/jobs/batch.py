@@ -11,9 +11,9 @@ zone whose model cannot run on a block runs block by block) fails its batch job:
 names the block, and the zone is published INCOMPLETE without the batch's blocks, as for any
 failed job.
 
-A block's time in its batch is written beside its files (:data:`TIMING`, a Snakemake benchmark
-TSV: seconds, and the job's peak memory so far), so its QA page reports the time of each of its
-stages as for a block with jobs of its own.
+A block's time in its batch is written beside its files (:data:`towerpipe.io.workdir.BATCH_TIMING`,
+a Snakemake benchmark TSV: seconds, and the job's peak memory so far), so its QA page reports the
+time of each of its stages as for a block with jobs of its own.
 """
 
 from __future__ import annotations
@@ -34,9 +34,6 @@ if TYPE_CHECKING:
     from towerpipe.products.qa.metrics import Limits
 
 log = logging.getLogger(__name__)
-
-#: A block's time at one stage of its batch, relative to the batch's directory.
-TIMING = "timings/{block}.{stage}.tsv"
 
 
 def _out(root: str | os.PathLike[str], pattern: str, **names: str) -> str:
@@ -66,7 +63,7 @@ def write_timing(path: str | os.PathLike[str], seconds: float) -> None:
 
 def timing_file(batch_dir: str | os.PathLike[str], block: str, stage: str) -> str:
     """Where :func:`infer_batch` and :func:`products_batch` record a block's ``stage``."""
-    return str(Path(batch_dir, TIMING.format(block=block, stage=stage)))
+    return str(Path(batch_dir, workdir.BATCH_TIMING.format(block=block, stage=stage)))
 
 
 def infer_batch(
