@@ -5,8 +5,13 @@ still costs only itself."""
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
+import signal
+import subprocess
+import sys
+import time
 import uuid
 import zipfile
 from collections import Counter
@@ -14,6 +19,7 @@ from collections import Counter
 import pytest
 
 from conftest import CI_BLOCKS, REPO, same_points, snakemake_run, tower_features, write_zone_config
+from towerpipe.io.atomic import staging_path
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow]
 
@@ -112,3 +118,47 @@ def test_a_bad_block_of_a_batched_zone_costs_only_itself(ci_scene, tmp_path, bat
     assert rules["infer_batch"] == 1 and rules["products_batch"] == 1
     assert "broken: towers_block: InputError" in (out / "INCOMPLETE.txt").read_text()
     assert sorted(p.name for p in (out / "blocks").iterdir()) == sorted(f"{b}.laz" for b in CI_BLOCKS)
+
+
+def test_a_batch_killed_midway_reruns_to_the_same_products(ci_scene, ci_reference, tmp_path):
+    """``kill -9`` while the batch's inference has written one block's predictions of two, then
+    the nightly command: the batch's directory, never moved into place, is made again."""
+    zone = f"pytest_batch_kill_{uuid.uuid4().hex[:6]}"
+    out = REPO / "results" / zone
+    cfg = write_zone_config(
+        tmp_path / "c.yaml",
+        {zone: {"input": str(ci_scene)}},
+        tmp_path / "work",
+        preprocess={"tile_size": 120},
+        batch=BATCHED,
+    )
+    try:
+        cmd = [sys.executable, "-m", "snakemake", "--cores", "2", f"results/{zone}/", f"--configfile={cfg}"]
+        proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, process_group=0)
+        batches = tmp_path / "work" / zone / "batches"
+
+        def midway():  # a block's predictions written in the batch's directory being built
+            building = [staging_path(d / "infer") for d in batches.iterdir()] if batches.exists() else []
+            return any(p for d in building for p in d.glob("pred/*/*.npz"))
+
+        deadline = time.monotonic() + 600
+        while time.monotonic() < deadline and proc.poll() is None and not midway():
+            time.sleep(0.05)
+        assert proc.poll() is None, "the run finished before it could be killed"
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+        assert not out.exists()
+        # nothing that looks made: the batch's directory is moved into place only when complete
+        assert not list(batches.glob("*/infer"))
+        env = dict(os.environ, SNAKEMAKE=f"{sys.executable} -m snakemake")
+        rerun = subprocess.run(
+            ["bash", "scripts/nightly.sh", zone, str(cfg)], cwd=REPO, env=env, capture_output=True, text=True
+        )
+        assert rerun.returncode == 0, rerun.stdout[-3000:] + rerun.stderr[-3000:]
+        for block in CI_BLOCKS:
+            same_points(ci_reference / "blocks" / f"{block}.laz", out / "blocks" / f"{block}.laz")
+        fa, fb = tower_features(ci_reference / "towers.gpkg"), tower_features(out / "towers.gpkg")
+        assert fa.drop(columns="geometry").equals(fb.drop(columns="geometry"))
+        assert not [p for p in (tmp_path / "work").rglob("*") if ".part" in p.name]
+    finally:
+        shutil.rmtree(out, ignore_errors=True)

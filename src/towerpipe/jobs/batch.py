@@ -11,6 +11,11 @@ zone whose model cannot run on a block runs block by block) fails its batch job:
 names the block, and the zone is published INCOMPLETE without the batch's blocks, as for any
 failed job.
 
+A batch's directory is built in a hidden sibling and moved into place once complete
+(:func:`towerpipe.io.atomic.assemble_directory`): a run killed midway leaves no directory that
+looks made (Snakemake's mark of an incomplete output does not bring back a directory of a job
+planned after a checkpoint), and the next run makes it again.
+
 A block's time in its batch is written beside its files (:data:`towerpipe.io.workdir.BATCH_TIMING`,
 a Snakemake benchmark TSV: seconds, and the job's peak memory so far), so its QA page reports the
 time of each of its stages as for a block with jobs of its own.
@@ -28,6 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from towerpipe.io import workdir
+from towerpipe.io.atomic import assemble_directory
 
 if TYPE_CHECKING:
     from towerpipe.config import InferenceConfig, PreprocessConfig
@@ -94,31 +100,43 @@ def infer_batch(
     preprocess, inference, kw
         As for :func:`~towerpipe.jobs.steps.tile_step` (``choice``, ``verifier``).
     """
-    from towerpipe.jobs.steps import tile_step
 
-    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    def build(out_dir: Path) -> None:
+        for t in tiles:
+            _tile(zone, t, caches, out_dir, preprocess=preprocess, inference=inference, **kw)
+
     t0 = time.perf_counter()
-    for t in tiles:
-        b, tile = t["block"], t["tile"]
-        ts = time.perf_counter()
-        with _naming(b):
-            tile_step(
-                zone,
-                b,
-                tile,
-                {n: caches[n] for n in t["blocks"]},
-                _out(out_dir, workdir.TILE, block=b, tile=tile),
-                _out(out_dir, workdir.PRED, block=b, tile=tile),
-                dtm_path=_out(out_dir, workdir.DTM, block=b, tile=tile),
-                preprocess=preprocess,
-                inference=inference,
-                out_wires=_out(out_dir, workdir.WIRES, block=b, tile=tile),
-                missing=t.get("missing") or {},
-                **kw,
-            )
-        write_timing(timing_file(out_dir, b, "infer"), time.perf_counter() - ts)
+    assemble_directory(out_dir, {}, build)
     log.info("batch of %d tiles in %.1f s", len(tiles), time.perf_counter() - t0)
     return {"tiles": len(tiles)}
+
+
+def _tile(
+    zone: str,
+    t: Mapping[str, Any],
+    caches: Mapping[str, str | os.PathLike[str]],
+    out_dir: Path,
+    **kw: Any,
+) -> None:
+    """One tile of :func:`infer_batch`, and its time."""
+    from towerpipe.jobs.steps import tile_step
+
+    b, tile = t["block"], t["tile"]
+    ts = time.perf_counter()
+    with _naming(b):
+        tile_step(
+            zone,
+            b,
+            tile,
+            {n: caches[n] for n in t["blocks"]},
+            _out(out_dir, workdir.TILE, block=b, tile=tile),
+            _out(out_dir, workdir.PRED, block=b, tile=tile),
+            dtm_path=_out(out_dir, workdir.DTM, block=b, tile=tile),
+            out_wires=_out(out_dir, workdir.WIRES, block=b, tile=tile),
+            missing=t.get("missing") or {},
+            **kw,
+        )
+    write_timing(timing_file(out_dir, b, "infer"), time.perf_counter() - ts)
 
 
 def products_batch(
@@ -151,20 +169,23 @@ def products_batch(
         As for the per-block jobs (the ``towers`` section, the run's parameters, the point
         threshold, the QA limits, where the zone's tower registry may be).
     """
-    Path(out_dir).mkdir(parents=True, exist_ok=True)
+
+    def build(out_dir: Path) -> None:
+        for spec in blocks:
+            with _naming(spec["block"]):
+                _block_products(
+                    zone,
+                    spec,
+                    out_dir,
+                    towers_cfg=towers_cfg,
+                    run_cfg=run_cfg,
+                    threshold=threshold,
+                    limits=limits,
+                    registry=registry,
+                )
+
     t0 = time.perf_counter()
-    for spec in blocks:
-        with _naming(spec["block"]):
-            _block_products(
-                zone,
-                spec,
-                out_dir,
-                towers_cfg=towers_cfg,
-                run_cfg=run_cfg,
-                threshold=threshold,
-                limits=limits,
-                registry=registry,
-            )
+    assemble_directory(out_dir, {}, build)
     log.info("batch of %d blocks in %.1f s", len(blocks), time.perf_counter() - t0)
     return {"blocks": len(blocks)}
 
