@@ -40,6 +40,13 @@ CACHE = f"{ZONE_DIR}/{workdir.CACHE}"
 DTM = f"{ZONE_DIR}/{workdir.DTM}"
 QA_HTML = f"{ZONE_DIR}/{workdir.QA_HTML}"
 QA_JSON = f"{ZONE_DIR}/{workdir.QA_JSON}"
+#: a block's products in results/<zone>/ (towerpipe.products.layout) -> where its jobs write them
+BLOCK_PRODUCTS = {
+    layout.BLOCK_LAZ: workdir.BLOCK_LAZ,
+    layout.BLOCK_GPKG: workdir.TOWERS_GPKG,
+    layout.QA_PAGE: workdir.QA_HTML,
+    layout.QA_JSON: workdir.QA_JSON,
+}
 # a batch's directories (wildcard batch): the same per-block files, in the zone's layout
 BATCH_INFER = f"{ZONE_DIR}/{workdir.BATCH_INFER}"
 BATCH_PRODUCTS = f"{ZONE_DIR}/{workdir.BATCH_PRODUCTS}"
@@ -370,12 +377,7 @@ def zone_products(zone, known=None):
         )
     files = {}
     for b in blocks(zone):
-        for product, work_file in (
-            (layout.BLOCK_LAZ, workdir.BLOCK_LAZ),
-            (layout.BLOCK_GPKG, workdir.TOWERS_GPKG),
-            (layout.QA_PAGE, workdir.QA_HTML),
-            (layout.QA_JSON, workdir.QA_JSON),
-        ):
+        for product, work_file in BLOCK_PRODUCTS.items():
             files[layout.block_product(product, b)] = block_file(zone, b, work_file, known=known)
     return files
 
@@ -459,7 +461,7 @@ def verifier_files():
 
 def block_products(zone, block):
     """The block's four products in the work directory (of a block with jobs of its own)."""
-    return [p.format(zone=zone, block=block) for p in (BLOCK_LAZ, TOWERS_GPKG, QA_HTML, QA_JSON)]
+    return [f"{ZONE_DIR}/{w}".format(zone=zone, block=block) for w in BLOCK_PRODUCTS.values()]
 
 
 def pred_file(zone, block, tile):
