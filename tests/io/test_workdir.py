@@ -24,3 +24,13 @@ def test_zone_files_of_blocks_and_of_batches(tmp_path):
     assert workdir.zone_files(tmp_path, "z", workdir.PRED) == [*in_batch, own]
     assert workdir.zone_files(tmp_path, "z", workdir.TOWERS_GPKG) == [gpkg]
     assert workdir.zone_files(tmp_path, "other", workdir.PRED) == []
+
+
+def test_a_block_cache_is_found_from_what_made_it(tmp_path):
+    z = tmp_path / "z"
+    own = z / workdir.CACHE.format(block="split")  # a block may be named as a batch's folder is
+    batch = z / workdir.BATCH_SPLIT.format(batch="b3333_38333")
+    assert workdir.block_cache(own, "split") == own
+    assert workdir.block_cache(batch, "a") == batch / workdir.CACHE.format(block="a")
+    cache = _touch(batch / workdir.CACHE.format(block="a") / "meta.json").parent
+    assert workdir.zone_files(tmp_path, "z", workdir.CACHE) == [cache]

@@ -314,3 +314,24 @@ def test_a_failed_batch_fails_each_of_its_blocks(run_dir):
     assert failures_from_log(main, "work", batches=batches) == {"demo": {"b": reason, "c": reason}}
     # without the zone's batches (no plan), the batch is named as it is
     assert failures_from_log(main, "work") == {"demo": {"b5000_57501": reason.removesuffix(" (batch b5000_57501)")}}
+
+
+def test_a_failed_split_batch_fails_each_of_its_blocks(run_dir):
+    failed = _failed(
+        "split_batch",
+        2,
+        "work/demo/batches/b5000_57501/split",
+        "work/demo/logs/split_batch/b5000_57501.log",
+        "zone=demo, batch=b5000_57501",
+        10,
+    )
+    main = _write(run_dir / "smk.log", HEADER + failed + FOOTER)
+    _write(
+        run_dir / "work/demo/logs/split_batch/b5000_57501.log",
+        "2026-11-23 21:06:22,000 ERROR towerpipe: OSError: disk full\n",
+    )
+    reason = "split_batch: OSError: disk full (batch b5000_57501)"
+    # the split batches are the headers'; the plan's batches do not name them
+    split = {"demo": {"b5000_57501": ["b", "c"]}}
+    plan = {"demo": {"b5000_57501": ["x"]}}
+    assert failures_from_log(main, "work", batches=plan, split_batches=split) == {"demo": {"b": reason, "c": reason}}

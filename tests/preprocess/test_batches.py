@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import section
-from towerpipe.preprocess.batches import BatchConfig, batch_blocks, batch_neighbours, morton
+from towerpipe.preprocess.batches import BatchConfig, batch_blocks, batch_neighbours, morton, split_batches
 from towerpipe.preprocess.tiling import plan_zone
 
 
@@ -99,3 +99,32 @@ def test_the_plan_names_each_block_batch_and_the_batches_neighbours():
     # without limits (a zone that is only prepared): no batch
     unbatched = plan_zone(metas, 500.0, 40.0)
     assert unbatched["batches"] == {} and all(p["batch"] is None for p in unbatched["blocks"].values())
+
+
+def headers(blocks):
+    """The header records of planned blocks (towerpipe.io.inputs: ``bounds``, ``point_count``)."""
+    return {b: {"bounds": m["bounds"], "point_count": m["points"], "crs_wkt": None} for b, m in blocks.items()}
+
+
+def test_the_splits_are_batched_by_the_headers_on_the_plans_grid():
+    blocks = grid(8)
+    assert split_batches(headers(blocks), limits(blocks=16)) == batch_blocks(blocks, limits(blocks=16))
+    # a block of two tiles is still a small split
+    blocks[next(iter(blocks))]["tiles"] = ["0_0", "1_0"]
+    assert split_batches(headers(blocks), limits(blocks=16)) != {}
+
+
+def test_an_unreadable_or_empty_header_splits_alone():
+    found = headers(grid(3))
+    unreadable, empty = sorted(found)[:2]
+    found[unreadable] = None
+    found[empty]["point_count"] = 0
+    batched = {b for bs in split_batches(found, limits()).values() for b in bs}
+    assert batched == set(found) - {unreadable, empty}
+
+
+def test_a_large_header_or_off_splits_every_block_alone():
+    found = headers(grid(3))
+    assert split_batches(found, limits(block_points=0)) == {}
+    found[next(iter(found))]["point_count"] = 60_000
+    assert split_batches(found, limits()) == {}

@@ -66,7 +66,7 @@ def test_a_batched_zone_equals_the_per_block_run(ci_scene, ci_reference, batched
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     # the two blocks' tiles, towers, LAZ and QA pages: one inference job and one products job
     assert finished_rules(proc) == {
-        "split_block": 2,
+        "split_batch": 1,
         "plan_zone": 1,
         "choose_model": 1,
         "infer_batch": 1,
@@ -92,6 +92,7 @@ def test_a_batched_zone_equals_the_per_block_run(ci_scene, ci_reference, batched
     from towerpipe.io import workdir
 
     assert len(workdir.zone_files(work.parent, work.name, workdir.PRED)) == len(CI_BLOCKS)
+    assert len(workdir.zone_files(work.parent, work.name, workdir.CACHE)) == len(CI_BLOCKS)
     # a second run has nothing to do
     again, _, _ = batched_zone(ci_scene, "-n", zone=work.name)
     assert again.returncode == 0 and "Nothing to be done" in again.stdout + again.stderr, again.stdout[-2000:]
@@ -112,9 +113,11 @@ def test_a_bad_block_of_a_batched_zone_costs_only_itself(ci_scene, tmp_path, bat
     (indir / "broken.laz").write_bytes(b"not a point cloud" * 100)
     proc, out, work = batched_zone(indir, "--keep-going")
     assert proc.returncode != 0
-    # the good blocks ran in their batch; the bad one, in no batch, failed at its towers job
+    # the good blocks ran in their batch; the bad one, in no batch (its split a job of its own,
+    # its header unreadable), failed at its towers job
     assert list(json.loads((work / "plan.json").read_text())["batches"].values()) == [list(CI_BLOCKS)]
     rules = finished_rules(proc)
+    assert rules["split_batch"] == 1 and rules["split_block"] == 1
     assert rules["infer_batch"] == 1 and rules["products_batch"] == 1
     assert "broken: towers_block: InputError" in (out / "INCOMPLETE.txt").read_text()
     assert sorted(p.name for p in (out / "blocks").iterdir()) == sorted(f"{b}.laz" for b in CI_BLOCKS)

@@ -1,13 +1,37 @@
 # A zone of small blocks (towerpipe.preprocess.batches): per batch of neighbouring blocks, one job
-# for every tile's preprocessing and inference and one for every block's towers, classified LAZ
-# and QA page, instead of a job per tile and three per block. The jobs call the per-block steps
-# with the per-block rules' arguments (batch_tiles, batch_blocks_args) and write the same files
-# into the batch's directories, in the zone's layout (towerpipe.io.workdir).
+# for their splits, one for every tile's preprocessing and inference and one for every block's
+# towers, classified LAZ and QA page, instead of a job per block, per tile and three per block.
+# The jobs call the per-block steps with the per-block rules' arguments (split_batch_args,
+# batch_tiles, batch_blocks_args) and write the same files into the batch's directories, in the
+# zone's layout (towerpipe.io.workdir).
+
+
+# The splits come before the plan: their batches are drawn from the blocks' headers
+# (split_batches), and a block that cannot be read records why in its cache, as with rule
+# split_block. The block files are parameters, as for rule split_block.
+rule split_batch:
+    output:
+        directory(BATCH_SPLIT),
+    log:
+        log_of("split_batch", "batch"),
+    benchmark:
+        benchmark_of("split_batch", "batch")
+    conda:
+        "../envs/towerpipe.yaml"
+    threads: 2
+    resources:
+        mem_mb=batch_mem_mb(160, of=split_batches),
+        runtime=30,
+    params:
+        blocks=lambda wc: split_batch_args(wc.zone, wc.batch),
+        preprocess=PREP,
+    script:
+        "../scripts/split_batch.py"
 
 
 rule infer_batch:
     input:
-        caches=lambda wc: list(batch_caches(wc.zone, wc.batch).values()),
+        caches=lambda wc: cache_inputs(wc.zone, batch_caches(wc.zone, wc.batch)),
         model=lambda wc: model_files(wc.zone),
         # as for the tile jobs: after the zone's model is chosen (a checkpoint)
         choice=lambda wc: ancient(model_choice_file(wc.zone)),
@@ -40,7 +64,7 @@ rule products_batch:
     input:
         # the batch's predictions, tiles and conductor points and its neighbouring batches'
         infer=lambda wc: batch_infer_inputs(wc.zone, wc.batch),
-        caches=lambda wc: [cache_dir(wc.zone, b) for b in batches(wc.zone)[wc.batch]],
+        caches=lambda wc: cache_inputs(wc.zone, batches(wc.zone)[wc.batch]),
         verifier=verifier_files(),
     output:
         # `snakemake --report` shows each block's QA page, as for rule qa_block

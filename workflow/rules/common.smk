@@ -48,6 +48,7 @@ BLOCK_PRODUCTS = {
     layout.QA_JSON: workdir.QA_JSON,
 }
 # a batch's directories (wildcard batch): the same per-block files, in the zone's layout
+BATCH_SPLIT = f"{ZONE_DIR}/{workdir.BATCH_SPLIT}"
 BATCH_INFER = f"{ZONE_DIR}/{workdir.BATCH_INFER}"
 BATCH_PRODUCTS = f"{ZONE_DIR}/{workdir.BATCH_PRODUCTS}"
 # the manifest of the zone's last publication (rule assemble_zone)
@@ -307,8 +308,9 @@ def tile_blocks(zone, block, tile):
 
 
 def tile_caches(wc):
-    """The caches of the blocks whose points a tile gathers (its block's and its neighbours')."""
-    return [cache_dir(wc.zone, b) for b in tile_blocks(wc.zone, wc.block, wc.tile)]
+    """What makes the caches of the blocks whose points a tile gathers (its block's and its
+    neighbours'), one per block of tile_blocks."""
+    return cache_inputs(wc.zone, tile_blocks(wc.zone, wc.block, wc.tile))
 
 
 def missing_neighbours(wc):
@@ -328,7 +330,67 @@ def block_points(zone, block):
 
 
 def cache_dir(zone, block):
-    return CACHE.format(zone=zone, block=block)
+    """The block's split cache: in its split batch's directory, or the zone's."""
+    batch = split_batch_of(zone, block)
+    if batch is None:
+        return CACHE.format(zone=zone, block=block)
+    return f"{BATCH_SPLIT.format(zone=zone, batch=batch)}/{workdir.CACHE.format(block=block)}"
+
+
+def cache_input(zone, block):
+    """What makes the block's split cache, as a job's input: its split batch's directory (rule
+    split_batch), or the cache (rule split_block); the job finds the cache in it with
+    towerpipe.io.workdir.block_cache."""
+    batch = split_batch_of(zone, block)
+    return CACHE.format(zone=zone, block=block) if batch is None else BATCH_SPLIT.format(zone=zone, batch=batch)
+
+
+def cache_inputs(zone, blocks_):
+    """cache_input of each block, in order (a split batch's directory once per block of it)."""
+    return [cache_input(zone, b) for b in blocks_]
+
+
+def split_batches(zone):
+    """Batch id -> the blocks one split job decodes (towerpipe.preprocess.batches.split_batches):
+    from the blocks' headers, since the split comes before the plan."""
+    return _split_index(zone, zone_input(zone))[0]
+
+
+def known_split_batches(zone):
+    """The zone's split batches when this run knows its input, asking no checkpoint (for the
+    error handler); else empty."""
+    path = _COMPLETE["input"].get(zone)
+    return {} if path is None else _split_index(zone, path)[0]
+
+
+def split_batch_of(zone, block):
+    """The block's split batch, or None (a split job of its own)."""
+    return _split_index(zone, zone_input(zone))[1].get(block)
+
+
+@functools.cache
+def _split_index(zone, path):
+    from towerpipe.preprocess.batches import BatchConfig
+    from towerpipe.preprocess.batches import split_batches as of_headers
+
+    found = _inputs(zone, path)
+    grouped = of_headers({b: i.header for b, i in found.items()}, BatchConfig.from_config({"batch": config["batch"]}))
+    return grouped, {b: i for i, bs in grouped.items() for b in bs}
+
+
+def split_batch_args(zone, batch):
+    """The arguments of each block of a split batch (towerpipe.jobs.batch.split_batch), as rule
+    split_block's."""
+    return [
+        {
+            "block": b,
+            "file": block_path(zone, b),
+            "source": describe(block_input(zone, b)),
+            "crs": zone_config(zone).get("crs"),
+            "zone_crs": zone_crs(zone),
+        }
+        for b in split_batches(zone)[batch]
+    ]
 
 
 def tile_file(zone, block, tile):
@@ -522,7 +584,11 @@ def block_benchmarks(zone, block):
     def of(rule, per):
         return [benchmark_of(rule, per).format(zone=zone, block=block, tile=t) for t in tiles(zone, block)]
 
-    split = [benchmark_of("split_block", "block").format(zone=zone, block=block)]
+    split_batch = split_batch_of(zone, block)
+    if split_batch is None:
+        split = [benchmark_of("split_block", "block").format(zone=zone, block=block)]
+    else:  # the block's time in its split batch
+        split = [timing_file(BATCH_SPLIT.format(zone=zone, batch=split_batch), block, "split")]
     batch = batch_of(zone, block)
     if batch is not None:  # the block's time in its batch (products_batch adds its towers')
         infer_dir = BATCH_INFER.format(zone=zone, batch=batch)
@@ -600,13 +666,13 @@ def batch_blocks_args(zone, batch):
     return out
 
 
-def batch_mem_mb(per_point_bytes, base_mb=400):
-    """``resources: mem_mb`` of a batch job: its largest block's (the blocks run one after another)."""
+def batch_mem_mb(per_point_bytes, base_mb=400, of=None):
+    """``resources: mem_mb`` of a batch job: its largest block's (the blocks run one after another);
+    ``of``: zone -> its batches (default batches; split_batches for the splits)."""
 
     def mem_mb(wc):
-        return max(
-            mem_mb_for_points(block_points(wc.zone, b), per_point_bytes, base_mb) for b in batches(wc.zone)[wc.batch]
-        )
+        members = (of or batches)(wc.zone)[wc.batch]
+        return max(mem_mb_for_points(block_points(wc.zone, b), per_point_bytes, base_mb) for b in members)
 
     return mem_mb
 

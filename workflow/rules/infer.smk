@@ -9,7 +9,7 @@
 # inference.model reran only the choice).
 checkpoint choose_model:
     input:
-        caches=lambda wc: [cache_dir(wc.zone, b) for b in blocks(wc.zone)],
+        caches=lambda wc: cache_inputs(wc.zone, blocks(wc.zone)),
     output:
         choice=MODEL_CHOICE,
     log:

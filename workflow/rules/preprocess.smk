@@ -32,7 +32,7 @@ rule split_block:
 # jobs after the split are planned from the points, never from the headers.
 checkpoint plan_zone:
     input:
-        caches=lambda wc: [cache_dir(wc.zone, b) for b in blocks(wc.zone)],
+        caches=lambda wc: cache_inputs(wc.zone, blocks(wc.zone)),
     output:
         plan=f"{ZONE_DIR}/plan.json",
     log:

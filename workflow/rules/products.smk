@@ -6,7 +6,7 @@ rule merge_block:
     input:
         preds=lambda wc: block_preds(wc.zone, wc.block),
         # the split's copy of the point records: the merge does not decode the LAZ again
-        cache=lambda wc: cache_dir(wc.zone, wc.block),
+        cache=lambda wc: cache_input(wc.zone, wc.block),
         # the points of the towers reported with points in this block: class 15
         members=TOWER_MEMBERS,
     output:
@@ -36,7 +36,7 @@ rule merge_block:
 rule qa_block:
     input:
         # the block's preprocessing summary is read from these (metadata only)
-        cache=lambda wc: cache_dir(wc.zone, wc.block),
+        cache=lambda wc: cache_input(wc.zone, wc.block),
         tiles=lambda wc: [tile_file(wc.zone, wc.block, t) for t in tiles(wc.zone, wc.block)],
         dtms=lambda wc: [DTM.format(zone=wc.zone, block=wc.block, tile=t) for t in tiles(wc.zone, wc.block)],
         preds=lambda wc: block_preds(wc.zone, wc.block),

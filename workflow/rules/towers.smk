@@ -8,7 +8,7 @@ rule towers_block:
         preds=lambda wc: block_preds(wc.zone, wc.block),
         neighbour_preds=lambda wc: neighbour_preds(wc.zone, wc.block),
         # the block's split: a block that could not be read fails here, with its recorded error
-        cache=lambda wc: cache_dir(wc.zone, wc.block),
+        cache=lambda wc: cache_input(wc.zone, wc.block),
         # the points around each tower (this block's and its neighbours' tiles, for the
         # towers across an edge): its conductor support (towers.min_wire_support)
         tiles=lambda wc: around_tiles(wc.zone, wc.block),

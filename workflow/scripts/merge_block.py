@@ -1,4 +1,5 @@
 from towerpipe.io.blockcache import BlockCache
+from towerpipe.io.workdir import block_cache
 from towerpipe.jobs.smk import run_step
 from towerpipe.products.merge import merge_block
 
@@ -11,7 +12,7 @@ run_step(
         threshold=snakemake.params.threshold,
         crs=snakemake.params.crs,
         block=snakemake.wildcards.block,
-        records=BlockCache(snakemake.input.cache).records_path,
+        records=BlockCache(block_cache(snakemake.input.cache, snakemake.wildcards.block)).records_path,
         tower_points=[snakemake.input.members],
     ),
 )

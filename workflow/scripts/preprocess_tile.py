@@ -1,4 +1,5 @@
 from towerpipe.config import PreprocessConfig
+from towerpipe.io.workdir import block_cache
 from towerpipe.jobs.smk import run_step
 from towerpipe.preprocess.tile import preprocess_tile
 
@@ -8,7 +9,7 @@ run_step(
         snakemake.wildcards.zone,
         snakemake.wildcards.block,
         snakemake.wildcards.tile,
-        dict(zip(snakemake.params.blocks, snakemake.input.caches, strict=True)),
+        {b: block_cache(c, b) for b, c in zip(snakemake.params.blocks, snakemake.input.caches, strict=True)},
         snakemake.output.tile,
         dtm_path=snakemake.output.dtm,
         settings=PreprocessConfig.from_config({"preprocess": snakemake.params.preprocess}),

@@ -1,3 +1,4 @@
+from towerpipe.io.workdir import block_cache
 from towerpipe.jobs.smk import run_step
 from towerpipe.jobs.steps import qa_step
 from towerpipe.products.qa.metrics import Limits
@@ -8,7 +9,7 @@ run_step(
     lambda: qa_step(
         snakemake.wildcards.zone,
         snakemake.wildcards.block,
-        cache_dir=i.cache,
+        cache_dir=block_cache(i.cache, snakemake.wildcards.block),
         tile_files=i.tiles,
         pred_files=i.preds,
         towers_gpkg=i.towers,

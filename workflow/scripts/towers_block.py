@@ -1,3 +1,4 @@
+from towerpipe.io.workdir import block_cache
 from towerpipe.jobs.smk import run_step
 from towerpipe.jobs.steps import towers_step
 
@@ -19,6 +20,6 @@ run_step(
         out_members=snakemake.output.members,
         survey=snakemake.params.survey,
         registry=snakemake.params.registry,
-        cache_dir=snakemake.input.cache,
+        cache_dir=block_cache(snakemake.input.cache, snakemake.wildcards.block),
     ),
 )

@@ -2,10 +2,9 @@
 
 What a nightly run of thousands of delivered tiles pays before any job runs: ``snakemake
 -n`` over a zone whose blocks are all split and planned, so the dry run lists every job.
-The zone is ``--blocks`` copies of one small generated block on a grid; the copies are
-split in this process by the library's :func:`towerpipe.preprocess.split.split_block` (as
-the workflow's split jobs would, without a process per block), the plan and the model choice
-are made by the workflow's own checkpoints, then the dry run is timed ``--repeat`` times (median). The baseline
+The zone is ``--blocks`` copies of one small generated block on a grid; the workflow splits
+them (in batches, rule ``split_batch``) and makes the plan and the model choice with its own
+checkpoints, then the dry run is timed ``--repeat`` times (median). The baseline
 in the same run is the dry run of a zone of ``--blocks / 10`` blocks: planning should grow
 no faster than the jobs.
 """
@@ -49,21 +48,15 @@ def planned_zone(tmp: Path, block: Path, n: int, size: float, zone: str) -> tupl
     same ``--workdir``); its config file and number of blocks."""
     import yaml
 
-    from towerpipe.config import PreprocessConfig, effective_config
-    from towerpipe.preprocess.split import split_block
-
     indir, work, cfg = tmp / f"in_{zone}", tmp / f"work_{zone}", tmp / f"{zone}.yaml"
     plan, choice = work / zone / "plan.json", work / zone / "model.json"
     if not (cfg.is_file() and plan.is_file()):
         shutil.rmtree(indir, ignore_errors=True)
         shutil.rmtree(work, ignore_errors=True)
-        paths = copy_block(block, indir, n, size)
-        settings = PreprocessConfig.from_config(effective_config())
-        for p in paths:
-            split_block(p, work / zone / "cache" / p.stem, block=p.stem, zone=zone, settings=settings)
+        copy_block(block, indir, n, size)
         cfg.write_text(yaml.safe_dump({"zones": {zone: {"input": str(indir)}}, "workdir": str(work)}))
     if not choice.is_file():  # both checkpoints made (the plan, the model choice): the dry run lists every job
-        smk = [sys.executable, "-m", "snakemake", "--cores", "1", "--quiet", "all", f"--configfile={cfg}", "--"]
+        smk = [sys.executable, "-m", "snakemake", "--cores", "2", "--quiet", "all", f"--configfile={cfg}", "--"]
         time_cmd([*smk, str(plan), str(choice)], cwd=REPO)
     return cfg, len(json.loads(plan.read_text())["blocks"])
 

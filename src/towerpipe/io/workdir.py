@@ -4,8 +4,9 @@ The workflow's rules write their intermediates at these places (``workflow/rules
 builds its paths from them), and the tools that read a zone's last run (calibration, the
 trace, the benchmarks) find them with :func:`zone_files`. A zone run in batches
 (:mod:`towerpipe.preprocess.batches`) keeps the same layout inside each batch's directories:
-``batches/<batch>/infer/`` holds :data:`TILE`, :data:`DTM`, :data:`PRED` and :data:`WIRES` of
-its blocks, ``batches/<batch>/products/`` their :data:`TOWERS_GPKG` … :data:`QA_JSON`.
+``batches/<batch>/split/`` holds the :data:`CACHE` of its blocks, ``batches/<batch>/infer/``
+their :data:`TILE`, :data:`DTM`, :data:`PRED` and :data:`WIRES`, ``batches/<batch>/products/``
+their :data:`TOWERS_GPKG` … :data:`QA_JSON`.
 """
 
 from __future__ import annotations
@@ -26,7 +27,9 @@ BLOCK_LAZ = "out/{block}.laz"
 QA_HTML = "qa/{block}.html"
 QA_JSON = "qa/{block}.json"
 
-#: A batch's directories (rules ``infer_batch`` and ``products_batch``), relative to ``<workdir>/<zone>/``.
+#: A batch's directories (rules ``split_batch``, ``infer_batch`` and ``products_batch``), relative to
+#: ``<workdir>/<zone>/``.
+BATCH_SPLIT = "batches/{batch}/split"
 BATCH_INFER = "batches/{batch}/infer"
 BATCH_PRODUCTS = "batches/{batch}/products"
 #: A block's time at one stage of its batch (a Snakemake benchmark TSV), relative to the batch's directory.
@@ -39,6 +42,15 @@ def zone_files(work: str | os.PathLike[str], zone: str, pattern: str) -> list[Pa
     glob = pattern.format(block="*", tile="*")
     root = Path(work, zone)
     found = list(root.glob(glob))
-    for batch_dir in (BATCH_INFER, BATCH_PRODUCTS):
+    for batch_dir in (BATCH_SPLIT, BATCH_INFER, BATCH_PRODUCTS):
         found += root.glob(f"{batch_dir.format(batch='*')}/{glob}")
     return sorted(found, key=lambda p: (p.parent.name, p.name) if "{tile}" in pattern else (p.name,))
+
+
+def block_cache(made_by: str | os.PathLike[str], block: str) -> Path:
+    """A block's split cache (:data:`CACHE`), from what made it: the cache itself (a split job of
+    its own), or its split batch's directory (:data:`BATCH_SPLIT`), which holds it."""
+    path = Path(made_by)
+    if path.parent.name == Path(CACHE).parent.name:  # .../cache/<block>
+        return path
+    return path / CACHE.format(block=block)

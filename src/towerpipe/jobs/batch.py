@@ -1,4 +1,5 @@
-"""The two jobs of a batch of small blocks (:mod:`towerpipe.preprocess.batches`).
+"""The jobs of a batch of small blocks (:mod:`towerpipe.preprocess.batches`): its split, its
+inference and its products.
 
 Each calls the per-block steps of :mod:`towerpipe.jobs.steps` block after block, with the
 arguments the per-block jobs get, and writes their files into the batch's directory in the
@@ -6,8 +7,10 @@ zone's layout (:mod:`towerpipe.io.workdir`): one process and one import of the l
 the whole batch instead of one per block and job. The workflow builds the per-tile and
 per-block arguments (``batch_tiles`` and ``batch_blocks_args`` in ``workflow/rules/common.smk``).
 
-A block that fails in its batch (a crash; a block that could not be read is in no batch, and a
-zone whose model cannot run on a block runs block by block) fails its batch job: the job's log
+A block that cannot be read fails alone: its split batch records the error in the block's cache,
+as the split job of one block does, and the block is in no inference or products batch. A
+block that fails in its batch otherwise (a crash; a zone whose model cannot run on a block runs
+block by block) fails its batch job: the job's log
 names the block, and the zone is published INCOMPLETE without the batch's blocks, as for any
 failed job.
 
@@ -68,8 +71,57 @@ def write_timing(path: str | os.PathLike[str], seconds: float) -> None:
 
 
 def timing_file(batch_dir: str | os.PathLike[str], block: str, stage: str) -> str:
-    """Where :func:`infer_batch` and :func:`products_batch` record a block's ``stage``."""
+    """Where the jobs of a batch record a block's ``stage``."""
     return str(Path(batch_dir, workdir.BATCH_TIMING.format(block=block, stage=stage)))
+
+
+def split_batch(
+    zone: str,
+    blocks: Sequence[Mapping[str, Any]],
+    out_dir: str | os.PathLike[str],
+    *,
+    settings: PreprocessConfig,
+) -> dict[str, Any]:
+    """Every block of a split batch, as rule ``split_block`` splits one
+    (:func:`towerpipe.preprocess.split.split_block`, errors recorded in the block's cache).
+
+    Parameters
+    ----------
+    zone
+        The zone.
+    blocks
+        One mapping per block, the arguments of its split: ``block``, ``file``, ``crs`` (the
+        zone's override), ``zone_crs`` and ``source`` (its input record).
+    out_dir
+        The batch's directory (:data:`towerpipe.io.workdir.BATCH_SPLIT`): each block's
+        :data:`~towerpipe.io.workdir.CACHE`.
+    settings
+        The ``preprocess`` section.
+    """
+    from towerpipe.preprocess.split import split_block
+
+    def build(out_dir: Path) -> None:
+        for spec in blocks:
+            b = spec["block"]
+            ts = time.perf_counter()
+            with _naming(b):
+                split_block(
+                    spec["file"],
+                    _out(out_dir, workdir.CACHE, block=b),
+                    block=b,
+                    zone=zone,
+                    crs=spec["crs"],
+                    zone_crs=spec["zone_crs"],
+                    settings=settings,
+                    record_errors=True,
+                    source=spec["source"],
+                )
+            write_timing(timing_file(out_dir, b, "split"), time.perf_counter() - ts)
+
+    t0 = time.perf_counter()
+    assemble_directory(out_dir, {}, build)
+    log.info("batch of %d splits in %.1f s", len(blocks), time.perf_counter() - t0)
+    return {"blocks": len(blocks)}
 
 
 def infer_batch(

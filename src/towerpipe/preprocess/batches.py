@@ -16,6 +16,11 @@ towers job fails with the recorded error, as in a zone without batches, and only
 is missing from the published zone. The workflow also runs a zone block by block when its
 model cannot run on one of its blocks (the model choice's ``incompatible_blocks``), so that
 block fails alone too.
+
+The splits come before the plan, so they are batched by the blocks' headers
+(:func:`split_batches`, rule ``split_batch``): the same grid, one job decoding the blocks of a
+cell into their caches, each block's failure recorded in its own cache as its own split job
+records it.
 """
 
 from __future__ import annotations
@@ -98,10 +103,43 @@ def batch_blocks(blocks: Mapping[str, Mapping[str, Any]], config: BatchConfig) -
         return {}
     if any(len(m["tiles"]) != 1 or int(m.get("points", 0)) > config.block_points for m in split.values()):
         return {}
-    ids = sorted(split)
-    b = np.array([split[i]["bounds"] for i in ids], dtype=np.float64)
+    return _grid_batches({b: (m["bounds"], int(m.get("points", 0))) for b, m in split.items()}, config)
+
+
+def split_batches(headers: Mapping[str, Mapping[str, Any] | None], config: BatchConfig) -> dict[str, list[str]]:
+    """The zone's split batches: batch id → the blocks one split job decodes, or ``{}``.
+
+    The split comes before the plan, so its batches are drawn from the blocks' headers, on the
+    grid of :func:`batch_blocks` (the same ids where the headers tell the truth). A zone whose
+    headers announce at most ``config.block_points`` points for every block is split in
+    batches; a block whose header cannot be read, or announces no point, has a split job of
+    its own (which records why it cannot be read, :func:`towerpipe.preprocess.split.split_block`).
+    A split batch records each block's failure in its own cache, as the split job of one block
+    does: a block that cannot be read fails alone.
+
+    Parameters
+    ----------
+    headers
+        Block id → its header record (:class:`towerpipe.io.inputs.BlockInput`'s ``header``:
+        ``bounds``, ``point_count``), or ``None`` when unreadable.
+    config
+        The limits (:class:`BatchConfig`).
+    """
+    known = {b: h for b, h in headers.items() if h and h.get("bounds") and int(h.get("point_count") or 0) > 0}
+    if config.block_points <= 0 or len(known) < 2:
+        return {}
+    if any(int(h["point_count"]) > config.block_points for h in known.values()):
+        return {}
+    return _grid_batches({b: (h["bounds"], int(h["point_count"])) for b, h in known.items()}, config)
+
+
+def _grid_batches(blocks: Mapping[str, tuple[Sequence[float], int]], config: BatchConfig) -> dict[str, list[str]]:
+    """Blocks (id → bounds, points) grouped by the cells of the zone's grid, cut into runs
+    (:func:`batch_blocks`); ``{}`` when no batch gets several blocks."""
+    ids = sorted(blocks)
+    b = np.array([blocks[i][0] for i in ids], dtype=np.float64)
     cx, cy = (b[:, 0] + b[:, 2]) / 2, (b[:, 1] + b[:, 3]) / 2
-    points = np.array([int(split[i].get("points", 0)) for i in ids], dtype=np.int64)
+    points = np.array([blocks[i][1] for i in ids], dtype=np.int64)
     # a unit of the median block's side in whole metres (delivered tiles are; the points' bounds
     # fall a little short of the tile's): a grid of equal blocks gets one unit per block, and a
     # block added later leaves the grid as it was

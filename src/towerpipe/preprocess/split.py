@@ -101,9 +101,10 @@ def split_block(
     except InputError as exc:
         if not record_errors:
             raise
-        log.error("%s: %s", type(exc).__name__, exc)
+        # the block named on both lines: a split batch's log holds the splits of several blocks
+        log.error("block %s: %s: %s", block, type(exc).__name__, exc)
         log.error(
-            "recorded in %s: block %r fails at its next step; its neighbours go on without its points", out_dir, block
+            "block %s: recorded in its cache; it fails at its next step, its neighbours go on without its points", block
         )
         meta = {
             "block": block,
