@@ -18,7 +18,9 @@ rule split_batch:
         benchmark_of("split_batch", "batch")
     conda:
         "../envs/towerpipe.yaml"
-    threads: 2
+    # one thread (rule split_block's two decode a large block's LAZ): a batch's blocks are small,
+    # and two batches then split side by side
+    threads: 1
     resources:
         mem_mb=batch_mem_mb(160, of=split_batches),
         runtime=30,
