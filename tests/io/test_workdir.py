@@ -34,3 +34,9 @@ def test_a_block_cache_is_found_from_what_made_it(tmp_path):
     assert workdir.block_cache(batch, "a") == batch / workdir.CACHE.format(block="a")
     cache = _touch(batch / workdir.CACHE.format(block="a") / "meta.json").parent
     assert workdir.zone_files(tmp_path, "z", workdir.CACHE) == [cache]
+
+
+def test_a_tiles_conductor_points_are_beside_it(tmp_path):
+    for root in (tmp_path / "z", tmp_path / "z" / workdir.BATCH_INFER.format(batch="b3333_38333")):
+        tile = root / workdir.TILE.format(block="a", tile="0_1")
+        assert workdir.conductors_of(tile) == root / workdir.WIRES.format(block="a", tile="0_1")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from towerpipe.towers.wires import conductor_heights, wire_points, wire_support
+from towerpipe.towers.wires import conductor_directions, conductor_heights, wire_points, wire_support
 
 X0, Y0 = 400_000.0, 4_600_000.0
 
@@ -298,3 +298,41 @@ def test_wire_support_returns_the_heights_of_the_points_it_counts():
     # unknown support (no sector in the data): nan and no heights
     support, h = wire_support(*args, extent=(0.0, 0.0, 1.0, 1.0), return_heights=True)
     assert np.isnan(support) and len(h) == 0
+
+
+def test_the_support_from_wire_points_judged_in_their_tiles(tmp_path):
+    """The towers job measures a tower's support from the conductor points its tiles' jobs found
+    (each judged among all the points of its own tile), not by judging the ring's points again."""
+    from towerpipe.io import workdir
+    from towerpipe.io.conductors import save_conductors
+    from towerpipe.io.tiles import Tile, empty_arrays, load_tile, save_tile
+    from towerpipe.towers.coverage import TileContext
+    from towerpipe.towers.wires import CONDUCTOR_INPUT_COLUMNS, conductor_directions, tile_conductor_points
+
+    rng = np.random.default_rng(8)
+    cx, cy = X0 + 250.0, Y0 + 250.0
+    pts = np.concatenate([spans(cx, cy, 28.0, rng), canopy(cx + 120.0, cy + 40.0, 25.0, 30_000, rng)])
+    a = empty_arrays(len(pts))
+    a["x"][:], a["y"][:], a["z"][:], a["hag"][:] = pts[:, 0], pts[:, 1], pts[:, 2], pts[:, 2]
+    a["classification"][:], a["core"][:], a["model_input"][:] = 5, True, True
+    tile = tmp_path / workdir.TILE.format(block="b", tile="0_0")
+    save_tile(tile, Tile(a, {"block": "b", "core_bounds": [X0 - 100, Y0 - 100, X0 + 600, Y0 + 600], "buffer": 40}))
+    found = tile_conductor_points(load_tile(tile, columns=list(CONDUCTOR_INPUT_COLUMNS)).arrays)
+    # the same wire points, whether read beside the tile (its inference job's file) or found here
+    computed, _ = TileContext([str(tile)])(cx, cy)
+    save_conductors(workdir.conductors_of(tile), found, {"block": "b", "tile": "0_0"})
+    read, _ = TileContext([str(tile)])(cx, cy)
+    for got in (computed["conductors"], read["conductors"]):
+        np.testing.assert_array_equal(got["x"], found["x"])
+        np.testing.assert_array_equal(got["direction"], conductor_directions(found["direction_deg"]))
+    c = read["conductors"]
+    support = wire_support(c["x"], c["y"], c["z"], c["hag"], cx, cy, directions=c["direction"])
+    assert support == wire_support(pts[:, 0], pts[:, 1], pts[:, 2], pts[:, 2], cx, cy) > 0.9
+    # 60 m beside the line, a crown in its ring: no wire points at the candidate
+    assert wire_support(c["x"], c["y"], c["z"], c["hag"], cx, cy + 60.0, directions=c["direction"]) == 0.0
+    assert wire_support(pts[:, 0], pts[:, 1], pts[:, 2], pts[:, 2], cx, cy + 60.0) == 0.0
+
+
+def test_conductor_directions_are_the_bearings_unit_vectors():
+    u = conductor_directions(np.array([0.0, 90.0, 45.0]))
+    np.testing.assert_allclose(u, [[0.0, 1.0], [1.0, 0.0], [np.sqrt(0.5), np.sqrt(0.5)]], atol=1e-12)

@@ -557,6 +557,11 @@ def around_tiles(zone, block):
     return [tile_file(zone, b, t) for b in around(zone, block) for t in tiles(zone, b)]
 
 
+def around_wires(zone, block):
+    """The conductor points found by the tile jobs around each tower (its conductor support)."""
+    return [block_file(zone, b, workdir.WIRES, t) for b in around(zone, block) for t in tiles(zone, b)]
+
+
 def around_survey(zone, block):
     """Where data exists around the block (a tower's ring outside it: support unknown)."""
     return [planned(zone, b)["bounds"] for b in around(zone, block)]

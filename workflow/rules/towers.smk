@@ -10,8 +10,10 @@ rule towers_block:
         # the block's split: a block that could not be read fails here, with its recorded error
         cache=lambda wc: cache_input(wc.zone, wc.block),
         # the points around each tower (this block's and its neighbours' tiles, for the
-        # towers across an edge): its conductor support (towers.min_wire_support)
+        # towers across an edge) and the conductor points their jobs found: its conductor
+        # support (towers.min_wire_support; read beside each tile, towers.coverage.TileContext)
         tiles=lambda wc: around_tiles(wc.zone, wc.block),
+        around_wires=lambda wc: around_wires(wc.zone, wc.block),
         # the block's conductor points, found by its infer_tile jobs: layer conductor_points
         wires=lambda wc: block_wires(wc.zone, wc.block),
         # the shape check of each tower (towers.verifier, towers.min_shape_score)

@@ -54,3 +54,11 @@ def block_cache(made_by: str | os.PathLike[str], block: str) -> Path:
     if path.parent.name == Path(CACHE).parent.name:  # .../cache/<block>
         return path
     return path / CACHE.format(block=block)
+
+
+def conductors_of(tile: str | os.PathLike[str]) -> Path:
+    """Where the inference job of a tile (:data:`TILE`) writes its conductor points (:data:`WIRES`):
+    beside it, in the same zone's or batch's directory."""
+    path = Path(tile)
+    root = path.parents[len(Path(TILE).parts) - 1]
+    return root / WIRES.format(block=path.parent.name, tile=path.stem)

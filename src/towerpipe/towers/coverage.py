@@ -4,14 +4,16 @@
 reaches (the measured bounds of the block and its neighbours) and, from that, which of the
 straight lines through a tower would show in its conductor ring (:meth:`Coverage.lines_seen`,
 ``towers.wire_line_coverage``). :class:`TileContext` gives the towers job, for a tower's
-centre, the points of the tile that holds it with their coverage
-(:func:`towerpipe.towers.wires.wire_support` reads both).
+centre, the points of the tile that holds it with their coverage, and the conductor points
+found over that tile by the tiles' own wire search (:func:`towerpipe.towers.wires.wire_support`
+reads them).
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -112,6 +114,14 @@ class TileContext:
     keeping only the last tile read one tile again for nearly every cluster (240 reads of 4
     tiles on the 1 km² benchmark block, 35 of its 58 s).
 
+    The arrays also hold ``"conductors"``: the wire points within the tile's extent (core and
+    buffer), each judged in the tile whose core holds it
+    (:func:`towerpipe.towers.wires.tile_conductor_points`, with the points around it on every
+    side), with ``"direction"`` the plan direction of its wire. They are read from the
+    conductor-points file each tile's inference job writes beside it
+    (:func:`towerpipe.io.workdir.conductors_of`) or, for a tile without one (a zone only
+    prepared), found here the same way.
+
     Parameters
     ----------
     tile_paths
@@ -145,10 +155,11 @@ class TileContext:
             core = meta.get("core_bounds")
             if core and meta.get("failed") is None and (meta.get("counts") or {}).get("points", 1) > 0:
                 self._tiles.append((str(p), core))
-        # path -> (model-input arrays, coverage), least recently used first
-        self._cached: OrderedDict[str, tuple[dict[str, np.ndarray], Coverage]] = OrderedDict()
+        # path -> (model-input arrays and the conductors over the tile, coverage), least recently used first
+        self._cached: OrderedDict[str, tuple[dict[str, Any], Coverage]] = OrderedDict()
+        self._conductors: dict[str, dict[str, np.ndarray]] = {}  # path -> the conductor points of its core
 
-    def __call__(self, cx: float, cy: float) -> tuple[dict[str, np.ndarray], Coverage] | None:
+    def __call__(self, cx: float, cy: float) -> tuple[dict[str, Any], Coverage] | None:
         from towerpipe.io.tiles import load_tile
 
         for path, (xmin, ymin, xmax, ymax) in self._tiles:
@@ -160,8 +171,50 @@ class TileContext:
                     self.reads += 1
                     keep = np.asarray(arrays.pop("model_input"), dtype=bool)
                     cover = Coverage(arrays["x"], arrays["y"], survey=self._survey, min_line_share=self._min_line_share)
-                    self._cached[path] = ({k: v[keep] for k, v in arrays.items()}, cover)
+                    points: dict[str, Any] = {k: v[keep] for k, v in arrays.items()}
+                    box = (
+                        float(arrays["x"].min()),
+                        float(arrays["y"].min()),
+                        float(arrays["x"].max()),
+                        float(arrays["y"].max()),
+                    )
+                    points["conductors"] = self._conductors_within(box)
+                    self._cached[path] = (points, cover)
                     while len(self._cached) > self._keep:
                         self._cached.popitem(last=False)
                 return self._cached[path]
         return None
+
+    def _conductors_within(self, box: tuple[float, float, float, float]) -> dict[str, np.ndarray]:
+        """The conductor points of every tile whose core meets ``box``, within it (``x, y, z, hag``
+        and ``direction``, their wires' unit plan directions)."""
+        from towerpipe.io.conductors import CONDUCTOR_ARRAYS
+        from towerpipe.towers.wires import conductor_directions
+
+        xmin, ymin, xmax, ymax = box
+        parts = []
+        for path, (cx0, cy0, cx1, cy1) in self._tiles:
+            if cx0 > xmax or cx1 < xmin or cy0 > ymax or cy1 < ymin:
+                continue
+            c = self._tile_conductors(path)
+            inside = (c["x"] >= xmin) & (c["x"] <= xmax) & (c["y"] >= ymin) & (c["y"] <= ymax)
+            parts.append({k: v[inside] for k, v in c.items()})
+        out = {k: np.concatenate([p[k] for p in parts]) if parts else np.empty(0) for k in CONDUCTOR_ARRAYS}
+        out["direction"] = conductor_directions(out["direction_deg"]).reshape(-1, 2)
+        return out
+
+    def _tile_conductors(self, path: str) -> dict[str, np.ndarray]:
+        """The conductor points of a tile's core: its file, or found from the tile."""
+        if path not in self._conductors:
+            from towerpipe.io.conductors import load_conductors
+            from towerpipe.io.tiles import load_tile
+            from towerpipe.io.workdir import conductors_of
+            from towerpipe.towers.wires import CONDUCTOR_INPUT_COLUMNS, tile_conductor_points
+
+            wires = conductors_of(path)
+            if wires.is_file():
+                self._conductors[path] = load_conductors([wires])
+            else:
+                arrays = load_tile(path, columns=list(CONDUCTOR_INPUT_COLUMNS)).arrays
+                self._conductors[path] = tile_conductor_points(arrays)
+        return self._conductors[path]

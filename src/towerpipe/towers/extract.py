@@ -137,16 +137,24 @@ def _vouching_support(
     ``(bx, by)``: its base."""
     if rules.vouch_height <= 0:
         return None
-    from towerpipe.towers.wires import wire_support
-
-    support, heights = wire_support(
-        arr["x"], arr["y"], arr["z"], arr["hag"], bx, by, extent=extent, return_heights=True
-    )
+    support, heights = _support(arr, extent, bx, by, return_heights=True)
     if not support >= rules.min_wire_support:  # NaN (unknown) never vouches
         return None
     if len(heights) == 0 or float(hag.max()) - float(np.median(heights)) < rules.vouch_height:
         return None
     return support
+
+
+def _support(arr: Mapping[str, Any], extent: Any, bx: float, by: float, **kw: Any) -> Any:
+    """The conductor support at ``(bx, by)`` (:func:`towerpipe.towers.wires.wire_support`): from the
+    context's conductor points (``arr["conductors"]``, each judged in its own tile) when it has
+    them, else from its points, the ring's judged among themselves."""
+    from towerpipe.towers.wires import wire_support
+
+    c = arr.get("conductors")
+    if c is None:
+        return wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], bx, by, extent=extent, **kw)
+    return wire_support(c["x"], c["y"], c["z"], c["hag"], bx, by, extent=extent, directions=c["direction"], **kw)
 
 
 def _split_by_confidence(
@@ -253,7 +261,9 @@ def extract_towers(
         ``context(cx, cy)`` gives the points around a tower centre, ``({"x", "y", "z",
         "hag"} arrays, covered extent)``, or ``None``; then ``wire_support`` is
         computed (:func:`towerpipe.towers.wires.wire_support`) and the shape score. Without it
-        both columns are NaN.
+        both columns are NaN. The arrays may hold ``"conductors"`` (the wire points around, each
+        judged in its own tile: :class:`towerpipe.towers.coverage.TileContext`), from which the
+        support is then measured.
     registry
         The zone's tower registry (:func:`towerpipe.products.registry_file.read_registry`): a tower
         matching a registered one keeps its id, review status and ``first_seen``; others
@@ -368,8 +378,6 @@ def extract_towers(
             decided("context", float("nan"))
             continue  # a rescue stands on the shape check, which needs the points around it
         if ctx is not None:
-            from towerpipe.towers.wires import wire_support
-
             arr, extent = ctx
             # the conductors are measured from the tower's base (median xy of its lowest third): a
             # crane's footprint centroid lies out along its jib, its base is the mast
@@ -396,11 +404,7 @@ def extract_towers(
                         decided("shape", shape)
                         queue.extend((part, rest, is_rescue) for part, rest in parts)
                         continue
-            support = (
-                wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], bx, by, extent=extent)
-                if vouch is None
-                else vouch
-            )
+            support = _support(arr, extent, bx, by) if vouch is None else vouch
             if hag.max() >= rules.wire_min_height and support < rules.min_wire_support:
                 decided("wires", support)
                 continue

@@ -54,6 +54,7 @@ __all__ = [
     "wire_points",
     "wire_support",
     "conductor_heights",
+    "conductor_directions",
     "tile_conductor_points",
     "conductor_points",
     "CONDUCTOR_FIELDS",
@@ -196,6 +197,7 @@ def wire_support(
     min_bins: int = 4,
     min_ring_coverage: float = 0.0,
     return_heights: bool = False,
+    directions: np.ndarray | None = None,
 ) -> float | tuple[float, np.ndarray]:
     """Share of the ring ``[r_min, r_max)`` m around ``(cx, cy)`` reached by a conductor.
 
@@ -229,6 +231,11 @@ def wire_support(
     return_heights
         Also return the heights above ground of the wire points counted (those
         :func:`conductor_heights` gives; empty when the support is ``nan``), from the same search.
+    directions
+        ``(n, 2)`` plan directions of the given points' wires when the points are wire points
+        already judged (:func:`tile_conductor_points`, each among all the points of its tile): the
+        ring's points are then not judged again. ``None``: the points are any points, and those of
+        the ring are judged among themselves (:func:`wire_points`).
 
     Returns
     -------
@@ -263,7 +270,7 @@ def wire_support(
     scored = avail >= min_bins
     if not scored.any() or inside.mean() < min_ring_coverage:
         return out(float("nan"), none)
-    idx, px, py = _aimed_wire_points(x, y, z, hag, cx, cy, r_min, r_max, min_hag, max_offset)
+    idx, px, py = _aimed_wire_points(x, y, z, hag, cx, cy, r_min, r_max, min_hag, max_offset, directions)
     if len(px) == 0:
         return out(0.0, idx)
     ang = np.degrees(np.arctan2(py, px)) % 360.0
@@ -287,16 +294,21 @@ def _aimed_wire_points(
     r_max: float,
     min_hag: float,
     max_offset: float,
+    directions: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The wire points in the ring ``[r_min, r_max)`` m around ``(cx, cy)``, at least ``min_hag``
-    high (judged among themselves by :func:`wire_points`), whose wire passes within ``max_offset``
-    m of it: their indices and their offsets ``(x - cx, y - cy)``."""
+    high (judged among themselves by :func:`wire_points`, or already judged: ``directions``),
+    whose wire passes within ``max_offset`` m of it: their indices and their offsets
+    ``(x - cx, y - cy)``."""
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
     dx, dy = x - cx, y - cy
     d = np.hypot(dx, dy)
     idx = np.flatnonzero((d >= r_min) & (d < r_max) & (np.asarray(hag) >= min_hag))
-    wire, u = wire_points(x[idx], y[idx], np.asarray(z, dtype=np.float64)[idx])
-    idx, u = idx[wire], u[wire]
+    if directions is None:
+        wire, u = wire_points(x[idx], y[idx], np.asarray(z, dtype=np.float64)[idx])
+        idx, u = idx[wire], u[wire]
+    else:
+        u = np.asarray(directions, dtype=np.float64)[idx]
     idx = idx[np.abs(dx[idx] * u[:, 1] - dy[idx] * u[:, 0]) <= max_offset]
     return idx, dx[idx], dy[idx]
 
@@ -313,6 +325,7 @@ def conductor_heights(
     r_max: float = RING_MAX_M,
     max_offset: float = AIM_M,
     min_hag: float = WIRE_MIN_HAG_M,
+    directions: np.ndarray | None = None,
 ) -> np.ndarray:
     """Heights above ground (m) of the wire points that :func:`wire_support` counts for ``(cx, cy)``:
     in the ring ``[r_min, r_max)`` m, at least ``min_hag`` high, their wire passing within
@@ -327,7 +340,7 @@ def conductor_heights(
     numpy.ndarray
         float64, one value per such point (empty when there is none).
     """
-    idx, _, _ = _aimed_wire_points(x, y, z, hag, cx, cy, r_min, r_max, min_hag, max_offset)
+    idx, _, _ = _aimed_wire_points(x, y, z, hag, cx, cy, r_min, r_max, min_hag, max_offset, directions)
     return np.asarray(hag, dtype=np.float64)[idx]
 
 
@@ -355,6 +368,13 @@ def _clearance(
         ok = np.isfinite(highest)
         out[ok] = z[ok] - highest[ok]
     return out
+
+
+def conductor_directions(direction_deg: np.ndarray) -> np.ndarray:
+    """``(n, 2)`` unit plan directions ``(dx, dy)`` of wires given as bearings in degrees
+    (``direction_deg`` of :func:`tile_conductor_points`: clockwise from north, in [0, 180))."""
+    a = np.radians(np.asarray(direction_deg, dtype=np.float64))
+    return np.column_stack([np.sin(a), np.cos(a)])
 
 
 #: Columns of a tile's model input that :func:`tile_conductor_points` reads.
