@@ -30,7 +30,7 @@ import logging
 import os
 import resource
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -68,6 +68,15 @@ def write_timing(path: str | os.PathLike[str], seconds: float) -> None:
     h, rem = divmod(int(seconds), 3600)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(f"s\th:m:s\tmax_rss\n{seconds:.4f}\t{h}:{rem // 60:02d}:{rem % 60:02d}\t{rss_mb:.2f}\n")
+
+
+def _build(out_dir: str | os.PathLike[str], build: Callable[[Path], None], what: str, count: int) -> dict[str, Any]:
+    """Make a batch's directory with ``build`` (in a hidden sibling, moved into place when
+    complete: :func:`towerpipe.io.atomic.assemble_directory`) and log its time; ``{what: count}``."""
+    t0 = time.perf_counter()
+    assemble_directory(out_dir, {}, build)
+    log.info("batch of %d %s in %.1f s", count, what, time.perf_counter() - t0)
+    return {what: count}
 
 
 def timing_file(batch_dir: str | os.PathLike[str], block: str, stage: str) -> str:
@@ -118,10 +127,7 @@ def split_batch(
                 )
             write_timing(timing_file(out_dir, b, "split"), time.perf_counter() - ts)
 
-    t0 = time.perf_counter()
-    assemble_directory(out_dir, {}, build)
-    log.info("batch of %d splits in %.1f s", len(blocks), time.perf_counter() - t0)
-    return {"blocks": len(blocks)}
+    return _build(out_dir, build, "blocks", len(blocks))
 
 
 def infer_batch(
@@ -157,10 +163,7 @@ def infer_batch(
         for t in tiles:
             _tile(zone, t, caches, out_dir, preprocess=preprocess, inference=inference, **kw)
 
-    t0 = time.perf_counter()
-    assemble_directory(out_dir, {}, build)
-    log.info("batch of %d tiles in %.1f s", len(tiles), time.perf_counter() - t0)
-    return {"tiles": len(tiles)}
+    return _build(out_dir, build, "tiles", len(tiles))
 
 
 def _tile(
@@ -236,10 +239,7 @@ def products_batch(
                     registry=registry,
                 )
 
-    t0 = time.perf_counter()
-    assemble_directory(out_dir, {}, build)
-    log.info("batch of %d blocks in %.1f s", len(blocks), time.perf_counter() - t0)
-    return {"blocks": len(blocks)}
+    return _build(out_dir, build, "blocks", len(blocks))
 
 
 def _block_products(
