@@ -157,6 +157,17 @@ def blocks(zone):
     return _zone_tables(zone, zone_input(zone))["blocks"]
 
 
+def known_block_count(zone):
+    """The zone's number of blocks when this run knows its input, asking no checkpoint; else 0.
+
+    For a resource: Snakemake 9.27 fails a dry run (``'int' object has no attribute
+    'constrain'``) whose resource function waits on a checkpoint not run yet, e.g. the
+    plan of a synthetic training zone not generated yet.
+    """
+    path = _COMPLETE["input"].get(zone)
+    return 0 if path is None else len(_zone_tables(zone, path)["blocks"])
+
+
 def bounds(zone):
     """Header bounds of every block with points (the QA index's map places failed blocks with them)."""
     return _zone_tables(zone, zone_input(zone))["bounds"]

@@ -43,7 +43,7 @@ checkpoint plan_zone:
         "../envs/towerpipe.yaml"
     threads: 1
     resources:
-        mem_mb=lambda wc: 500 + len(blocks(wc.zone)) // 10,
+        mem_mb=lambda wc: 500 + known_block_count(wc.zone) // 10,
         runtime=10,
     params:
         blocks=lambda wc: list(blocks(wc.zone)),
