@@ -8,10 +8,11 @@ import pytest
 import rasterio
 
 from conftest import HIGH_NOISE, RGB_SUBSET, RGBNIR_BLOCK, RGBNIR_SMALL, preprocess_settings
+from towerpipe.io.blockcache import BlockCache
 from towerpipe.io.tiles import load_tile
 from towerpipe.preprocess import tiling
 from towerpipe.preprocess.split import split_block
-from towerpipe.preprocess.tile import preprocess_tile, summarize_block, tile_noise
+from towerpipe.preprocess.tile import gather_tile, preprocess_tile, summarize_block, tile_noise
 
 pytestmark = pytest.mark.usefixtures("pdal_cli")
 
@@ -133,8 +134,10 @@ def split_file(src, out_dir, x_cut):
     return paths
 
 
-@pytest.mark.shared
-def test_neighbour_block_buffer(tmp_path):
+def two_blocks(tmp_path):
+    """The real RGB+NIR block cut in two at its middle, both split: (west's LAS, the cut,
+    west's bounds, the settings of three tile columns with a 40 m buffer, the caches, the west
+    tile touching the cut)."""
     src = RGBNIR_BLOCK
     hdr = laspy.open(src).header
     x_cut = float(np.floor((hdr.mins[0] + hdr.maxs[0]) / 2))
@@ -148,7 +151,29 @@ def test_neighbour_block_buffer(tmp_path):
         caches[p.stem] = tmp_path / "cache" / p.stem
         split_block(p, caches[p.stem], block=p.stem, zone="z", settings=cfg)
     grid = tiling.TileGrid(wb, size)
-    tid = f"{grid.shape[0] - 1}_0"  # the west tile touching the cut
+    return w, x_cut, wb, cfg, caches, f"{grid.shape[0] - 1}_0"
+
+
+@pytest.mark.shared
+def test_a_tile_gathered_a_chunk_at_a_time_is_the_tile_gathered_at_once(tmp_path):
+    """The caches are read a chunk at a time (never mapped whole): the tile, core and buffer
+    from the neighbour, is the same whatever the chunk, to the bit and in the same order."""
+    *_, cfg, caches, tid = two_blocks(tmp_path)
+    gathered = [
+        gather_tile("z", "west", tid, {b: BlockCache.open(d) for b, d in caches.items()}, cfg, chunk=chunk)
+        for chunk in (10**9, 4096, 777)
+    ]
+    whole = gathered[0]
+    assert whole.arrays["core"].any() and (whole.arrays["block_id"] == whole.meta["blocks"].index("east")).any()
+    for t in gathered[1:]:
+        assert t.meta == whole.meta
+        for k, v in whole.arrays.items():
+            assert t.arrays[k].dtype == v.dtype and np.array_equal(t.arrays[k], v), k
+
+
+@pytest.mark.shared
+def test_neighbour_block_buffer(tmp_path):
+    w, x_cut, wb, cfg, caches, tid = two_blocks(tmp_path)
     preprocess_tile("z", "west", tid, caches, tmp_path / "t.npz", settings=cfg)
     t = load_tile(tmp_path / "t.npz")
     from_east = t["block_id"] == t.meta["blocks"].index("east")
@@ -159,7 +184,7 @@ def test_neighbour_block_buffer(tmp_path):
     # the buffer's ground gets HAG ~0 too: the DTM spans the cut with the neighbour's ground
     ground = t["classification"] == 2
     assert np.median(np.abs(t["hag"][ground & from_east])) < 0.05
-    expected = grid.core_mask(np.asarray(w.x), np.asarray(w.y), tid).sum()
+    expected = tiling.TileGrid(wb, cfg.tile_size).core_mask(np.asarray(w.x), np.asarray(w.y), tid).sum()
     assert t["core"].sum() == expected > 0
 
 

@@ -212,10 +212,11 @@ def candidate_windows(
     rank[np.arange(n) if canonical_order is None else np.asarray(canonical_order)] = np.arange(n)
     if tree is None and len(keys):
         tree = cKDTree(np.c_[x, y])
-    lists = tree.query_ball_point(centers, window / 2.0, p=np.inf) if len(keys) else []
     keep, parts = [], []
-    for i, lst in enumerate(lists):
-        idx = np.asarray(lst, np.int64)
+    for i, c in enumerate(centers):
+        # one window at a time: the lists of Python ints of every window at once took
+        # hundreds of MB on a dense tile; a window's order comes from ``rank`` below
+        idx = np.asarray(tree.query_ball_point(c, window / 2.0, p=np.inf), np.int64)
         if len(idx) < max(int(min_points), 1) or not core[idx].any():
             continue
         keep.append(i)

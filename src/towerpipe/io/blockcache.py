@@ -116,6 +116,32 @@ class BlockCacheWriter:
         (self.directory / CACHE_META).write_text(json.dumps(meta, indent=1))
 
 
+class ColumnReader:
+    """A cache column read a piece at a time: ``reader[key]`` is a copy, taken through a mapping
+    of the file made for that read and released with it.
+
+    A mapping kept open keeps every page it has touched in the process's memory, so a job that
+    goes through a block chunk by chunk on a memory-mapped column ends up holding the whole
+    column (on a km² at 20 pts/m², x, y and z are 470 MB); through a reader it holds a chunk.
+    ``np.asarray(reader)`` reads the whole column.
+    """
+
+    def __init__(self, path: str | os.PathLike[str]):
+        self.path = Path(path)
+        whole = np.load(self.path, mmap_mode="r")
+        self.shape, self.dtype = whole.shape, whole.dtype
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        return np.array(np.load(self.path, mmap_mode="r")[key])
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        whole = np.load(self.path)
+        return whole if dtype is None else whole.astype(dtype, copy=False)
+
+
 class BlockCache:
     """A split block's cache directory: metadata and memory-mapped columns.
 
@@ -193,6 +219,10 @@ class BlockCache:
     def column(self, name: str, *, mmap: bool = True) -> np.ndarray:
         """Column ``name`` loaded afresh: memory-mapped read-only, or in memory with ``mmap=False``."""
         return np.load(self.column_path(name), mmap_mode="r" if mmap else None)
+
+    def reader(self, name: str) -> ColumnReader:
+        """Column ``name`` read a piece at a time (:class:`ColumnReader`)."""
+        return ColumnReader(self.column_path(name))
 
     def __getitem__(self, name: str) -> np.ndarray:
         """Column ``name``, memory-mapped once and kept."""

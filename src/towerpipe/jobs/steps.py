@@ -232,18 +232,18 @@ def classified_points(
 ) -> dict[str, np.ndarray]:
     """The block's points as the merge step classifies them, from the decoded cache.
 
-    ``x, y, z`` (memory-mapped), the output ``classification`` and ``prob``, as
-    :func:`towerpipe.products.merge.block_labels` gives them to the merge step, so the QA
-    does not decode the written LAZ a second time.
+    ``x, y, z`` (read a chunk at a time: :class:`~towerpipe.io.blockcache.ColumnReader`), the
+    output ``classification`` and ``prob``, as :func:`towerpipe.products.merge.block_labels`
+    gives them to the merge step, so the QA does not decode the written LAZ a second time.
     """
     from towerpipe.products.merge import block_labels
 
     cache = BlockCache(cache_dir)
-    cols = {c: cache.column(c) for c in ("x", "y", "z", "classification")}
+    cols: dict[str, Any] = {c: cache.reader(c) for c in ("x", "y", "z")}
     labels = block_labels(
         pred_files, len(cols["x"]), block=block, block_path=str(cache.directory), tower_points=member_files
     )
-    cols["classification"] = labels.classes(np.asarray(cols["classification"]), threshold)
+    cols["classification"] = labels.classes(np.asarray(cache.column("classification")), threshold)
     cols["prob"] = labels.prob
     return cols
 

@@ -329,8 +329,8 @@ def _raw_chunks(
             f"holds {rec.shape} {rec.dtype} records, the block {n} of {in_size} bytes; "
             "the cache is stale: rerun the split_block job",
         )
-    for start in range(0, n, chunk_size):
-        yield rec[start : start + chunk_size]
+    for start in range(0, n, chunk_size):  # a mapping per chunk: one kept open holds every page read
+        yield np.load(records, mmap_mode="r")[start : start + chunk_size]
 
 
 def merge_block(

@@ -33,8 +33,9 @@ def towers_from_labels(
     (max HAG, or z range when ``hag`` is None) and the footprint Polygon.
     """
     sel = np.asarray(is_tower, dtype=bool)
-    xyz = np.stack([np.asarray(x)[sel], np.asarray(y)[sel], np.asarray(z)[sel]], axis=1).astype(np.float64)
-    h = np.asarray(hag)[sel].astype(np.float64) if hag is not None else None
+    # indexed, not converted first: a column read a piece at a time gives only the tower points
+    xyz = np.stack([np.asarray(a[sel]) for a in (x, y, z)], axis=1).astype(np.float64)
+    h = np.asarray(hag[sel]).astype(np.float64) if hag is not None else None
     if h is None:
         h = xyz[:, 2] - (xyz[:, 2].min() if len(xyz) else 0.0)
     labels = cluster_towers(

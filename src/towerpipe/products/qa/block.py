@@ -187,7 +187,8 @@ def block_report(
             arr = np.asarray(cb, dtype=float)
             block_bounds = [arr[:, 0].min(), arr[:, 1].min(), arr[:, 2].max(), arr[:, 3].max()]
         elif pts is not None and len(pts["x"]):
-            block_bounds = [pts["x"].min(), pts["y"].min(), pts["x"].max(), pts["y"].max()]
+            x, y = np.asarray(pts["x"]), np.asarray(pts["y"])
+            block_bounds = [x.min(), y.min(), x.max(), y.max()]
     bounds = [float(v) for v in block_bounds] if block_bounds is not None else None
     area_m2 = (bounds[2] - bounds[0]) * (bounds[3] - bounds[1]) if bounds else None
 
@@ -295,7 +296,7 @@ def block_report(
         grid, gb, cell = raster_grid(raster)
         map_src = Path(raster).name
     elif pts is not None and n_points and bounds:
-        grid, cell = max_z_grid(pts["x"], pts["y"], pts["z"], bounds)
+        grid, cell = max_z_grid(*(np.asarray(pts[k]) for k in ("x", "y", "z")), bounds)
         gb, map_src = bounds, "max point z per cell"
     else:
         grid, gb, cell, map_src = None, None, 1.0, "nothing (no points given)"

@@ -122,11 +122,15 @@ def load_classified(src: str | os.PathLike[str] | Mapping[str, np.ndarray]) -> d
     Parameters
     ----------
     src
-        A mapping of arrays, or the path of the classified LAS/LAZ written by the
-        merge step (``prob`` from its ``TowerProbability`` extra dimension).
+        A mapping of arrays (or of :class:`~towerpipe.io.blockcache.ColumnReader`, kept as they
+        are), or the path of the classified LAS/LAZ written by the merge step (``prob`` from
+        its ``TowerProbability`` extra dimension).
     """
     if isinstance(src, Mapping):
-        out = {k: np.asarray(v) for k, v in src.items()}
+        from towerpipe.io.blockcache import ColumnReader
+
+        # a column read a chunk at a time stays so (the figures take it a chunk at a time)
+        out = {k: v if isinstance(v, ColumnReader) else np.asarray(v) for k, v in src.items()}
     else:
         import laspy
 
