@@ -154,6 +154,9 @@ def run_zone(
     """Run Snakemake on the zone of the blocks in ``indir`` in a fresh working directory."""
     work = tmp / f"work_{zone}"
     shutil.rmtree(work, ignore_errors=True)
+    # a zone published there before (another run of the same name) would lend its towers' ids
+    # (the registry's fallback) and its published files
+    shutil.rmtree(REPO / "results" / zone, ignore_errors=True)
     cfg = {"zones": {zone: {"input": str(indir)}}, "workdir": str(work)}
     cfg.update(extra_config or {})
     cfg_file = tmp / f"{zone}.yaml"
