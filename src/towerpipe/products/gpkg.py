@@ -409,7 +409,7 @@ def write_towers_gpkg(
             CONDUCTOR_FIELDS,
             "Point",
             "Conductor points",
-            "Points on overhead wires found around the block's towers (they link the towers into lines)",
+            "Points on overhead wires found in the block (they link the towers into lines)",
         ),
     ]
     for table, name, fields, gtype, ident, desc in extra:

@@ -47,6 +47,7 @@ import shapely
 from scipy.spatial import cKDTree
 
 from towerpipe.io.fields import Field, conform, empty_frame
+from towerpipe.towers.wires import WIRE_MIN_HAG_M
 
 __all__ = ["LINE_FIELDS", "SPAN_FIELDS", "LINE_TOWER_COLUMNS", "LineParams", "build_lines", "conductor_rays"]
 
@@ -80,14 +81,18 @@ SPAN_FIELDS: dict[str, Field] = {
     "lowest_conductor_m": Field(
         "float64",
         "Lowest conductor (m)",
-        "Lowest conductor point above ground in the span, away from the towers (m)",
+        "Lowest conductor point above ground in the span, away from the towers (m). Conductor "
+        f"points are looked for from {WIRE_MIN_HAG_M:g} m above ground: a value near {WIRE_MIN_HAG_M:g} m "
+        "is the floor of the search, the conductor may hang lower",
         2,
     ),
     "clearance_m": Field(
         "float64",
         "Clearance to vegetation (m)",
         "Smallest vertical distance from a conductor point of the span down to the vegetation "
-        "(classes 3-5) within 2 m in plan below it; NULL when no vegetation lies below (m)",
+        "(classes 3-5) within 2 m in plan below it, over the conductor points found (see "
+        "lowest_conductor_m: a conductor lower than the search's floor is not among them); NULL "
+        "when no vegetation lies below (m)",
         2,
     ),
     "mutual": Field(

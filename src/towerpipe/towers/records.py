@@ -70,10 +70,15 @@ TOWER_FIELDS: dict[str, Field] = {
     "line_id": Field(
         "Int64",
         "Line id",
-        "Line of the tower (layer lines): the smallest tower_id on the line; "
-        "NULL when the tower is linked to no other (set in the zone's file)",
+        "Line of the tower (layer lines of the zone's file): the smallest tower_id on the line; "
+        "NULL when the tower is linked to no other, and in a block's file (lines are built when "
+        "the zone is assembled)",
     ),
-    "line_seq": Field("Int64", "Position on the line", "1, 2, … along the line (layer lines); NULL off a line"),
+    "line_seq": Field(
+        "Int64",
+        "Position on the line",
+        "1, 2, … along the line (layer lines of the zone's file); NULL off a line and in a block's file",
+    ),
     "line_chainage_m": Field(
         "float64", "Chainage (m)", "Distance along the line from its first tower, through the towers (m)", 2
     ),
@@ -83,7 +88,8 @@ TOWER_FIELDS: dict[str, Field] = {
         "Azimuth of the line at the tower, degrees clockwise from grid north, toward increasing "
         "line_seq (at an angle tower the bisector of its two spans); the crossarm is "
         "perpendicular. For a tower on no line, the axis of its conductors (0-180); NULL "
-        "when no conductor was found",
+        "when no conductor was found, and in a block's file (set with the lines, when the zone "
+        "is assembled)",
         1,
     ),
     "deflection_deg": Field(

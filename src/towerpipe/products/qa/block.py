@@ -277,7 +277,7 @@ def block_report(
         with rasterio.open(raster) as ds:
             inv = ~ds.transform
             dtm = ds.read(1, masked=True).astype(np.float64).filled(np.nan)
-        hag, hag_source = np.empty(len(pts["z"])), f"z − {Path(raster).name}"
+        hag, hag_source = np.empty(len(pts["z"])), "z − the block's DTM"
         for s in point_chunks(len(hag)):  # no temporary of the block's size
             # rasterio.transform.rowcol's maths (floor of the inverse transform), without
             # its (3, n) stacking: a tenth of its time on 10 M points
@@ -289,12 +289,13 @@ def block_report(
         figures.append(
             {
                 "src": hag_histogram(hag, cls == classes.TOWER if cls is not None else None),
-                "caption": f"Height above ground ({hag_source})",
+                "caption": f"Height above ground ({hag_source}); the axis ends at the 99.9th percentile "
+                "or the highest tower point, higher points count in the last bar",
             }
         )
     if raster is not None:
         grid, gb, cell = raster_grid(raster)
-        map_src = Path(raster).name
+        map_src = "the block's DTM"
     elif pts is not None and n_points and bounds:
         grid, cell = max_z_grid(*(np.asarray(pts[k]) for k in ("x", "y", "z")), bounds)
         gb, map_src = bounds, "max point z per cell"

@@ -177,7 +177,7 @@ def density_map(dens: np.ndarray, bounds: Sequence[float], cell: float) -> str:
     im = ax.imshow(dens, extent=(xmin, xmin + nx * cell, ymin, ymin + ny * cell), cmap="viridis", vmin=0, vmax=vmax)
     fig.colorbar(im, ax=ax, shrink=0.85, label="points / m²")
     _axes_style(ax, 7)
-    ax.set_title(f"Point density ({cell:.0f} m cells)", fontsize=10)
+    ax.set_title(f"Point density ({cell:.3g} m cells)", fontsize=10)
     return png(fig)
 
 
@@ -209,7 +209,9 @@ def hag_histogram(hag: np.ndarray, tower: np.ndarray | None) -> str:
     if not ok.all():  # a copy only where the DTM has holes
         tower = tower[ok] if tower is not None else None
         hag = hag[ok]
-    hi = max(10.0, float(np.percentile(hag, 99.9))) if hag.size else 10.0
+    # the towers whole (a tower is a few hundred points over a million: above the 99.9th percentile)
+    top = float(hag[tower].max()) if tower is not None and tower.any() else 0.0
+    hi = max(10.0, top, float(np.percentile(hag, 99.9))) if hag.size else 10.0
     rng = (min(-2.0, float(hag.min()) if hag.size else -2.0), hi)
     counts, edges = clipped_histogram(hag, rng)
     ax.stairs(counts, edges, fill=True, color="#829ab1", label="all points")
