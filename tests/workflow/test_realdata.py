@@ -17,6 +17,7 @@ import pytest
 import yaml
 
 from conftest import BACKGROUNDS, REPO, TOWERS
+from towerpipe.towers.shape import VERIFIER_RELEASE
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow, pytest.mark.shared]
 
@@ -78,6 +79,7 @@ def test_towers_found_and_named_with_the_model(corridor):
     meta = pyogrio.read_info(out / "towers.gpkg", layer="towers")["dataset_metadata"]
     choice = json.loads(meta["model_choice"])
     assert choice["mode"] == "auto" and choice["reason"].startswith("auto:")
+    assert meta["model_verifier"] == f"towerpipe-verifier-v{VERIFIER_RELEASE}"  # the shape check's
 
 
 def test_tower_points_outlined(corridor):

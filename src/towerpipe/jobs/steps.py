@@ -121,8 +121,17 @@ def towers_step(
         geometry=gpd.points_from_xy(wires["x"], wires["y"]),
         crs=crs_wkt,
     )
+    from towerpipe.towers.shape import resolve_verifier
+
+    verifier = resolve_verifier(str(towers_cfg.get("verifier", "shipped")))
     meta = run_metadata(
-        model_meta=model_meta, config=run_cfg, zone=zone, block=block, bounds=[float(v) for v in block_bounds]
+        model_meta=model_meta,
+        config=run_cfg,
+        zone=zone,
+        block=block,
+        bounds=[float(v) for v in block_bounds],
+        # the shape check's verifier (rule 8): the zone's file takes it with the model's fields
+        model_verifier=verifier.name if verifier is not None else "none",
     )
     write_towers_gpkg(out_gpkg, gdf, crs_wkt=crs_wkt, metadata=meta, conductors=conductors)
     if out_neighbours is not None:
