@@ -347,6 +347,26 @@ def test_edge_tower_reported_by_the_neighbour_counts_as_found(tmp_path):
     assert not any(f["code"] == "missed_towers" for f in doc["flags"])
 
 
+def test_a_labelled_tower_on_the_seam_counts_in_the_block_of_its_centroid(tmp_path):
+    """From the block's own points, the west half of a labelled tower standing 1.5 m east of
+    the block's edge is a labelled tower of the block (its centroid is inside); from the
+    labelled points of the block's tiles, core and buffer (``truth_points``), the tower is
+    whole and counts in the block east of the edge only: each seam tower counts once."""
+    pts = make_block(towers_at=((X0 + 60, Y0 + 60), (X0 + SIZE + 1.5, Y0 + 100)))
+    labelled = pts["classification"] == classes.TOWER
+    whole = {k: pts[k][labelled] for k in ("x", "y", "z", "hag")}
+    inside = pts["x"] < X0 + SIZE
+    pts = {k: v[inside] for k, v in pts.items()}
+    gdf = towers_of(pts)
+    gdf = gdf[gdf["centroid_x"] < X0 + 100]
+    kw = dict(zone="z1", towers=gdf, classified=pts, truth=pts["classification"].copy())
+    halves = report(tmp_path, "b1", stem="a", **kw)["accuracy"]
+    assert halves["towers_true"] == 2 and halves["recall"] == 0.5
+    acc = report(tmp_path, "b1", stem="b", truth_points=whole, **kw)["accuracy"]
+    assert acc["towers_true"] == 1 and acc["recall"] == 1.0 and acc["precision"] == 1.0
+    assert acc["point_iou"] == halves["point_iou"]  # over the block's own points either way
+
+
 # --------------------------------------------------------------------------- the edge of the data
 def seam_setup():
     """A tower straddling the east edge of block b1 (BOUNDS) and its east neighbour b2."""

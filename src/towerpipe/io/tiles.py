@@ -131,3 +131,30 @@ def load_tile(path: str | os.PathLike[str], columns: list[str] | None = None) ->
     if columns is None:
         tile.validate(path)
     return tile
+
+
+def labelled_points(paths: list[str] | tuple[str, ...], label: int) -> dict[str, np.ndarray]:
+    """The points of tile files whose input class is ``label``, core and buffer, each point once.
+
+    A block's tiles, with the buffers their neighbours lent them, hold whole the labelled
+    objects that cross the block's edges (a tower on the seam of two blocks); a point in
+    several tiles (buffers overlap) is kept once, by its source block and ``point_index``.
+    Only the class column of a tile is read whole; ``x, y, z, hag`` (float64) of the labelled
+    points are returned, in no particular order.
+    """
+    keys, parts = [], []
+    for p in paths:
+        cls = load_tile(p, columns=["classification"]).arrays["classification"]
+        sel = np.flatnonzero(cls == label)
+        if not len(sel):
+            continue
+        t = load_tile(p, columns=["x", "y", "z", "hag", "block_id", "point_index"])
+        names = np.asarray(t.meta["blocks"], dtype=object)
+        keys += list(zip(names[t.arrays["block_id"][sel]].tolist(), t.arrays["point_index"][sel].tolist(), strict=True))
+        parts.append({k: np.asarray(t.arrays[k][sel], np.float64) for k in ("x", "y", "z", "hag")})
+    out = {k: np.concatenate([q[k] for q in parts]) if parts else np.zeros(0) for k in ("x", "y", "z", "hag")}
+    first: dict[tuple[str, int], int] = {}
+    for i, key in enumerate(keys):
+        first.setdefault(key, i)
+    keep = np.fromiter(first.values(), dtype=np.int64, count=len(first))
+    return {k: v[keep] for k, v in out.items()}

@@ -110,6 +110,10 @@ class BlockInputs:
         Input class labels of the points (Classification before it was
         overwritten), same order as ``classified``; towers are class 15. When it
         holds class 15, tower precision/recall and point IoU are reported.
+    truth_points
+        ``x, y, z, hag`` of the labelled tower points of the block's tiles, core and buffer
+        (:func:`towerpipe.io.tiles.labelled_points`): the labelled towers are built from them,
+        whole across the block's edges (default: from the block's labelled points).
     timings
         Stage name → seconds, or → path of a Snakemake benchmark TSV (``s``, ``max_rss``).
     warnings
@@ -139,6 +143,7 @@ class BlockInputs:
     classified: str | os.PathLike[str] | Mapping[str, np.ndarray] | None = None
     raster: str | os.PathLike[str] | None = None
     truth: np.ndarray | None = None
+    truth_points: Mapping[str, np.ndarray] | None = None
     timings: Mapping[str, float | str | os.PathLike[str] | Mapping[str, Any]] | None = None
     warnings: Sequence[str] = ()
     neighbour_towers: Sequence[Mapping[str, Any]] | None = None
@@ -369,6 +374,7 @@ def block_report(
             bounds,
             min_truth_points=int(limits.min_truth_points),
             neighbour_towers=inputs.neighbour_towers,
+            truth_points=inputs.truth_points,
         )
         if accuracy is not None:
             if accuracy["recall"] is not None and accuracy["recall"] < limits.min_recall:

@@ -297,8 +297,17 @@ def label_accuracy(
     *,
     min_truth_points: int,
     neighbour_towers: Sequence[Mapping[str, Any]] | None = None,
+    truth_points: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, Any] | None:
-    """Tower precision/recall and point IoU against the input's class 15 labels (None without any)."""
+    """Tower precision/recall and point IoU against the input's class 15 labels (None without any).
+
+    The point IoU is over the block's points. The labelled towers are built from
+    ``truth_points`` (``x, y, z, hag`` of the labelled points of the block's tiles, core and
+    buffer: :func:`towerpipe.io.tiles.labelled_points`) when given, else from the block's
+    labelled points; those whose centroid lies in ``bounds`` count. From the tiles, a tower on
+    the seam of two blocks is whole, so it counts in the one block that holds its centroid;
+    from the block's points alone each block would count its half.
+    """
     # the tower matching (scipy's graphs and trees) only for a block with labels to check
     from towerpipe.towers.matching import match_towers, towers_from_labels
 
@@ -311,9 +320,15 @@ def label_accuracy(
     p_mask = pts["classification"] == classes.TOWER
     inter = int(np.count_nonzero(p_mask & t_mask))
     union = int(np.count_nonzero(p_mask | t_mask))
-    true_towers = towers_from_labels(
-        pts["x"], pts["y"], pts["z"], pts.get("hag"), t_mask, min_points=int(min_truth_points)
-    )
+    if truth_points is not None:
+        tp = truth_points
+        true_towers = towers_from_labels(
+            tp["x"], tp["y"], tp["z"], tp.get("hag"), np.ones(len(tp["x"]), bool), min_points=int(min_truth_points)
+        )
+    else:
+        true_towers = towers_from_labels(
+            pts["x"], pts["y"], pts["z"], pts.get("hag"), t_mask, min_points=int(min_truth_points)
+        )
     if bounds is not None and len(true_towers):
         c = true_towers.geometry.centroid
         inside = (c.x >= bounds[0]) & (c.x < bounds[2]) & (c.y >= bounds[1]) & (c.y < bounds[3])
