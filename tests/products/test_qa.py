@@ -340,11 +340,15 @@ def test_edge_tower_reported_by_the_neighbour_counts_as_found(tmp_path):
             "blocks": "b1,b2",
         }
     ]
-    doc = report(tmp_path, "b1", stem="b", neighbour_towers=nb, **kw)
+    # the points of the block in each tower (the towers job's tower-points file): the seam
+    # tower's are counted apart, under the id the neighbour reports it with
+    here = {int(gdf["tower_id"].iloc[0]): 300, 40020004600100: 57}
+    doc = report(tmp_path, "b1", stem="b", neighbour_towers=nb, tower_points_here=here, **kw)
     acc = doc["accuracy"]
     assert acc["recall"] == 1.0 and acc["precision"] == 1.0 and acc["fn"] == 0
     assert any(m.get("owner") == "neighbour" for m in acc["matches"])
     assert not any(f["code"] == "missed_towers" for f in doc["flags"])
+    assert doc["stage_counts"]["… of them in towers a neighbouring block reports (40020004600100)"] == 57
 
 
 def test_a_labelled_tower_on_the_seam_counts_in_the_block_of_its_centroid(tmp_path):

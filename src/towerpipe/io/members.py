@@ -8,7 +8,7 @@ writes their tower id (:func:`member_ids`), the block's QA reads them.
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -60,6 +60,29 @@ def member_ids(paths: Sequence[str | os.PathLike[str]], block: str, n_points: in
         Points in the block file.
     """
     out = np.zeros(int(n_points), dtype=np.uint64)
+    for idx, ids in _block_members(paths, block, n_points):
+        out[idx] = ids
+    return out
+
+
+def member_counts(paths: Sequence[str | os.PathLike[str]], block: str, n_points: int) -> dict[int, int]:
+    """Points of ``block`` in each reported tower (``tower_id`` → points), as :func:`member_ids`
+    labels them, without an array of the block's size."""
+    parts = list(_block_members(paths, block, n_points))
+    if not parts:
+        return {}
+    idx = np.concatenate([i for i, _ in parts])
+    ids = np.concatenate([t for _, t in parts])
+    # a point listed again (a later file) takes the later tower, as in member_ids
+    last = len(idx) - 1 - np.unique(idx[::-1], return_index=True)[1]
+    tid, n = np.unique(ids[last], return_counts=True)
+    return {int(t): int(c) for t, c in zip(tid, n, strict=True)}
+
+
+def _block_members(
+    paths: Sequence[str | os.PathLike[str]], block: str, n_points: int
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """``(point_index, tower_id)`` of the points of ``block`` in each tower-points file, checked."""
     for p in paths:
         arrays, meta = load_columns(p, list(MEMBER_ARRAYS), "tower-points", "rerun the towers_block job")
         validate_columns(arrays, MEMBER_ARRAYS, p, "tower-points", "rerun the towers_block job")
@@ -82,8 +105,7 @@ def member_ids(paths: Sequence[str | os.PathLike[str]], block: str, n_points: in
             )
         if len(tower) and (tower.min() < 0 or tower.max() >= len(ids)):
             raise InputError(p, "tower index outside meta['towers']: rerun the towers_block job")
-        out[idx] = ids[tower]
-    return out
+        yield idx, ids[tower]
 
 
 def member_mask(paths: Sequence[str | os.PathLike[str]], block: str, n_points: int) -> np.ndarray:

@@ -284,6 +284,7 @@ def qa_step(
     edge of the data: a tower reaching it may be cut. Only the neighbours that gave
     points to the block's tiles count (a neighbour that failed did not).
     """
+    from towerpipe.io.members import member_counts
     from towerpipe.io.tiles import labelled_points
     from towerpipe.preprocess.ground import mosaic_dtm
     from towerpipe.preprocess.tile import summarize_block
@@ -332,6 +333,7 @@ def qa_step(
                 truth=truth,
                 # the labelled towers whole across the block's edges: a seam tower counts once
                 truth_points=labelled_points(list(tile_files), classes.TOWER) if truth is not None else None,
+                tower_points_here=member_counts(member_files, block, len(cls)) if member_files else None,
                 timings=timings,
                 warnings=summary.get("warnings", []),
                 neighbour_towers=_json(neighbours_json)["towers_owned_by_neighbours"] if neighbours_json else None,

@@ -114,6 +114,10 @@ class BlockInputs:
         ``x, y, z, hag`` of the labelled tower points of the block's tiles, core and buffer
         (:func:`towerpipe.io.tiles.labelled_points`): the labelled towers are built from them,
         whole across the block's edges (default: from the block's labelled points).
+    tower_points_here
+        ``tower_id`` → points of this block classified 15 as that tower's, for every tower with
+        points here, the neighbours' too (:func:`towerpipe.io.members.member_counts`): the class-15
+        points of towers a neighbour owns are counted apart.
     timings
         Stage name → seconds, or → path of a Snakemake benchmark TSV (``s``, ``max_rss``).
     warnings
@@ -144,6 +148,7 @@ class BlockInputs:
     raster: str | os.PathLike[str] | None = None
     truth: np.ndarray | None = None
     truth_points: Mapping[str, np.ndarray] | None = None
+    tower_points_here: Mapping[int, int] | None = None
     timings: Mapping[str, float | str | os.PathLike[str] | Mapping[str, Any]] | None = None
     warnings: Sequence[str] = ()
     neighbour_towers: Sequence[Mapping[str, Any]] | None = None
@@ -256,6 +261,12 @@ def block_report(
             ("output: ground (class 2)", n_ground),
             ("output: tower (class 15)", n_tower_pts),
         ]
+        here = inputs.tower_points_here or {}
+        own = {int(t) for t in gdf["tower_id"]} if len(gdf) else set()
+        lent = {t: n for t, n in sorted(here.items()) if t not in own}
+        if lent:  # a tower across the seam: its points here carry the id the neighbour reports it under
+            ids = ", ".join(str(t) for t in list(lent)[:5]) + (", …" if len(lent) > 5 else "")
+            stage_counts.append((f"… of them in towers a neighbouring block reports ({ids})", sum(lent.values())))
     stage_counts.append(("towers", int(len(gdf))))
 
     # ---- figures and density
