@@ -85,6 +85,7 @@ def towers_step(
     from towerpipe.products.registry_file import read_registry
     from towerpipe.towers.coverage import TileContext
     from towerpipe.towers.extract import extract_towers
+    from towerpipe.towers.shape import resolve_verifier
 
     if cache_dir is not None:
         BlockCache.open(cache_dir)
@@ -121,8 +122,6 @@ def towers_step(
         geometry=gpd.points_from_xy(wires["x"], wires["y"]),
         crs=crs_wkt,
     )
-    from towerpipe.towers.shape import resolve_verifier
-
     verifier = resolve_verifier(str(towers_cfg.get("verifier", "shipped")))
     meta = run_metadata(
         model_meta=model_meta,

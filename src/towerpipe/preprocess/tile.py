@@ -112,12 +112,12 @@ def _tile_selection(
     """Ascending indices of a cache's points in the tile with its buffer, and which are core.
 
     Core: the block's own points by grid index (robust to points beyond the header bounds).
-    Read ``chunk`` points at a time, each through a mapping released after it.
+    Read ``chunk`` points at a time (:class:`~towerpipe.io.blockcache.ColumnReader`).
     """
-    n = len(cache.column("x"))
+    xs, ys = cache.reader("x"), cache.reader("y")
     sels, cores = [], []
-    for a in range(0, n, chunk):
-        x, y = (np.array(cache.column(c)[a : a + chunk]) for c in ("x", "y"))
+    for a in range(0, len(xs), chunk):
+        x, y = xs[a : a + chunk], ys[a : a + chunk]
         inside = tiling.box_mask(x, y, box)
         if own:
             is_core = grid.core_mask(x, y, tile)
@@ -130,16 +130,6 @@ def _tile_selection(
     if not sels:
         return np.zeros(0, np.int64), np.zeros(0, bool)
     return np.concatenate(sels).astype(np.int64, copy=False), np.concatenate(cores)
-
-
-def _read_rows(cache: BlockCache, col: str, sel: np.ndarray, out: np.ndarray, chunk: int) -> None:
-    """``out[:] = cache[col][sel]`` for ascending ``sel``, ``chunk`` points of the column at a time."""
-    if sel.size == 0:
-        return
-    for a in range(int(sel[0]) - int(sel[0]) % chunk, int(sel[-1]) + 1, chunk):
-        lo, hi = np.searchsorted(sel, (a, a + chunk))
-        if hi > lo:
-            out[lo:hi] = cache.column(col)[a : a + chunk][sel[lo:hi] - a]
 
 
 def gather_tile(
@@ -186,7 +176,9 @@ def gather_tile(
             at += sel.size
             c = caches[name]
             for col in BLOCK_COLUMNS:
-                _read_rows(c, col, sel, arrays[col][part], chunk)
+                rows = c.reader(col)
+                for lo in range(0, sel.size, chunk):
+                    arrays[col][part][lo : lo + chunk] = rows[sel[lo : lo + chunk]]
             arrays["block_id"][part] = bid
             arrays["point_index"][part] = sel
             arrays["core"][part] = is_core
