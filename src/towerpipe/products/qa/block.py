@@ -262,8 +262,8 @@ def block_report(
             ("output: tower (class 15)", n_tower_pts),
         ]
         here = inputs.tower_points_here or {}
-        own = {int(t) for t in gdf["tower_id"]} if len(gdf) else set()
-        lent = {t: n for t, n in sorted(here.items()) if t not in own}
+        own = {str(t) for t in gdf["tower_id"]} if len(gdf) else set()  # as text: a caller may give text ids
+        lent = {t: n for t, n in sorted(here.items()) if str(t) not in own}
         if lent:  # a tower across the seam: its points here carry the id the neighbour reports it under
             ids = ", ".join(str(t) for t in list(lent)[:5]) + (", …" if len(lent) > 5 else "")
             stage_counts.append((f"… of them in towers a neighbouring block reports ({ids})", sum(lent.values())))
