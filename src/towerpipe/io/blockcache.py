@@ -151,7 +151,6 @@ class BlockCache:
     def __init__(self, directory: str | os.PathLike[str], meta: dict[str, Any] | None = None):
         self.directory = Path(directory)
         self._meta = meta
-        self._cols: dict[str, np.ndarray] = {}
 
     @classmethod
     def open(cls, directory: str | os.PathLike[str], *, allow_failed: bool = False) -> BlockCache:
@@ -223,9 +222,3 @@ class BlockCache:
     def reader(self, name: str) -> ColumnReader:
         """Column ``name`` read a piece at a time (:class:`ColumnReader`)."""
         return ColumnReader(self.column_path(name))
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        """Column ``name``, memory-mapped once and kept."""
-        if name not in self._cols:
-            self._cols[name] = self.column(name)
-        return self._cols[name]
