@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 import re
 import shutil
 import subprocess
 import time
 from typing import Any
+
+import numpy as np
 
 from towerpipe.errors import PdalError
 
@@ -81,3 +84,58 @@ def run_pipeline(stages: list[dict[str, Any]], *, what: str = "pipeline", timeou
         tail = " | ".join(proc.stderr.strip().splitlines()[-3:])
         raise PdalError(f"{what}: PDAL pipeline failed (exit {proc.returncode}): {tail}")
     return time.perf_counter() - t0
+
+
+#: The PLY property types ``writers.ply`` writes, as numpy little-endian dtypes.
+_PLY_TYPES = {
+    "float32": "<f4",
+    "float64": "<f8",
+    "float": "<f4",
+    "double": "<f8",
+    "int32": "<i4",
+    "uint32": "<u4",
+    "int16": "<i2",
+    "uint16": "<u2",
+    "int8": "<i1",
+    "uint8": "<u1",
+}
+
+
+def read_ply_column(path: str | os.PathLike[str], name: str) -> np.ndarray:
+    """One dimension of the points of a binary little-endian PLY that PDAL's ``writers.ply`` wrote.
+
+    A pipeline that returns a dimension or two (``"dims": "HeightAboveGround=float32"``) writes
+    them as a PLY much faster than as a LAS, which also packs x, y and z. The file must hold one
+    element, ``vertex``, whose properties are scalars; ``name`` is matched without case (PDAL
+    writes the dimension's name in lower case).
+
+    Raises
+    ------
+    PdalError
+        When the file is not such a PLY or has no property ``name``.
+    """
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    end = head.find(b"end_header\n")
+    lines = head[:end].decode("ascii", "replace").splitlines() if end >= 0 else []
+    if len(lines) < 3 or lines[0] != "ply" or lines[1] != "format binary_little_endian 1.0":
+        raise PdalError(f"{path}: not a binary little-endian PLY written by PDAL's writers.ply")
+    count, fields = None, []
+    for line in lines[2:]:
+        words = line.split()
+        if words[:2] == ["element", "vertex"] and len(words) == 3 and count is None:
+            count = int(words[2])
+        elif words[:1] == ["element"]:
+            raise PdalError(f"{path}: a PLY element other than one 'vertex' ({line!r})")
+        elif words[:1] == ["property"]:
+            if count is None or len(words) != 3 or words[1] not in _PLY_TYPES:
+                raise PdalError(f"{path}: PLY property {line!r} is not a scalar of a known type")
+            fields.append((words[2].lower(), _PLY_TYPES[words[1]]))
+    names = [n for n, _ in fields]
+    if count is None or name.lower() not in names:
+        raise PdalError(f"{path}: no PLY property {name!r} (has {names}); add it to the writer's 'dims'")
+    rec = np.dtype(fields)
+    body = np.fromfile(path, dtype=rec, count=count, offset=end + len(b"end_header\n"))
+    if len(body) != count:
+        raise PdalError(f"{path}: {len(body)} points where the header says {count} (a truncated file)")
+    return np.ascontiguousarray(body[name.lower()])
