@@ -7,9 +7,10 @@
 #   scripts/slurm_local.sh stop     stop the daemons this script started
 #   scripts/slurm_local.sh conf     only write /etc/slurm/slurm.conf (scripts/install_slurm.sh)
 #
-# MessageTimeout is 2 s (SLURM's default: 10 s): the SLURM executor plugin runs `scontrol show
+# MessageTimeout is 1 s (SLURM's default: 10 s): the SLURM executor plugin runs `scontrol show
 # config` whenever Snakemake starts, whatever the executor, and while no controller runs that
-# call waits out the timeout (9 s a Snakemake start with the default, 1 s with this one).
+# call retries for a second less than the timeout (9 s a Snakemake start with the default, 1 s
+# with 2 s, none with 1 s; messages on one machine take milliseconds).
 #
 # Exit status 3 with a one-line reason on stderr when SLURM cannot start here.
 set -euo pipefail
@@ -45,7 +46,7 @@ SchedulerType=sched/backfill
 SelectType=select/cons_tres
 SelectTypeParameters=CR_Core_Memory
 ReturnToService=2
-MessageTimeout=2
+MessageTimeout=1
 MinJobAge=600
 NodeName=$host CPUs=$cpus RealMemory=$mem State=UNKNOWN
 PartitionName=cpu Nodes=$host Default=YES MaxTime=INFINITE State=UP
