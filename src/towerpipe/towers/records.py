@@ -56,15 +56,17 @@ TOWER_FIELDS: dict[str, Field] = {
         "float64",
         "Shape score",
         "How much the object under the footprint looks like a tower and not a tree, roof or crane "
-        "(0-1, towerpipe.towers.shape; towers below towers.min_shape_score are not reported); "
-        "NULL without the shape check",
+        "(0-1, towerpipe.towers.shape); a tower below towers.min_shape_score is reported only "
+        "when rule 12 (towers.vouch_height) or rule 13 (towers.tall_shape_score) keeps it, both off "
+        "by default; NULL without the shape check",
         3,
     ),
     "wire_support": Field(
         "float64",
         "Conductor support (0-1)",
         "Share (0-1) of the 80-160 m ring around the base reached by a conductor pointing at "
-        "it; NULL when unknown (no data around)",
+        "it; NULL when unknown: no data around, or a line through the tower could leave the "
+        "surveyed area unseen (towers.wire_line_coverage)",
         3,
     ),
     "line_id": Field(

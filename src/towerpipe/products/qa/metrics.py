@@ -47,8 +47,9 @@ class Limits:
     min_precision: float
     #: Labelled clusters with fewer points are not towers (``towers.min_points``).
     min_truth_points: int
-    #: Shape score of a tower below this: flagged (``towers.min_shape_score``); only a tower its
-    #: conductors vouched for (rule 12, ``towers.vouch_height``) is reported with such a score.
+    #: Shape score of a tower below this: flagged (``towers.min_shape_score``); only rule 12 (the
+    #: conductors' vouch, ``towers.vouch_height``) or rule 13 (tall clusters,
+    #: ``towers.tall_shape_score``) report a tower with such a score.
     min_shape_score: float
 
     #: The limits that are tower rules: field → key of the config's ``towers`` section.
