@@ -1,6 +1,7 @@
 # towerpipe — the two commands of the README:
 #   make demo    set everything up (idempotent) and run the demo zone
-#   make test    set everything up (idempotent), run the linters (make lint) and the test suite
+#   make test    set everything up (idempotent) with a single-node SLURM, run the linters (make lint)
+#                and the test suite
 SHELL := /bin/bash
 PYTHON ?= python3
 VENV ?= .venv
@@ -14,7 +15,7 @@ setup: pdal chromium gdal36 $(VENV)/.installed
 pdal:
 	@bash scripts/install_pdal.sh
 
-# A single-node SLURM for the cluster test (tests/test_slurm.py starts it with scripts/slurm_local.sh).
+# A single-node SLURM for the cluster test (tests/workflow/test_slurm.py starts it with scripts/slurm_local.sh).
 slurm:
 	@bash scripts/install_slurm.sh
 

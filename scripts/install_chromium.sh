@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Install headless Chromium (the QA pages' browser test, tests/test_qa_browser.py, and the
+# Install headless Chromium (the QA pages' browser test, tests/products/test_qa_browser.py, and the
 # screenshots of docs/img), idempotently.
 #
 # * `chromium` (or TOWERPIPE_CHROMIUM) already runs -> nothing to do.

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Install a single-machine SLURM (Debian 12 slurm-wlm + munge) for the cluster test
-# (tests/test_slurm.py): `make test` runs this, then scripts/slurm_local.sh starts it.
+# (tests/workflow/test_slurm.py): `make test` runs this, then scripts/slurm_local.sh starts it.
 # Idempotent; needs root (or sudo) and Debian's apt. Elsewhere it says why and exits 0:
 # the SLURM test then skips with that reason. Where no /etc/slurm/slurm.conf exists it writes
 # the single-node one (scripts/slurm_local.sh conf): without one, `scontrol` retries for a
