@@ -545,3 +545,30 @@ def test_fill_nearest_fills_holes_and_leaves_a_full_grid_alone():
     assert np.isfinite(filled).all()
     assert filled[0, 0] in (1.0, 4.0) and filled[2, 3] in (7.0, 10.0)  # a nearest neighbour's value
     np.testing.assert_array_equal(fill_nearest(np.full((2, 2), np.nan)), np.zeros((2, 2)))
+
+
+def test_tower_numbers_on_the_block_map_stay_inside_its_axes(monkeypatch):
+    # a tower near the block's top or right edge had its number drawn over the figure's title
+    import geopandas as gpd
+    import shapely
+
+    from towerpipe.products.qa import plots
+
+    figs = []
+    monkeypatch.setattr(plots, "png", lambda fig, dpi=100: figs.append(fig) or "")
+    bounds = (400_000.0, 4_600_000.0, 400_250.0, 4_600_250.0)
+    at = [(400_010.0, 4_600_248.0), (400_248.0, 4_600_248.0), (400_248.0, 4_600_005.0), (400_125.0, 4_600_125.0)]
+    towers = gpd.GeoDataFrame(
+        {"centroid_x": [x for x, _ in at], "centroid_y": [y for _, y in at]},
+        geometry=[shapely.box(x - 2, y - 2, x + 2, y + 2) for x, y in at],
+    )
+    plots.block_map(towers, bounds, None, None, 1.0, "the block's DTM")
+    fig = figs[0]
+    fig.canvas.draw()
+    ax = fig.axes[0]
+    inside = ax.get_window_extent()
+    labels = [t for t in ax.texts if t.get_text() in {"1", "2", "3", "4"}]
+    assert len(labels) == 4
+    for t in labels:
+        box = t.get_window_extent()
+        assert inside.x0 <= box.x0 and box.x1 <= inside.x1 and inside.y0 <= box.y0 and box.y1 <= inside.y1, t.get_text()

@@ -125,6 +125,15 @@ def hillshade(grid: np.ndarray, cell: float) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- block figures
+def _near_far_edges(cx: float, cy: float, bounds: Sequence[float] | None, share: float = 0.1) -> tuple[bool, bool]:
+    """Whether a point lies within ``share`` of the extent from the right and from the top edge of ``bounds``."""
+    if bounds is None:
+        return False, False
+    xmin, ymin, xmax, ymax = bounds
+    span = max(xmax - xmin, ymax - ymin, 1.0)
+    return bool(cx > xmax - share * span), bool(cy > ymax - share * span)
+
+
 def block_map(
     towers: Any,
     bounds: Sequence[float] | None,
@@ -146,10 +155,15 @@ def block_map(
         xs, ys = geom.exterior.xy
         ax.fill(xs, ys, facecolor=TOWER_RED, alpha=0.35, edgecolor=TOWER_DARK, lw=1.5)
         ax.plot(cx, cy, marker="^", color=TOWER_DARK, ms=9, mec="white", mew=1)
+        right, top = _near_far_edges(cx, cy, bounds)
         ax.annotate(
             str(i),
             (cx, cy),
-            xytext=(6, 6),
+            # up and to the right of the tower, or toward the block's inside near its top and right
+            # edges: a label beyond the axes lay over the figure's title
+            xytext=(-6 if right else 6, -6 if top else 6),
+            ha="right" if right else "left",
+            va="top" if top else "bottom",
             textcoords="offset points",
             fontsize=11,
             weight="bold",
