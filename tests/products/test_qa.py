@@ -374,6 +374,26 @@ def test_a_labelled_tower_on_the_seam_counts_in_the_block_of_its_centroid(tmp_pa
     assert acc["point_iou"] == halves["point_iou"]  # over the block's own points either way
 
 
+def test_a_tower_reported_here_and_labelled_across_the_seam_is_not_false(tmp_path):
+    """A tower on the seam: the centroid of its reported footprint 0.3 m west of the edge (this
+    block reports it), that of its labelled points 0.3 m east (the neighbour counts it in its
+    recall). It is found here, not a false tower."""
+    pts = make_block(towers_at=((X0 + SIZE - 0.3, Y0 + 100),))
+    gdf = towers_of(pts)
+    assert len(gdf) == 1 and gdf["centroid_x"].iloc[0] < X0 + SIZE
+    labelled = pts["classification"] == classes.TOWER
+    # the labelled points whole (core and buffer), their centroid east of the seam
+    whole = {k: pts[k][labelled] + (0.6 if k == "x" else 0.0) for k in ("x", "y", "z", "hag")}
+    assert whole["x"].mean() > X0 + SIZE
+    inside = pts["x"] < X0 + SIZE
+    pts = {k: v[inside] for k, v in pts.items()}
+    doc = report(tmp_path, "b1", towers=gdf, classified=pts, truth=pts["classification"].copy(), truth_points=whole)
+    acc = doc["accuracy"]
+    assert acc["towers_true"] == 0 and acc["fp"] == 0 and acc["precision"] == 1.0
+    assert [x["owner"] for x in acc["matches"]] == ["labelled across the seam"]
+    assert "false_towers" not in {f["code"] for f in doc["flags"]}
+
+
 # --------------------------------------------------------------------------- the edge of the data
 def seam_setup():
     """A tower straddling the east edge of block b1 (BOUNDS) and its east neighbour b2."""

@@ -290,6 +290,29 @@ def with_neighbour_towers(
     return m
 
 
+def with_towers_across_the_seam(m: dict[str, Any], towers: Any, across: Any) -> dict[str, Any]:
+    """Precision counting as found a tower this block reports whose labelled tower has its centroid
+    in a neighbouring block (``across``): the two centroids may lie on either side of the seam, and
+    that labelled tower counts in the neighbour's recall (as found there, by this block's tower)."""
+    from towerpipe.towers.matching import f1_score, match_towers
+
+    left = set(m["unmatched_pred"])
+    extra = [x for x in match_towers(towers, across, max_dist=5.0)["matches"] if x["pred"] in left]
+    if not extra:
+        return m
+    fp = m["fp"] - len(extra)
+    found = {x["pred"] for x in extra}
+    m = dict(
+        m,
+        fp=fp,
+        precision=(len(towers) - fp) / len(towers),
+        matches=[*m["matches"], *({**x, "owner": "labelled across the seam"} for x in extra)],
+        unmatched_pred=[t for t in m["unmatched_pred"] if t not in found],
+    )
+    m["f1"] = f1_score(m["precision"], m["recall"])
+    return m
+
+
 def label_accuracy(
     pts: Mapping[str, np.ndarray],
     truth: np.ndarray,
@@ -307,7 +330,10 @@ def label_accuracy(
     buffer: :func:`towerpipe.io.tiles.labelled_points`) when given, else from the block's
     labelled points; those whose centroid lies in ``bounds`` count. From the tiles, a tower on
     the seam of two blocks is whole, so it counts in the one block that holds its centroid;
-    from the block's points alone each block would count its half.
+    from the block's points alone each block would count its half. A tower this block reports
+    (its footprint's centroid in ``bounds``) that matches a labelled tower whose centroid lies
+    across the seam is not false (:func:`with_towers_across_the_seam`); the neighbour counts that
+    labelled tower as found (``neighbour_towers``).
     """
     # the tower matching (scipy's graphs and trees) only for a block with labels to check
     from towerpipe.towers.matching import match_towers, towers_from_labels
@@ -330,13 +356,16 @@ def label_accuracy(
         true_towers = towers_from_labels(
             pts["x"], pts["y"], pts["z"], pts.get("hag"), t_mask, min_points=int(min_truth_points)
         )
+    across = true_towers.iloc[:0]
     if bounds is not None and len(true_towers):
         c = true_towers.geometry.centroid
-        inside = (c.x >= bounds[0]) & (c.x < bounds[2]) & (c.y >= bounds[1]) & (c.y < bounds[3])
-        true_towers = true_towers[inside.to_numpy()]
+        inside = ((c.x >= bounds[0]) & (c.x < bounds[2]) & (c.y >= bounds[1]) & (c.y < bounds[3])).to_numpy()
+        true_towers, across = true_towers[inside], true_towers[~inside]
     m = match_towers(towers, true_towers, max_dist=5.0)
     if neighbour_towers and len(true_towers):
         m = with_neighbour_towers(m, true_towers, neighbour_towers)
+    if m["unmatched_pred"] and len(across):
+        m = with_towers_across_the_seam(m, towers, across)
     return {
         "point_iou": inter / union if union else None,
         "points_true": int(t_mask.sum()),
