@@ -7,8 +7,15 @@ import numpy as np
 import pytest
 import rasterio
 
+from towerpipe import classes
 from towerpipe.errors import PdalError
-from towerpipe.preprocess.ground import _write_xyz_las, height_above_ground, write_raster
+from towerpipe.preprocess.ground import (
+    _write_xyz_las,
+    classify_ground,
+    height_above_ground,
+    statistical_outliers,
+    write_raster,
+)
 from towerpipe.preprocess.pdal import read_ply_column, run_pipeline
 
 
@@ -44,6 +51,72 @@ def test_a_file_that_is_not_pdals_ply_names_itself_and_what_is_wrong(tmp_path):
     faces.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 0\nelement face 0\nend_header\n")
     with pytest.raises(PdalError, match="other than one 'vertex'"):
         read_ply_column(faces, "x")
+
+
+def test_headers_long_or_odd_are_read_and_bad_counts_named(tmp_path):
+    vals = np.arange(3, dtype="<f4")
+    # a long header (comments), CRLF line ends, a property whose name ends like the header's end
+    head = ["ply", "format binary_little_endian 1.0"] + [f"comment {'x' * 70} {i}" for i in range(80)]
+    head += ["element vertex 3", "property float legend_header", "property float32 h", "end_header"]
+    rec = np.zeros(3, dtype=[("legend_header", "<f4"), ("h", "<f4")])
+    rec["h"] = vals
+    long = tmp_path / "long.ply"
+    long.write_bytes(("\r\n".join(head) + "\r\n").encode() + rec.tobytes())
+    np.testing.assert_array_equal(read_ply_column(long, "h"), vals)
+    empty = _ply(tmp_path / "e.ply", 0, [("float32", "h")], b"")
+    assert read_ply_column(empty, "h").shape == (0,)
+    for count, props, what in (
+        ("-1", [("float32", "h")], "has no count of points"),
+        ("many", [("float32", "h")], "has no count of points"),
+        ("1", [("float32", "h"), ("uint8", "H")], "PLY property 'H' twice"),
+    ):
+        bad = tmp_path / "bad.ply"
+        lines = ["ply", "format binary_little_endian 1.0", f"element vertex {count}"]
+        bad.write_bytes(("\n".join(lines + [f"property {t} {n}" for t, n in props] + ["end_header"]) + "\n").encode())
+        with pytest.raises(PdalError, match=what):
+            read_ply_column(bad, "h")
+    with pytest.raises(PdalError, match="no end of its header"):
+        cut = tmp_path / "cut.ply"
+        cut.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float h\n")
+        read_ply_column(cut, "h")
+
+
+@pytest.mark.usefixtures("pdal_cli")
+def test_ground_and_outliers_through_the_ply_are_those_of_a_las(tmp_path):
+    rng = np.random.default_rng(5)
+    n = 30_000
+    x, y = 500_000.0 + rng.uniform(0, 60, n), 4_600_000.0 + rng.uniform(0, 60, n)
+    z = 200.0 + 0.02 * (x - 500_000.0) + np.where(rng.random(n) < 0.6, rng.normal(0, 0.05, n), rng.uniform(0, 20, n))
+    z[:30] += 80.0  # points in the air for the outlier filter
+    origin = (500_000.0, 4_600_000.0, 200.0)
+    ground = classify_ground(x, y, z, tmp_path, method="smrf")
+    outliers = statistical_outliers(x, y, z, tmp_path, mean_k=8, multiplier=2.0)
+    ref = {}
+    for key, stages in (
+        (
+            "ground",
+            [
+                {"type": "filters.assign", "assignment": "Classification[:]=0"},
+                {"type": "filters.elm"},
+                {"type": "filters.smrf", "ignore": "Classification[7:7]"},
+            ],
+        ),
+        (
+            "outliers",
+            [
+                {"type": "filters.assign", "assignment": "Classification[:]=0"},
+                {"type": "filters.outlier", "method": "statistical", "mean_k": 8, "multiplier": 2.0},
+            ],
+        ),
+    ):
+        src, dst = tmp_path / f"{key}_ref.las", tmp_path / f"{key}_out.las"
+        _write_xyz_las(src, x, y, z, origin)
+        out = {"type": "writers.las", "filename": str(dst), "minor_version": 2, "dataformat_id": 0}
+        run_pipeline([{"type": "readers.las", "filename": str(src)}, *stages, out])
+        ref[key] = np.asarray(laspy.read(dst).classification)
+    assert 0 < ground.sum() < n and outliers.sum() > 0
+    np.testing.assert_array_equal(ground, ref["ground"] == classes.GROUND)
+    np.testing.assert_array_equal(outliers, ref["outliers"] == classes.LOW_NOISE)
 
 
 @pytest.mark.usefixtures("pdal_cli")

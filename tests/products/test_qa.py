@@ -8,13 +8,15 @@ import re
 import numpy as np
 import pytest
 import rasterio
+import shapely
+import shapely.affinity
 from affine import Affine
 
 from conftest import extract, qa_limits
 from towerpipe import classes
 from towerpipe.products.qa.block import BlockInputs, block_report
 from towerpipe.products.qa.index import zone_index
-from towerpipe.products.qa.metrics import load_classified, read_benchmark
+from towerpipe.products.qa.metrics import label_accuracy, load_classified, read_benchmark
 
 X0, Y0 = 400_000.0, 4_600_000.0
 SIZE = 200.0
@@ -183,7 +185,7 @@ def test_block_flags(tmp_path):
     assert "from the edge of the data" in reasons and "low mean probability" in reasons
     assert "no conductors found (support 0.25)" in reasons
     assert (
-        "shaped like a tree (shape score 0.31, under 0.95), kept by rule 12 or 13 with conductor support 0.25"
+        "shaped like a tree (shape score 0.310, under 0.95), kept by rule 12 or 13 with conductor support 0.25"
         in reasons
     )
     assert doc["towers"][0]["flags"] and "1 needs a look" in doc["summary"]
@@ -196,6 +198,13 @@ def test_tower_whose_lines_may_leave_the_data_is_flagged(tmp_path):
     doc = report(tmp_path, "b", towers=gdf, classified=pts)
     tall = [t for t in doc["towers"] if t["height_m"] >= 20]
     assert tall and all(any("leave the data unseen" in f for f in t["flags"]) for t in tall)
+    # rule 13 keeps such a tall cluster under the shape threshold: not "by its conductors"
+    gdf["shape_score"] = 0.9496
+    doc = report(tmp_path, "b", stem="r13", towers=gdf, classified=pts)
+    flags = [f for t in doc["towers"] if t["height_m"] >= 20 for f in t["flags"]]
+    assert any(
+        "(shape score 0.949, under 0.95), kept by rule 12 or 13 with its conductor support unknown" in f for f in flags
+    )
 
 
 def test_clean_block_is_ok_and_uses_raster(tmp_path):
@@ -374,24 +383,53 @@ def test_a_labelled_tower_on_the_seam_counts_in_the_block_of_its_centroid(tmp_pa
     assert acc["point_iou"] == halves["point_iou"]  # over the block's own points either way
 
 
-def test_a_tower_reported_here_and_labelled_across_the_seam_is_not_false(tmp_path):
-    """A tower on the seam: the centroid of its reported footprint 0.3 m west of the edge (this
-    block reports it), that of its labelled points 0.3 m east (the neighbour counts it in its
-    recall). It is found here, not a false tower."""
+def seam_labels():
+    """A tower on b1's east edge: the centroid of its reported footprint 0.3 m west of the edge
+    (b1 reports it), that of its labelled points, core and buffer, 0.3 m east (b1's points, its
+    labelled towers whole, the tower)."""
     pts = make_block(towers_at=((X0 + SIZE - 0.3, Y0 + 100),))
     gdf = towers_of(pts)
-    assert len(gdf) == 1 and gdf["centroid_x"].iloc[0] < X0 + SIZE
+    assert len(gdf) == 1 and gdf["centroid_x"].iloc[0] < X0 + SIZE < gdf.geometry.iloc[0].bounds[2]
     labelled = pts["classification"] == classes.TOWER
-    # the labelled points whole (core and buffer), their centroid east of the seam
     whole = {k: pts[k][labelled] + (0.6 if k == "x" else 0.0) for k in ("x", "y", "z", "hag")}
     assert whole["x"].mean() > X0 + SIZE
     inside = pts["x"] < X0 + SIZE
-    pts = {k: v[inside] for k, v in pts.items()}
+    return {k: v[inside] for k, v in pts.items()}, whole, gdf
+
+
+def test_a_tower_reported_here_and_labelled_across_the_seam_is_not_false(tmp_path):
+    # found here (precision), counted in the neighbour's recall, which lists it as a tower of b1's
+    # with points in the neighbour
+    pts, whole, gdf = seam_labels()
     doc = report(tmp_path, "b1", towers=gdf, classified=pts, truth=pts["classification"].copy(), truth_points=whole)
     acc = doc["accuracy"]
-    assert acc["towers_true"] == 0 and acc["fp"] == 0 and acc["precision"] == 1.0
+    assert acc["towers_true"] == 0 and (acc["tp"], acc["fp"], acc["precision"]) == (1, 0, 1.0)
     assert [x["owner"] for x in acc["matches"]] == ["labelled across the seam"]
     assert "false_towers" not in {f["code"] for f in doc["flags"]}
+    # the neighbour's side: the labelled tower is its own, and b1's tower finds it
+    east = (X0 + SIZE, Y0, X0 + 2 * SIZE, Y0 + SIZE)
+    nb = [{"tower_id": str(gdf["tower_id"].iloc[0]), "footprint_wkt": gdf.geometry.iloc[0].wkt, "blocks": "b1,b2"}]
+    m = label_accuracy(
+        pts, pts["classification"], gdf.iloc[:0], east, min_truth_points=20, neighbour_towers=nb, truth_points=whole
+    )
+    assert (m["towers_true"], m["tp"], m["fn"], m["recall"]) == (1, 0, 0, 1.0)
+
+
+def test_a_tower_across_the_seam_is_found_once(tmp_path):
+    pts, whole, gdf = seam_labels()
+    kw = dict(classified=pts, truth=pts["classification"].copy(), truth_points=whole)
+    # the labelled tower split in two: the part the neighbour reports lies on it, b1's part 0.6 m
+    # away; the labelled tower is the neighbour's part's, and b1's stays false
+    part = shapely.affinity.translate(gdf.geometry.iloc[0], xoff=0.6)
+    nb = [{"tower_id": "b2part", "footprint_wkt": part.wkt, "blocks": "b1,b2"}]
+    acc = report(tmp_path, "b1", stem="split", towers=gdf, neighbour_towers=nb, **kw)["accuracy"]
+    assert (acc["tp"], acc["fp"], acc["precision"]) == (0, 1, 0.0)
+    # a tower wholly in b1 near a labelled tower across the seam: the neighbour does not list it, so
+    # b1 does not count it as found either
+    small = gdf.copy()
+    small["geometry"] = [shapely.box(X0 + SIZE - 2.5, Y0 + 99.5, X0 + SIZE - 1.5, Y0 + 100.5)]
+    acc = report(tmp_path, "b1", stem="inside", towers=small, **kw)["accuracy"]
+    assert (acc["tp"], acc["fp"]) == (0, 1)
 
 
 # --------------------------------------------------------------------------- the edge of the data

@@ -1,7 +1,8 @@
 """Running PDAL through its command-line tool with JSON pipelines.
 
 PDAL has no Python wheel on the target machines, so the CLI is the interface:
-``pdal pipeline --stdin`` with the pipeline JSON on standard input.
+``pdal pipeline --stdin`` with the pipeline JSON on standard input. A pipeline hands its
+result back as a file: a dimension or two as a binary PLY, read by :func:`read_ply_column`.
 """
 
 from __future__ import annotations
@@ -86,56 +87,88 @@ def run_pipeline(stages: list[dict[str, Any]], *, what: str = "pipeline", timeou
     return time.perf_counter() - t0
 
 
-#: The PLY property types ``writers.ply`` writes, as numpy little-endian dtypes.
+#: PLY's scalar property types (the standard names and the sized ones, which PDAL's
+#: ``writers.ply`` writes), as numpy little-endian dtypes.
 _PLY_TYPES = {
-    "float32": "<f4",
-    "float64": "<f8",
-    "float": "<f4",
-    "double": "<f8",
-    "int32": "<i4",
-    "uint32": "<u4",
-    "int16": "<i2",
-    "uint16": "<u2",
+    "char": "<i1",
     "int8": "<i1",
+    "uchar": "<u1",
     "uint8": "<u1",
+    "short": "<i2",
+    "int16": "<i2",
+    "ushort": "<u2",
+    "uint16": "<u2",
+    "int": "<i4",
+    "int32": "<i4",
+    "uint": "<u4",
+    "uint32": "<u4",
+    "float": "<f4",
+    "float32": "<f4",
+    "double": "<f8",
+    "float64": "<f8",
 }
+
+#: A PLY header longer than this is not one PDAL wrote for a pipeline's dimensions.
+_PLY_MAX_HEADER = 65536
 
 
 def read_ply_column(path: str | os.PathLike[str], name: str) -> np.ndarray:
     """One dimension of the points of a binary little-endian PLY that PDAL's ``writers.ply`` wrote.
 
-    A pipeline that returns a dimension or two (``"dims": "HeightAboveGround=float32"``) writes
-    them as a PLY much faster than as a LAS, which also packs x, y and z. The file must hold one
-    element, ``vertex``, whose properties are scalars; ``name`` is matched without case (PDAL
-    writes the dimension's name in lower case).
+    A pipeline that hands back a dimension or two (``"dims": "HeightAboveGround=float32"``)
+    writes them as a PLY much faster than as a LAS, which also packs x, y and z. No PLY reader
+    is among the dependencies, and this is PDAL's plainest layout: a text header, then the
+    points' records packed one after the other.
+
+    Parameters
+    ----------
+    path
+        The PLY. It must hold one element, ``vertex``, whose properties are scalars.
+    name
+        The property, matched without case (PDAL writes a dimension's name in lower case).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(count,)`` contiguous, of the property's type, in the points' order.
 
     Raises
     ------
     PdalError
-        When the file is not such a PLY or has no property ``name``.
+        When the file is not such a PLY, is truncated, or has no property ``name``.
     """
+    lines: list[str] = []
     with open(path, "rb") as f:
-        head = f.read(4096)
-    end = head.find(b"end_header\n")
-    lines = head[:end].decode("ascii", "replace").splitlines() if end >= 0 else []
-    if len(lines) < 3 or lines[0] != "ply" or lines[1] != "format binary_little_endian 1.0":
+        while True:
+            raw = f.readline(_PLY_MAX_HEADER)
+            if not raw.endswith(b"\n") or f.tell() > _PLY_MAX_HEADER:
+                raise PdalError(f"{path}: not a PLY written by PDAL's writers.ply (no end of its header)")
+            line = raw.decode("ascii", "replace").rstrip("\r\n")
+            if line == "end_header":
+                break
+            lines.append(line)
+        offset = f.tell()
+    if len(lines) < 2 or lines[0] != "ply" or lines[1].split() != ["format", "binary_little_endian", "1.0"]:
         raise PdalError(f"{path}: not a binary little-endian PLY written by PDAL's writers.ply")
     count, fields = None, []
     for line in lines[2:]:
         words = line.split()
         if words[:2] == ["element", "vertex"] and len(words) == 3 and count is None:
-            count = int(words[2])
+            count = int(words[2]) if words[2].isdigit() else -1
+            if count < 0:
+                raise PdalError(f"{path}: PLY element {line!r} has no count of points")
         elif words[:1] == ["element"]:
             raise PdalError(f"{path}: a PLY element other than one 'vertex' ({line!r})")
         elif words[:1] == ["property"]:
             if count is None or len(words) != 3 or words[1] not in _PLY_TYPES:
                 raise PdalError(f"{path}: PLY property {line!r} is not a scalar of a known type")
+            if words[2].lower() in (n for n, _ in fields):
+                raise PdalError(f"{path}: PLY property {words[2]!r} twice")
             fields.append((words[2].lower(), _PLY_TYPES[words[1]]))
     names = [n for n, _ in fields]
     if count is None or name.lower() not in names:
         raise PdalError(f"{path}: no PLY property {name!r} (has {names}); add it to the writer's 'dims'")
-    rec = np.dtype(fields)
-    body = np.fromfile(path, dtype=rec, count=count, offset=end + len(b"end_header\n"))
+    body = np.fromfile(path, dtype=np.dtype(fields), count=count, offset=offset)
     if len(body) != count:
         raise PdalError(f"{path}: {len(body)} points where the header says {count} (a truncated file)")
     return np.ascontiguousarray(body[name.lower()])

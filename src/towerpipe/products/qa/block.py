@@ -344,10 +344,11 @@ def block_report(
         shape = float(getattr(r, "shape_score", float("nan")))
         if math.isfinite(shape) and shape < limits.min_shape_score:
             # only rule 12 (the conductors' vouch) or rule 13 (tall clusters) keep such a tower,
-            # and rule 13 keeps one whose support could not be measured
+            # and rule 13 keeps one whose support could not be measured; the score is shown
+            # rounded down, so it never reads as the threshold
             why = f"conductor support {support:.2f}" if math.isfinite(support) else "its conductor support unknown"
             tflags.append(
-                f"shaped like a tree (shape score {shape:.2f}, under {limits.min_shape_score:.2f}), kept by "
+                f"shaped like a tree (shape score {math.floor(shape * 1000) / 1000:.3f}, under {limits.min_shape_score:g}), kept by "
                 f"rule 12 or 13 with {why}: a tower among crowns, or a tall tree beside a line?"
             )
         for t in tflags:

@@ -290,20 +290,72 @@ def with_neighbour_towers(
     return m
 
 
-def with_towers_across_the_seam(m: dict[str, Any], towers: Any, across: Any) -> dict[str, Any]:
-    """Precision counting as found a tower this block reports whose labelled tower has its centroid
-    in a neighbouring block (``across``): the two centroids may lie on either side of the seam, and
-    that labelled tower counts in the neighbour's recall (as found there, by this block's tower)."""
+def with_towers_across_the_seam(
+    m: dict[str, Any],
+    towers: Any,
+    across: Any,
+    bounds: Sequence[float],
+    neighbour_towers: Sequence[Mapping[str, Any]] | None = None,
+) -> dict[str, Any]:
+    """Precision counting as found a tower this block reports whose labelled tower has its
+    centroid in a neighbouring block.
+
+    The two centroids of a tower on the seam may lie on either side of it. Only a tower whose
+    footprint crosses the block's edge is credited: the neighbour then lists it among the towers
+    with points in that block that this one reports, and counts the labelled tower as found with
+    it (:func:`with_neighbour_towers`), so the pair counts once in the zone's sums. This block's
+    unmatched towers and ``neighbour_towers`` are matched to ``across`` one to one, together: a
+    labelled tower the segmenter split in two, a part reported here and a part by the
+    neighbour, is credited to one of them.
+
+    Parameters
+    ----------
+    m
+        :func:`towerpipe.towers.matching.match_towers` of ``towers`` against the labelled towers
+        whose centroid lies in ``bounds`` (after :func:`with_neighbour_towers`).
+    towers
+        The towers this block reports.
+    across
+        The labelled towers whose centroid lies outside ``bounds``.
+    bounds
+        The block's bounds.
+    neighbour_towers
+        The towers with points in this block that a neighbour reports (``tower_id``,
+        ``footprint_wkt``).
+
+    Returns
+    -------
+    dict
+        ``m`` with ``tp``, ``fp``, ``precision``, ``f1``, ``matches`` (a credited one with
+        ``"owner": "labelled across the seam"``) and ``unmatched_pred`` updated; ``tp`` counts
+        the block's towers that match a labelled tower.
+    """
+    import geopandas as gpd
+    import pandas as pd
+    import shapely
+
     from towerpipe.towers.matching import f1_score, match_towers
 
     left = set(m["unmatched_pred"])
-    extra = [x for x in match_towers(towers, across, max_dist=5.0)["matches"] if x["pred"] in left]
+    crossing = ~towers.geometry.within(shapely.box(*bounds)).to_numpy()
+    mine = towers[towers["tower_id"].astype(str).isin(left).to_numpy() & crossing][["tower_id", "geometry"]]
+    if not len(mine):
+        return m
+    others = gpd.GeoDataFrame(
+        {"tower_id": [str(t["tower_id"]) for t in neighbour_towers or []]},
+        geometry=shapely.from_wkt([t["footprint_wkt"] for t in neighbour_towers or []]),
+        crs=towers.crs,
+    )
+    cands = pd.concat([mine.assign(tower_id=mine["tower_id"].astype(str)), others], ignore_index=True)
+    ours = set(mine["tower_id"].astype(str))
+    extra = [x for x in match_towers(cands, across, max_dist=5.0)["matches"] if x["pred"] in ours]
     if not extra:
         return m
-    fp = m["fp"] - len(extra)
     found = {x["pred"] for x in extra}
+    fp = m["fp"] - len(extra)
     m = dict(
         m,
+        tp=m["tp"] + len(extra),
         fp=fp,
         precision=(len(towers) - fp) / len(towers),
         matches=[*m["matches"], *({**x, "owner": "labelled across the seam"} for x in extra)],
@@ -331,9 +383,9 @@ def label_accuracy(
     labelled points; those whose centroid lies in ``bounds`` count. From the tiles, a tower on
     the seam of two blocks is whole, so it counts in the one block that holds its centroid;
     from the block's points alone each block would count its half. A tower this block reports
-    (its footprint's centroid in ``bounds``) that matches a labelled tower whose centroid lies
-    across the seam is not false (:func:`with_towers_across_the_seam`); the neighbour counts that
-    labelled tower as found (``neighbour_towers``).
+    across the seam that matches a labelled tower whose centroid lies in the neighbour is not
+    false (:func:`with_towers_across_the_seam`); the neighbour counts that labelled tower as found
+    (``neighbour_towers``).
     """
     # the tower matching (scipy's graphs and trees) only for a block with labels to check
     from towerpipe.towers.matching import match_towers, towers_from_labels
@@ -365,7 +417,7 @@ def label_accuracy(
     if neighbour_towers and len(true_towers):
         m = with_neighbour_towers(m, true_towers, neighbour_towers)
     if m["unmatched_pred"] and len(across):
-        m = with_towers_across_the_seam(m, towers, across)
+        m = with_towers_across_the_seam(m, towers, across, bounds, neighbour_towers)
     return {
         "point_iou": inter / union if union else None,
         "points_true": int(t_mask.sum()),
