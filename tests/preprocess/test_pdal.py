@@ -10,13 +10,14 @@ import rasterio
 from towerpipe import classes
 from towerpipe.errors import PdalError
 from towerpipe.preprocess.ground import (
+    CSF_BROKEN_UP_TO,
     _write_xyz_las,
     classify_ground,
     height_above_ground,
     statistical_outliers,
     write_raster,
 )
-from towerpipe.preprocess.pdal import read_ply_column, run_pipeline
+from towerpipe.preprocess.pdal import pdal_version_tuple, read_ply_column, run_pipeline
 
 
 def _ply(path, count, props, body):
@@ -117,6 +118,18 @@ def test_ground_and_outliers_through_the_ply_are_those_of_a_las(tmp_path):
     assert 0 < ground.sum() < n and outliers.sum() > 0
     np.testing.assert_array_equal(ground, ref["ground"] == classes.GROUND)
     np.testing.assert_array_equal(outliers, ref["outliers"] == classes.LOW_NOISE)
+
+
+@pytest.mark.usefixtures("pdal_cli")
+def test_the_csf_ground_filter_says_what_to_set_where_pdal_breaks_it(tmp_path):
+    rng = np.random.default_rng(2)
+    x, y = 500_000.0 + rng.uniform(0, 60, 5_000), 4_600_000.0 + rng.uniform(0, 60, 5_000)
+    z = 200.0 + rng.uniform(0, 5, 5_000)
+    if pdal_version_tuple() <= CSF_BROKEN_UP_TO:
+        with pytest.raises(PdalError, match=r"filters.csf of PDAL 2\.2\.0 fails .* set preprocess.ground_filter: smrf"):
+            classify_ground(x, y, z, tmp_path, method="csf")
+    else:
+        assert classify_ground(x, y, z, tmp_path, method="csf").any()
 
 
 @pytest.mark.usefixtures("pdal_cli")

@@ -23,12 +23,15 @@ import rasterio
 from rasterio.fill import fillnodata
 
 from towerpipe import classes
-from towerpipe.errors import InputError
+from towerpipe.errors import InputError, PdalError
 from towerpipe.preprocess import tiling
-from towerpipe.preprocess.pdal import read_ply_column, run_pipeline
+from towerpipe.preprocess.pdal import pdal_version, pdal_version_tuple, read_ply_column, run_pipeline
 
 #: The DTM's nodata value.
 NODATA = -9999.0
+
+#: The last PDAL version whose ``filters.csf`` fails on every input (PDAL issue 3248).
+CSF_BROKEN_UP_TO = (2, 2, 0)
 
 #: The dimension ``filters.hag_dem`` adds.
 HAG_DIM = "HeightAboveGround"
@@ -73,7 +76,20 @@ def _ply_writer(path: Path, dims: str) -> dict[str, Any]:
 def classify_ground(
     x: np.ndarray, y: np.ndarray, z: np.ndarray, workdir: Path, *, method: str = "smrf", what: str = "tile"
 ) -> np.ndarray:
-    """Ground mask computed by PDAL (``filters.elm`` for low noise, then SMRF or CSF)."""
+    """Ground mask computed by PDAL (``filters.elm`` for low noise, then SMRF or CSF).
+
+    Raises
+    ------
+    PdalError
+        With ``method="csf"`` on PDAL 2.2.0, whose ``filters.csf`` fails on every input (PDAL
+        issue 3248: ``std::bad_alloc`` or "Point index must increment"), naming the setting to
+        change; or when the pipeline fails.
+    """
+    if method == "csf" and pdal_version_tuple() <= CSF_BROKEN_UP_TO:
+        raise PdalError(
+            f"{what}: ground classification (csf): the filters.csf of PDAL {pdal_version()} fails on "
+            "every input (PDAL issue 3248); set preprocess.ground_filter: smrf, or install a newer PDAL"
+        )
     src, dst = workdir / "ground_in.las", workdir / "ground_out.ply"
     origin = (float(np.floor(x.min())), float(np.floor(y.min())), float(np.floor(z.min())))
     _write_xyz_las(src, x, y, z, origin)

@@ -50,6 +50,11 @@ def pdal_version() -> str:
     return ".".join(g for g in m.groups() if g is not None)
 
 
+def pdal_version_tuple() -> tuple[int, ...]:
+    """:func:`pdal_version` as integers, e.g. ``(2, 2, 0)``."""
+    return tuple(int(p) for p in pdal_version().split("."))
+
+
 def run_pipeline(stages: list[dict[str, Any]], *, what: str = "pipeline", timeout: float | None = None) -> float:
     """Run a PDAL pipeline given as a list of stage dicts.
 
