@@ -261,20 +261,27 @@ def distance_to_data_edge(footprint: Any, extent: Any) -> float:
 
 
 # --------------------------------------------------------------------------- accuracy
+def _neighbour_frame(neighbour_towers: Sequence[Mapping[str, Any]] | None, crs: Any) -> Any:
+    """The towers with points in a block that a neighbour reports (``tower_id``,
+    ``footprint_wkt``) as a GeoDataFrame of ``tower_id`` (text) and footprints."""
+    import geopandas as gpd
+    import shapely
+
+    towers = neighbour_towers or []
+    return gpd.GeoDataFrame(
+        {"tower_id": [str(t["tower_id"]) for t in towers]},
+        geometry=shapely.from_wkt([t["footprint_wkt"] for t in towers]),
+        crs=crs,
+    )
+
+
 def with_neighbour_towers(
     m: dict[str, Any], truth: Any, neighbour_towers: Sequence[Mapping[str, Any]]
 ) -> dict[str, Any]:
     """Recall counting labelled towers matched by a neighbour-owned tower as found."""
-    import geopandas as gpd
-    import shapely
-
     from towerpipe.towers.matching import f1_score, match_towers
 
-    nb = gpd.GeoDataFrame(
-        {"tower_id": [t["tower_id"] for t in neighbour_towers]},
-        geometry=shapely.from_wkt([t["footprint_wkt"] for t in neighbour_towers]),
-        crs=truth.crs,
-    )
+    nb = _neighbour_frame(neighbour_towers, truth.crs)
     left = truth[truth["tower_id"].astype(str).isin(m["unmatched_truth"])]
     extra = match_towers(nb, left, max_dist=5.0)["matches"] if len(left) else []
     found = {x["truth"] for x in extra}
@@ -330,7 +337,6 @@ def with_towers_across_the_seam(
         ``"owner": "labelled across the seam"``) and ``unmatched_pred`` updated; ``tp`` counts
         the block's towers that match a labelled tower.
     """
-    import geopandas as gpd
     import pandas as pd
     import shapely
 
@@ -341,11 +347,7 @@ def with_towers_across_the_seam(
     mine = towers[towers["tower_id"].astype(str).isin(left).to_numpy() & crossing][["tower_id", "geometry"]]
     if not len(mine):
         return m
-    others = gpd.GeoDataFrame(
-        {"tower_id": [str(t["tower_id"]) for t in neighbour_towers or []]},
-        geometry=shapely.from_wkt([t["footprint_wkt"] for t in neighbour_towers or []]),
-        crs=towers.crs,
-    )
+    others = _neighbour_frame(neighbour_towers, towers.crs)
     cands = pd.concat([mine.assign(tower_id=mine["tower_id"].astype(str)), others], ignore_index=True)
     ours = set(mine["tower_id"].astype(str))
     extra = [x for x in match_towers(cands, across, max_dist=5.0)["matches"] if x["pred"] in ours]
