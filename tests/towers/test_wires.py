@@ -93,6 +93,56 @@ def test_judged_points_get_the_answer_of_a_full_search():
     assert not part[~judge].any()
 
 
+def _brute_force_wire_points(pts: np.ndarray, radius=1.0, max_neighbours=20, max_dz=1.0, min_gap=2.5, line_radius=2.5):
+    """:func:`wire_points`' definition, point by point (O(n²))."""
+    x, y, z = pts.T
+    plan = np.hypot(x[:, None] - x[None], y[:, None] - y[None]) <= radius
+    dz = np.abs(z[:, None] - z[None])
+    ok = (plan.sum(axis=1) <= max_neighbours) & ~(plan & (dz >= max_dz) & (dz < min_gap)).any(axis=1)
+    p = pts - pts.mean(axis=0)
+    near = np.linalg.norm(p[:, None] - p[None], axis=2) <= line_radius
+    mask = np.zeros(len(pts), bool)
+    for i in np.flatnonzero(ok):
+        q = p[near[i]]
+        ev, vec = np.linalg.eigh(np.cov(q.T, bias=True))
+        axis = vec[:2, 2]
+        mask[i] = len(q) >= 3 and (ev[2] - ev[1]) / max(ev[2], 1e-12) >= 0.9 and np.hypot(*axis) >= 0.9
+    return mask
+
+
+def test_wire_points_are_their_definition():
+    """The stacked-point pre-filter and the sparse searches give the point-by-point answer, also
+    with coordinates at mm (height differences of exactly 1.0 and 2.5 m) and far from the origin."""
+    rng = np.random.default_rng(7)
+    for off in (0.0, 4e6):
+        wires = line_through(off, off, 0.4, length=40.0, rng=rng)
+        crown = canopy(off + 15.0, off + 10.0, 6.0, 1_500, rng)
+        # pairs straight above one another: exactly at, inside and outside the gap
+        base = np.column_stack([off - 20 + rng.uniform(0, 4, 40), off - 20 + rng.uniform(0, 4, 40), np.full(40, 12.0)])
+        stacks = [base + [0, 0, d] for d in (1.0, 2.5, 0.999, 1.7, 3.0)]
+        pts = np.round(np.concatenate([wires, crown, base, *stacks]), 3)
+        mask, _ = wire_points(pts[:, 0], pts[:, 1], pts[:, 2])
+        assert mask.sum() > 50
+        np.testing.assert_array_equal(mask, _brute_force_wire_points(pts))
+
+
+def test_stacked_points_have_a_neighbour_in_the_gap():
+    """Every point the pre-filter leaves out has a neighbour within the radius in plan and in the gap
+    of heights; most points of a crown are left out."""
+    from towerpipe.towers.wires import _stacked
+
+    rng = np.random.default_rng(8)
+    for off in (0.0, -1e4, 4e6):
+        pts = np.round(canopy(off, off, 8.0, 3_000, rng), 2)
+        x, y, z = pts.T
+        got = _stacked(x, y, z, 1.0, 1.0, 2.5)
+        plan = np.hypot(x[:, None] - x[None], y[:, None] - y[None]) <= 1.0
+        dz = np.abs(z[:, None] - z[None])
+        gap = (plan & (dz >= 1.0) & (dz < 2.5)).any(axis=1)
+        assert got.mean() > 0.5
+        assert not (got & ~gap).any()
+
+
 def test_clearance_is_the_brute_force_one():
     """The cell pre-filter of the vegetation drops no point within the radius (negative coordinates too)."""
     from towerpipe.towers.wires import _clearance

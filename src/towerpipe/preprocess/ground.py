@@ -33,27 +33,29 @@ NODATA = -9999.0
 #: The last PDAL version whose ``filters.csf`` fails on every input (PDAL issue 3248).
 CSF_BROKEN_UP_TO = (2, 2, 0)
 
+#: The coordinate scale (m) of the LAS files handed to PDAL.
+_XYZ_SCALE = 0.001
+
 #: The dimension ``filters.hag_dem`` adds.
 HAG_DIM = "HeightAboveGround"
 
 
-def _write_xyz_las(
-    path: Path,
-    x: np.ndarray,
-    y: np.ndarray,
-    z: np.ndarray,
-    origin: tuple[float, float, float],
-    classification: np.ndarray | None = None,
-) -> None:
-    """Uncompressed LAS 1.2 point format 0 (xyz at mm precision) for PDAL to read fast."""
+def _write_xyz_las(path: Path, x: np.ndarray, y: np.ndarray, z: np.ndarray, origin: tuple[float, float, float]) -> None:
+    """Uncompressed LAS 1.2 point format 0 (xyz at mm precision) for PDAL to read fast.
+
+    The records are filled as laspy's scaled setters fill them (the same bytes), without their
+    per-dimension bookkeeping: 0.13 s for 2.85 M points, not 0.22 s.
+    """
     header = laspy.LasHeader(point_format=0, version="1.2")
-    header.scales = np.array([0.001, 0.001, 0.001])
+    header.scales = np.full(3, _XYZ_SCALE)
     header.offsets = np.array(origin, dtype=np.float64)
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = x, y, z
-    if classification is not None:
-        las.classification = classification
-    las.write(path)
+    records = np.zeros(len(x), dtype=header.point_format.dtype())
+    for dim, v, off in (("X", x, origin[0]), ("Y", y, origin[1]), ("Z", z, origin[2])):
+        scaled = np.round((np.asarray(v, dtype=np.float64) - off) / _XYZ_SCALE)
+        if len(scaled) and max(-scaled.min(), scaled.max()) > np.iinfo(np.int32).max:
+            raise InputError(path, f"{dim} spans more than a LAS file holds at {_XYZ_SCALE} m from {off}")
+        records[dim] = scaled
+    laspy.LasData(header, points=laspy.PackedPointRecord(records, header.point_format)).write(path)
 
 
 def _ply_writer(path: Path, dims: str) -> dict[str, Any]:

@@ -136,7 +136,11 @@ def wire_points(
     # balanced_tree=False: built in half the time; every answer below is the same, the trees only
     # order the pairs they find, and nothing here depends on that order
     tree = cKDTree(xy, balanced_tree=False)
-    ok, judged = np.zeros(n, dtype=bool), np.arange(n) if judge is None else np.flatnonzero(judge)
+    ok = np.zeros(n, dtype=bool)
+    # most points of a crown have another point straight above or below them in the gap: they are
+    # left out before the (costlier) counting, which would not make them wire points either
+    judge = ~_stacked(x, y, z, radius, max_dz, min_gap) & (True if judge is None else np.asarray(judge, bool))
+    judged = np.flatnonzero(judge)
     ok[judged[tree.query_ball_point(xy[judged], radius, return_length=True) <= max_neighbours]] = True
     # a sparse point with a neighbour between max_dz and min_gap above or below is in a crown;
     # only the sparse points' neighbourhoods are looked at (in a forest most points are dense:
@@ -177,6 +181,32 @@ def wire_points(
     mask[cand[good]] = True
     direction[cand[good]] = axis[good] / flat[good, None]
     return mask, direction
+
+
+def _stacked(x: np.ndarray, y: np.ndarray, z: np.ndarray, radius: float, lo: float, hi: float) -> np.ndarray:
+    """Bool mask: the points with another point at least ``lo`` and less than ``hi`` m above or
+    below them in the same plan cell, a cell small enough (side ``radius / sqrt(2)``, a little
+    less) that the two are within ``radius`` of each other in plan.
+
+    Every point marked fails :func:`wire_points`' test of the air above and below (it is found
+    among the point's neighbours there); a point not marked may still fail it. Neighbours at a
+    height difference within a rounding margin of ``lo`` or ``hi`` are not taken: that test
+    decides them.
+    """
+    cell = 0.999 * radius / np.sqrt(2.0)
+    ix = np.floor((x - x.min()) / cell).astype(np.int64)
+    iy = np.floor((y - y.min()) / cell).astype(np.int64)
+    key = ix * (int(iy.max()) + 1) + iy
+    order = np.lexsort((z, key))
+    # one sorted axis: a cell's points by height, the cells far apart (more than ``hi``)
+    span = float(z.max() - z.min()) + 2.0 * hi + 1.0
+    v = key[order] * span + (z[order] - z.min())
+    margin = max(64.0 * float(np.spacing(np.abs(v).max())), 1e-9)
+    above = np.searchsorted(v, v + hi - margin, "right") > np.searchsorted(v, v + lo + margin, "left")
+    below = np.searchsorted(v, v - lo - margin, "right") > np.searchsorted(v, v - hi + margin, "left")
+    out = np.zeros(len(x), dtype=bool)
+    out[order] = above | below
+    return out
 
 
 def wire_support(
