@@ -208,8 +208,11 @@ def candidate_windows(
         heights = np.concatenate([heights, h2[new]])
         reach = np.concatenate([reach, np.full(int(new.sum()), float(secondary_reach))])
     n = len(x)
+    order = np.arange(n) if canonical_order is None else np.asarray(canonical_order)
+    # a tile's points are gathered in their canonical order: their indices, sorted, are then in it
+    in_order = bool(np.array_equal(order, np.arange(n)))
     rank = np.empty(n, np.int64)
-    rank[np.arange(n) if canonical_order is None else np.asarray(canonical_order)] = np.arange(n)
+    rank[order] = np.arange(n)
     if tree is None and len(keys):
         tree = cKDTree(np.c_[x, y])
     keep, parts = [], []
@@ -220,7 +223,7 @@ def candidate_windows(
         if len(idx) < max(int(min_points), 1) or not core[idx].any():
             continue
         keep.append(i)
-        parts.append(idx[np.argsort(rank[idx], kind="stable")])
+        parts.append(np.sort(idx) if in_order else idx[np.argsort(rank[idx], kind="stable")])
     keep = np.asarray(keep, np.int64)
     ptr = np.concatenate([[0], np.cumsum([len(p) for p in parts])]).astype(np.int64)
     idx = np.concatenate(parts) if parts else np.empty(0, np.int64)
