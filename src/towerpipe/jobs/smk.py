@@ -1,5 +1,5 @@
 """Glue for the thin workflow scripts (logging to the rule's log, one-line errors) and for the
-Snakefile's hooks (:func:`stop_rate_limiter_timers`).
+Snakefile (:func:`stop_timers_at_exit`).
 
 Every script in ``workflow/scripts/`` is::
 
@@ -60,16 +60,41 @@ def run_step(smk: Any, step: Callable[[], Any]) -> Any:
 
 
 def stop_rate_limiter_timers() -> int:
-    """Cancel the pending :class:`threading.Timer` threads of a finished Snakemake run; returns how many.
+    """Cancel the pending :class:`threading.Timer` threads of this process; returns how many.
 
     After each round of scheduling, Snakemake's job rate limiter (``--max-jobs-per-timespan``,
     100 jobs a second by default) arms a ``threading.Timer`` of its timespan (1 s) that wakes the
     scheduler again. The timer is not a daemon thread, so the interpreter waits for the last one
     before it exits: up to a second at the end of every run (1.2 s from the last job's end to the
-    exit on the bench zone, 0.3 s with the timers cancelled). The Snakefile's ``onsuccess`` and
-    ``onerror`` hooks call this once the scheduler has stopped: no job is left to wake it for.
+    exit on the bench zone, 0.3 s with the timers cancelled). Called once the run is over
+    (:func:`stop_timers_at_exit`), when no job is left to wake the scheduler for.
     """
     timers = [t for t in threading.enumerate() if isinstance(t, threading.Timer) and t.is_alive()]
     for t in timers:
         t.cancel()
     return len(timers)
+
+
+_reaper: threading.Thread | None = None
+
+
+def stop_timers_at_exit() -> threading.Thread:
+    """Have the interpreter's exit cancel the pending timers (:func:`stop_rate_limiter_timers`)
+    instead of waiting for them; returns the daemon thread that does it (one per process).
+
+    The thread waits for the main thread to end: the interpreter ends it first when it exits, then
+    waits for the threads that are not daemons, the timers among them. The Snakefile starts it, so
+    it works in every Snakemake that reads the Snakefile: the main one, and the one each SLURM job
+    starts on its node, which runs no ``onsuccess`` hook.
+    """
+    global _reaper
+    if _reaper is None or not _reaper.is_alive():
+        main = threading.main_thread()
+
+        def reap() -> None:
+            main.join()
+            stop_rate_limiter_timers()
+
+        _reaper = threading.Thread(target=reap, name="towerpipe-stop-timers", daemon=True)
+        _reaper.start()
+    return _reaper
