@@ -88,7 +88,7 @@ def stop_timers_at_exit() -> threading.Thread:
     starts on its node, which runs no ``onsuccess`` hook.
     """
     global _reaper
-    if _reaper is None or not _reaper.is_alive():
+    if _reaper is None:  # it lives until the interpreter exits
         main = threading.main_thread()
 
         def reap() -> None:
