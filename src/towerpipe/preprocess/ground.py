@@ -40,12 +40,17 @@ _XYZ_SCALE = 0.001
 HAG_DIM = "HeightAboveGround"
 
 
-def _write_xyz_las(path: Path, x: np.ndarray, y: np.ndarray, z: np.ndarray, origin: tuple[float, float, float]) -> None:
+def _write_xyz_las(
+    path: Path, x: np.ndarray, y: np.ndarray, z: np.ndarray, origin: tuple[float, float, float] | None = None
+) -> None:
     """Uncompressed LAS 1.2 point format 0 (xyz at mm precision) for PDAL to read fast.
 
-    The records are filled as laspy's scaled setters fill them (the same bytes), without their
+    ``origin`` is the file's offsets; by default the floor of each coordinate's minimum. The
+    records are filled as laspy's scaled setters fill them (the same bytes), without their
     per-dimension bookkeeping: 0.13 s for 2.85 M points, not 0.22 s.
     """
+    if origin is None:
+        origin = (float(np.floor(x.min())), float(np.floor(y.min())), float(np.floor(z.min())))
     header = laspy.LasHeader(point_format=0, version="1.2")
     header.scales = np.full(3, _XYZ_SCALE)
     header.offsets = np.array(origin, dtype=np.float64)
@@ -93,8 +98,7 @@ def classify_ground(
             "every input (PDAL issue 3248); set preprocess.ground_filter: smrf, or install a newer PDAL"
         )
     src, dst = workdir / "ground_in.las", workdir / "ground_out.ply"
-    origin = (float(np.floor(x.min())), float(np.floor(y.min())), float(np.floor(z.min())))
-    _write_xyz_las(src, x, y, z, origin)
+    _write_xyz_las(src, x, y, z)
     ground_stage: dict[str, Any] = {"type": f"filters.{method}", "ignore": "Classification[7:7]"}
     run_pipeline(
         [
@@ -211,8 +215,7 @@ def height_above_ground(
     """HAG of every point from the DTM with PDAL ``filters.hag_dem`` (point order kept; PDAL
     writes the heights alone, :func:`_ply_writer`)."""
     src, dst = workdir / "points.las", workdir / "hag.ply"
-    origin = (float(np.floor(x.min())), float(np.floor(y.min())), float(np.floor(z.min())))
-    _write_xyz_las(src, x, y, z, origin)
+    _write_xyz_las(src, x, y, z)
     run_pipeline(
         [
             {"type": "readers.las", "filename": str(src)},
@@ -232,8 +235,7 @@ def statistical_outliers(
 ) -> np.ndarray:
     """Mask of statistical outliers (PDAL ``filters.outlier``; slow, off by default)."""
     src, dst = workdir / "outlier_in.las", workdir / "outlier_out.ply"
-    origin = (float(np.floor(x.min())), float(np.floor(y.min())), float(np.floor(z.min())))
-    _write_xyz_las(src, x, y, z, origin)
+    _write_xyz_las(src, x, y, z)
     run_pipeline(
         [
             {"type": "readers.las", "filename": str(src)},
