@@ -368,3 +368,29 @@ def test_realshape_zone_families_lines_and_variants(tmp_path):
     nocol = generate_zone(tmp_path / "nocol", **kw, variant="no_colour")
     las = laspy.read(nocol.blocks[0]["path"])
     assert las.header.point_format.id == 6 and "red" not in las.point_format.dimension_names
+
+
+@pytest.mark.shared
+def test_realshape_zone_tower_height_scales_the_real_shapes(tmp_path):
+    """``tower_height`` scales every real shape to a height drawn from its range (a zone of small
+    UAV lattices, whose sources are 17-58 m tall); without it the shapes keep their own heights."""
+    kw = dict(
+        seed=9,
+        real_backgrounds=BACKGROUNDS,
+        background_files=["ign_rgbnir_block.laz"],
+        copies=1,
+        lines=True,
+        tower_source="real",
+        real_towers=TOWERS,
+        tower_families=["uav"],
+        tower_density=(4, 7),
+    )
+    small = generate_zone(tmp_path / "small", **kw, tower_height=(14, 19))
+    own = generate_zone(tmp_path / "own", **kw)
+    assert len(small.towers) >= 3
+    assert small.towers["height"].between(14, 19).all()
+    assert own.towers["height"].max() > 19
+    pts = _all_points(small)
+    for _, r in small.towers.iterrows():
+        z = pts["z"][pts["TowerId"] == r["tower_id"]]
+        assert z.max() - r["base_z"] <= r["height"] + 0.5

@@ -159,6 +159,7 @@ def generate_background_zone(
     copies: int = 1,
     towers_per_tile: tuple[int, int] = (1, 2),
     tower_density: tuple[float, float] | None = None,
+    tower_height: tuple[float, float] | None = None,
     lines: bool = False,
     variant: str | list[str] = "intact",
 ) -> ZoneTruth:
@@ -186,6 +187,8 @@ def generate_background_zone(
         Range of the number of towers per tile without ``lines``.
     tower_density
         Range (pts/m²) of each tower's own density; ``None``: the tile's density.
+    tower_height
+        Range (m) each real shape is scaled to; ``None``: its own height within 10 %.
     lines
         Towers on parallel lines across each tile, with conductors.
     variant
@@ -219,6 +222,7 @@ def generate_background_zone(
                 params=params,
                 towers_per_tile=towers_per_tile,
                 tower_density=tower_density,
+                tower_height=tower_height,
                 lines=lines,
             )
             next_id += len(ins["rows"])
@@ -259,6 +263,7 @@ def generate_background_zone(
         "tower_source": tower_source,
         "tower_families": tower_families,
         "tower_density": tower_density,
+        "tower_height": tower_height,
         "lines": lines,
         "variant": variant,
         "blocks": blocks,
@@ -280,6 +285,7 @@ def _insert(
     params: SceneParams,
     towers_per_tile,
     tower_density,
+    tower_height=None,
     lines: bool,
 ) -> dict:
     """One tile (moved ``dx`` east) with its towers and conductors: points, truth rows, spans."""
@@ -309,7 +315,8 @@ def _insert(
         base_z = float(gz(p[:1], p[1:])[0])
         if lib is not None and (tower_source == "real" or rng.random() < 0.5):
             name, shape = lib.draw(rng)
-            h = float(np.clip(np.ptp(shape[:, 2]) * rng.uniform(0.9, 1.1), 10.0, 60.0))
+            own = np.ptp(shape[:, 2]) * rng.uniform(0.9, 1.1)
+            h = float(np.clip(rng.uniform(*tower_height) if tower_height else own, 10.0, 60.0))
             local = realise(shape, h, dens, rng, params)
             if len(local) < 5:  # a thin pole at a low density: nothing to see
                 continue

@@ -44,6 +44,7 @@ def generate_zone(
     background_files: list[str] | None = None,
     copies: int = 1,
     tower_density: tuple[float, float] | None = None,
+    tower_height: tuple[float, float] | None = None,
     lines: bool = False,
     variant: str = "intact",
     tower_variety: bool = False,
@@ -78,10 +79,11 @@ def generate_zone(
         Multi-threaded LAZ compression.
     tower_families
         The real tower families drawn from (:data:`towerpipe.synth.real.FAMILIES`; default all).
-    background_files, copies, tower_density, lines, variant
+    background_files, copies, tower_density, tower_height, lines, variant
         Zones on real backgrounds only: the tiles used, copies of each, the towers' own
-        density range (pts/m²), towers along a line with conductors, and the attribute
-        variant (:data:`towerpipe.synth.background.VARIANTS`).
+        density range (pts/m²), the height range (m) the real shapes are scaled to, towers
+        along a line with conductors, and the attribute variant
+        (:data:`towerpipe.synth.background.VARIANTS`).
     tower_variety
         Apply :data:`towerpipe.synth.params.TOWER_VARIETY` (every design, orthophoto
         colours, per-tower intensity, varied real shapes) before ``overrides``.
@@ -113,6 +115,7 @@ def generate_zone(
             lines=lines,
             variant=variant,
             tower_density=tuple(tower_density) if tower_density else None,
+            tower_height=tuple(tower_height) if tower_height else None,
         )
     p = params if params is not None else get_preset(preset)
     p = with_overrides(p, **overrides)
