@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import glob
-import json
 from pathlib import Path
 from typing import Any
 
@@ -43,13 +42,21 @@ def _fold_cli(args: argparse.Namespace) -> int:
     return 0
 
 
+def read_overrides(path: str | None) -> dict[str, Any]:
+    """The training overrides of ``--config``: a YAML or JSON file (YAML reads both), ``{}`` if none."""
+    if not path:
+        return {}
+    import yaml
+
+    config = yaml.safe_load(Path(path).read_text()) or {}
+    if not isinstance(config, dict):
+        raise ConfigError(f"{path}: the training overrides must be a mapping (e.g. `epochs: 8`)")
+    return config
+
+
 def _cli(args: argparse.Namespace) -> int:
     paths = _paths(args.tiles)
-    config: dict[str, Any] = json.loads(Path(args.config).read_text()) if args.config else {}
-    if args.config and args.config.endswith((".yaml", ".yml")):
-        import yaml
-
-        config = yaml.safe_load(Path(args.config).read_text()) or {}
+    config = read_overrides(args.config)
     for key in ("epochs", "seed", "time_budget_s", "max_train_windows"):
         if getattr(args, key) is not None:
             config[key] = getattr(args, key)
