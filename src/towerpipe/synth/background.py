@@ -285,7 +285,7 @@ def _insert(
     params: SceneParams,
     towers_per_tile,
     tower_density,
-    tower_height=None,
+    tower_height: tuple[float, float] | None = None,
     lines: bool,
 ) -> dict:
     """One tile (moved ``dx`` east) with its towers and conductors: points, truth rows, spans."""
