@@ -325,25 +325,29 @@ def test_real_backgrounds_keep_crs_and_get_towers(tmp_path):
     assert (p["nir"] > 0).mean() > 0.9  # synthetic NIR where the tile has none
 
 
+def _one_family_on_a_real_tile(seed: int, family: str, density: tuple[float, float], **over) -> dict:
+    """The arguments of a zone of one real tower family on lines across the real IGN RGB+NIR tile."""
+    return dict(
+        seed=seed,
+        real_backgrounds=BACKGROUNDS,
+        background_files=["ign_rgbnir_block.laz"],
+        copies=1,
+        lines=True,
+        tower_source="real",
+        real_towers=TOWERS,
+        tower_families=[family],
+        tower_density=density,
+        **over,
+    )
+
+
 @pytest.mark.shared
 def test_realshape_zone_families_lines_and_variants(tmp_path):
     """A benchmark zone: one real family on a real tile, towers on lines carrying conductors, on data;
     the degraded variants share the geometry and lose only their attributes."""
     from towerpipe.synth.real import tower_family
 
-    bg = BACKGROUNDS
-    kw = dict(
-        seed=5,
-        real_backgrounds=bg,
-        background_files=["ign_rgbnir_block.laz"],
-        copies=1,
-        lines=True,
-        tower_source="real",
-        real_towers=TOWERS,
-        tower_families=["ts40k"],
-        tower_density=(4, 15),
-        tower_variety=True,
-    )
+    kw = _one_family_on_a_real_tile(5, "ts40k", (4, 15), tower_variety=True)
     t = generate_zone(tmp_path / "intact", **kw)
     assert len(t.blocks) == 1 and len(t.towers) >= 3
     assert {tower_family(d) for d in t.towers["design"]} == {"ts40k"}
@@ -374,17 +378,7 @@ def test_realshape_zone_families_lines_and_variants(tmp_path):
 def test_realshape_zone_tower_height_scales_the_real_shapes(tmp_path):
     """``tower_height`` scales every real shape to a height drawn from its range (a zone of small
     UAV lattices, whose sources are 17-58 m tall); without it the shapes keep their own heights."""
-    kw = dict(
-        seed=9,
-        real_backgrounds=BACKGROUNDS,
-        background_files=["ign_rgbnir_block.laz"],
-        copies=1,
-        lines=True,
-        tower_source="real",
-        real_towers=TOWERS,
-        tower_families=["uav"],
-        tower_density=(4, 7),
-    )
+    kw = _one_family_on_a_real_tile(9, "uav", (4, 7))
     small = generate_zone(tmp_path / "small", **kw, tower_height=(14, 19))
     own = generate_zone(tmp_path / "own", **kw)
     assert len(small.towers) >= 3
