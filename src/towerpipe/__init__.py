@@ -9,7 +9,7 @@ the positive ones. The package holds all the logic; the Snakemake workflow in
 
 from towerpipe.errors import ConfigError, InputError, ModelError, PdalError, TowerpipeError
 
-__version__ = "0.11.3"
+__version__ = "0.11.4"
 
 __all__ = [
     "__version__",

@@ -287,6 +287,32 @@ def test_utility_poles_only_where_named(tmp_path):
     assert (p["classification"] == 14).sum() > 0  # the conductors between them
 
 
+def test_headed_lattices_only_where_named(tmp_path):
+    """``cat_head`` and ``wine_glass`` are drawn only by a zone that names them: lattices whose
+    head, above a narrow waist, spreads wider than the body below it."""
+    from towerpipe.synth.params import TOWER_VARIETY
+    from towerpipe.synth.towers import DESIGNS, HEADED, HEIGHTS
+
+    assert not set(HEADED) & (set(DESIGNS) | set(TOWER_VARIETY["designs"]) | set(preset("catalonia").designs))
+    t = generate_zone(
+        tmp_path, seed=6, blocks=1, size=300.0, density=12.0, preset="test", lines_per_km2=20.0,
+        tower_variety=True, designs=list(HEADED), design_weights=[0.5, 0.5],
+    )  # fmt: skip
+    towers = t.towers
+    heads = towers[towers["design"].isin(HEADED)]
+    assert len(heads) >= 3 and set(towers["design"]) <= set(HEADED) | {"lattice_waist", "double_circuit"}
+    for row in heads.itertuples():
+        assert HEIGHTS[row.design][0] - 0.01 <= row.height <= HEIGHTS[row.design][1] + 0.01
+    p = _all_points(t)
+    for row in heads[heads["n_points"] >= 100].itertuples():
+        sel = p["TowerId"] == row.tower_id
+        r = np.hypot(p["x"][sel] - row.x, p["y"][sel] - row.y)
+        rel = (p["z"][sel] - p["z"][sel].min()) / row.height
+        bands = [r[(rel >= lo) & (rel < lo + 0.1)] for lo in np.arange(0.3, 0.6, 0.05)]
+        waist = min(np.percentile(b, 90) for b in bands if len(b) >= 5)
+        assert np.percentile(r[rel > 0.72], 90) > 1.5 * waist
+
+
 def test_realism_report(zone, tmp_path):
     from towerpipe.cli import main
 

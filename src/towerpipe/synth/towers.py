@@ -1,8 +1,8 @@
 """Transmission tower designs as sets of members (local frame: x across the line,
 y along the line, z up, base centre at the origin).
 
-Designs: ``lattice_waist`` (waist-type / cat-head lattice, one circuit in a
-horizontal plane), ``double_circuit`` (tall lattice, three arm levels each side),
+Designs: ``lattice_waist`` (waist type: a short V over the waist under a beam, one circuit
+in a horizontal plane), ``double_circuit`` (tall lattice, three arm levels each side),
 ``small_lattice`` (10-20 m, one cross-arm), ``monopole`` (tapered tube with arms), and
 the European types of :data:`EUROPEAN`: ``donau`` (two arm levels, the lower one longer:
 one conductor each side above, two below), ``einebenen`` (one long arm level carrying
@@ -10,13 +10,16 @@ three conductors each side), ``tonne`` (barrel: three levels, the middle arm lon
 ``delta`` (a triangular head of two inclined members over a beam), ``portal`` (two
 lattice columns under a lattice beam) and ``wooden_hframe`` (two wooden poles, a cross
 beam and X-bracing). :data:`UTILITY` holds ``utility_pole`` (one wooden or concrete pole
-of 14-30 m with one to three cross-arms), drawn only by a zone that names it in
-``designs``. Every design carries insulator strings at its conductor attachments and an
-earth wire at its top.
+of 14-30 m with one to three cross-arms) and :data:`HEADED` the lattices with a head
+above a waist (``cat_head``: a closed head with short arms at its shoulders;
+``wine_glass``: long legs opening in a V from a low waist to a wide beam), each drawn only
+by a zone that names it in ``designs``. Every design carries insulator strings at its
+conductor attachments and an earth wire at its top.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,6 +35,9 @@ DESIGNS = CLASSIC + EUROPEAN
 #: Single utility poles: towers of the real-shape benchmark's utility family are of this kind.
 #: Not in :data:`DESIGNS`, so no zone draws them unless its ``designs`` names them.
 UTILITY = ("utility_pole",)
+#: Lattices with a head above a waist, as most high-voltage lines of East Asia and many of
+#: Eastern Europe carry them. Not in :data:`DESIGNS` either (the default zones draw as before).
+HEADED = ("cat_head", "wine_glass")
 
 #: height range (m) per design, all within 10-60 m
 HEIGHTS = {
@@ -46,6 +52,8 @@ HEIGHTS = {
     "portal": (12.0, 28.0),
     "wooden_hframe": (10.0, 20.0),
     "utility_pole": (14.0, 30.0),
+    "cat_head": (14.0, 50.0),
+    "wine_glass": (14.0, 45.0),
 }
 #: designs of wood (coloured and reflecting as wood, not steel)
 WOODEN = ("wooden_hframe", "utility_pole")
@@ -140,7 +148,7 @@ def build_design(design: str, height: float, rng: np.random.Generator) -> tuple[
     Parameters
     ----------
     design
-        One of :data:`DESIGNS` or :data:`UTILITY`.
+        One of :data:`DESIGNS`, :data:`UTILITY` or :data:`HEADED`.
     height
         Total height (m).
     rng
@@ -255,6 +263,8 @@ def build_design(design: str, height: float, rng: np.random.Generator) -> tuple[
         return Primitives.concat(parts), np.array(attach, float), d0
     if design in EUROPEAN:
         return _european(design, h, rng)
+    if design in HEADED:
+        return _headed(design, h, rng)
     raise ValueError(f"unknown tower design {design!r}")
 
 
@@ -399,3 +409,84 @@ def place_tower(
     return Tower(
         tower_id, design, float(x), float(y), base_z, float(height), float(rot), w, aw, float(base), line_id=line_id
     )
+
+
+def _truss(p0: Sequence[float], p1: Sequence[float], depth: float, panels: int) -> np.ndarray:
+    """A two-face truss from ``p0`` to ``p1``, its chords at ``y ± depth``: chords, ties and zigzags."""
+    t = np.linspace(0.0, 1.0, panels + 1)[:, None]
+    mid = np.asarray(p0, float) + t * (np.asarray(p1, float) - np.asarray(p0, float))
+    a, b = mid - [0.0, depth, 0.0], mid + [0.0, depth, 0.0]
+    segs = [[a[i], a[i + 1]] for i in range(panels)] + [[b[i], b[i + 1]] for i in range(panels)]
+    segs += [[a[i], b[i]] for i in range(panels + 1)]
+    segs += [[a[i], b[i + 1]] if i % 2 else [b[i], a[i + 1]] for i in range(panels)]
+    return np.array(segs, float)
+
+
+def _beam(x: float, z0: float, z1: float, depth: float, panels: int) -> np.ndarray:
+    """A horizontal beam from ``-x`` to ``x`` between ``z0`` and ``z1``: two trusses, verticals, diagonals."""
+    segs = [_truss((-x, 0, zz), (x, 0, zz), depth, panels) for zz in (z0, z1)]
+    xs = np.linspace(-x, x, panels + 1)
+    for d in (-depth, depth):
+        segs.append(np.array([[[xv, d, z0], [xv, d, z1]] for xv in xs]))
+        segs.append(np.array([[[xs[i], d, z0], [xs[i + 1], d, z1]] for i in range(panels)]))
+    return np.concatenate(segs)
+
+
+def _headed(design: str, h: float, rng: np.random.Generator) -> tuple[Primitives, np.ndarray, float]:
+    """Members, attachments and base width of the designs of :data:`HEADED`.
+
+    ``cat_head``: the body narrows to a waist at about 55 % of the height, two legs open
+    into a head (its widest at the shoulders, where short arms carry the outer phases) and
+    close again under a top beam, from whose middle the centre phase hangs inside the head;
+    earth-wire peaks ("ears") stand on the beam's ends. ``wine_glass``: the waist is lower
+    (35-50 %) and two long legs open in a V to a wide beam carrying the three phases, with
+    earth-wire horns at its ends.
+    """
+    base = rng.uniform(0.16, 0.24) * h
+    hww = rng.uniform(0.45, 0.8) * min(1.0, h / 30.0 + 0.3)  # the waist's half width
+    zw = rng.uniform(0.5, 0.62) * h if design == "cat_head" else rng.uniform(0.35, 0.5) * h
+    z, hw = panel_levels(0.0, zw, base / 2, hww)
+    segs = lattice_body(z, hw, rng, 0.12)
+    string = rng.uniform(2.2, 3.4) * min(1.0, h / 25.0)
+    ins, attach = [], []
+    if design == "cat_head":
+        ear = rng.uniform(0.05, 0.08) * h
+        zt = h - ear  # the top beam
+        zs = zw + rng.uniform(0.35, 0.5) * (zt - zw)  # the shoulders
+        xs = rng.uniform(0.11, 0.17) * h
+        xt = xs * rng.uniform(0.75, 1.1)
+        depth = rng.uniform(0.1, 0.16) * (zt - zw)
+        arm = rng.uniform(0.05, 0.09) * h
+        for sx in (-1, 1):
+            for a, b in (((sx * hww, 0, zw), (sx * xs, 0, zs)), ((sx * xs, 0, zs), (sx * xt, 0, zt))):
+                segs.append(_truss(a, b, hww, max(2, int(np.hypot(b[0] - a[0], b[2] - a[2]) / 1.5))))
+            tip = sx * (xs + arm)
+            segs.append(
+                np.array(
+                    [[[sx * xs, d, zs], [tip, 0, zs]] for d in (-hww, hww)] + [[[sx * xs, 0, zs + 1.2], [tip, 0, zs]]]
+                )
+            )
+            ins.append([[tip, 0, zs], [tip, 0, zs - string]])
+            attach.append([tip, 0, zs - string])
+            segs.append(np.array([[[sx * xt, d, zt], [sx * xt * 1.05, 0, h]] for d in (-hww, hww)]))
+            attach.append([sx * xt * 1.05, 0, h])
+        segs.append(_beam(xt, zt - depth, zt, hww, max(4, int(2 * xt / 1.5))))
+        ins.append([[0, 0, zt - depth], [0, 0, zt - depth - string]])
+        attach.append([0, 0, zt - depth - string])
+    else:
+        zb = rng.uniform(0.72, 0.84) * h
+        xl = rng.uniform(0.13, 0.2) * h
+        xb = xl * rng.uniform(1.05, 1.3)
+        depth = rng.uniform(1.0, 1.8) * min(1.0, h / 25.0)
+        for sx in (-1, 1):
+            a, b = (sx * hww, 0, zw), (sx * xl, 0, zb)
+            segs.append(_truss(a, b, hww, max(3, int(np.hypot(b[0] - a[0], b[2] - a[2]) / 1.5))))
+            segs.append(np.array([[[sx * xb * 0.95, d, zb + depth], [sx * xb, 0, h]] for d in (-hww, hww)]))
+            attach.append([sx * xb, 0, h])
+        segs.append(_beam(xb, zb, zb + depth, hww, max(6, int(2 * xb / 1.5))))
+        for xv in (-xb + 0.5, 0.0, xb - 0.5):
+            ins.append([[xv, 0, zb], [xv, 0, zb - string]])
+            attach.append([xv, 0, zb - string])
+    segs = [np.asarray(sg, float).reshape(-1, 2, 3) for sg in segs]
+    prim = Primitives.concat([segments(np.concatenate(segs), 0.12), segments(np.array(ins, float), 0.25)])
+    return prim, np.array(attach, float), base
