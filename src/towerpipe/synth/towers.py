@@ -411,10 +411,12 @@ def place_tower(
     )
 
 
-def _truss(p0: Sequence[float], p1: Sequence[float], depth: float, panels: int) -> np.ndarray:
-    """A two-face truss from ``p0`` to ``p1``, its chords at ``y ± depth``: chords, ties and zigzags."""
-    t = np.linspace(0.0, 1.0, panels + 1)[:, None]
-    mid = np.asarray(p0, float) + t * (np.asarray(p1, float) - np.asarray(p0, float))
+def _truss(p0: Sequence[float], p1: Sequence[float], depth: float, min_panels: int, panel_m: float = 1.5) -> np.ndarray:
+    """A two-face truss from ``p0`` to ``p1``, its chords at ``y ± depth``: chords, ties and zigzags,
+    in panels of about ``panel_m`` metres (at least ``min_panels``)."""
+    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+    panels = max(min_panels, int(np.hypot(p1[0] - p0[0], p1[2] - p0[2]) / panel_m))
+    mid = p0 + np.linspace(0.0, 1.0, panels + 1)[:, None] * (p1 - p0)
     a, b = mid - [0.0, depth, 0.0], mid + [0.0, depth, 0.0]
     segs = [[a[i], a[i + 1]] for i in range(panels)] + [[b[i], b[i + 1]] for i in range(panels)]
     segs += [[a[i], b[i]] for i in range(panels + 1)]
@@ -422,9 +424,10 @@ def _truss(p0: Sequence[float], p1: Sequence[float], depth: float, panels: int) 
     return np.array(segs, float)
 
 
-def _beam(x: float, z0: float, z1: float, depth: float, panels: int) -> np.ndarray:
+def _beam(x: float, z0: float, z1: float, depth: float, min_panels: int) -> np.ndarray:
     """A horizontal beam from ``-x`` to ``x`` between ``z0`` and ``z1``: two trusses, verticals, diagonals."""
-    segs = [_truss((-x, 0, zz), (x, 0, zz), depth, panels) for zz in (z0, z1)]
+    segs = [_truss((-x, 0, zz), (x, 0, zz), depth, min_panels) for zz in (z0, z1)]
+    panels = len(segs[0]) // 4  # a truss of n panels has 4n + 1 members
     xs = np.linspace(-x, x, panels + 1)
     for d in (-depth, depth):
         segs.append(np.array([[[xv, d, z0], [xv, d, z1]] for xv in xs]))
@@ -459,7 +462,7 @@ def _headed(design: str, h: float, rng: np.random.Generator) -> tuple[Primitives
         arm = rng.uniform(0.05, 0.09) * h
         for sx in (-1, 1):
             for a, b in (((sx * hww, 0, zw), (sx * xs, 0, zs)), ((sx * xs, 0, zs), (sx * xt, 0, zt))):
-                segs.append(_truss(a, b, hww, max(2, int(np.hypot(b[0] - a[0], b[2] - a[2]) / 1.5))))
+                segs.append(_truss(a, b, hww, 2))
             tip = sx * (xs + arm)
             segs.append(
                 np.array(
@@ -470,7 +473,7 @@ def _headed(design: str, h: float, rng: np.random.Generator) -> tuple[Primitives
             attach.append([tip, 0, zs - string])
             segs.append(np.array([[[sx * xt, d, zt], [sx * xt * 1.05, 0, h]] for d in (-hww, hww)]))
             attach.append([sx * xt * 1.05, 0, h])
-        segs.append(_beam(xt, zt - depth, zt, hww, max(4, int(2 * xt / 1.5))))
+        segs.append(_beam(xt, zt - depth, zt, hww, 4))
         ins.append([[0, 0, zt - depth], [0, 0, zt - depth - string]])
         attach.append([0, 0, zt - depth - string])
     else:
@@ -480,13 +483,12 @@ def _headed(design: str, h: float, rng: np.random.Generator) -> tuple[Primitives
         depth = rng.uniform(1.0, 1.8) * min(1.0, h / 25.0)
         for sx in (-1, 1):
             a, b = (sx * hww, 0, zw), (sx * xl, 0, zb)
-            segs.append(_truss(a, b, hww, max(3, int(np.hypot(b[0] - a[0], b[2] - a[2]) / 1.5))))
+            segs.append(_truss(a, b, hww, 3))
             segs.append(np.array([[[sx * xb * 0.95, d, zb + depth], [sx * xb, 0, h]] for d in (-hww, hww)]))
             attach.append([sx * xb, 0, h])
-        segs.append(_beam(xb, zb, zb + depth, hww, max(6, int(2 * xb / 1.5))))
+        segs.append(_beam(xb, zb, zb + depth, hww, 6))
         for xv in (-xb + 0.5, 0.0, xb - 0.5):
             ins.append([[xv, 0, zb], [xv, 0, zb - string]])
             attach.append([xv, 0, zb - string])
-    segs = [np.asarray(sg, float).reshape(-1, 2, 3) for sg in segs]
     prim = Primitives.concat([segments(np.concatenate(segs), 0.12), segments(np.array(ins, float), 0.25)])
     return prim, np.array(attach, float), base
