@@ -7,9 +7,9 @@ the positive ones. The package holds all the logic; the Snakemake workflow in
 ``workflow/`` only calls into it.
 """
 
-from towerpipe.errors import ConfigError, InputError, ModelError, PdalError, TowerpipeError
+from towerpipe.errors import ConfigError, DiskSpaceError, InputError, ModelError, PdalError, TowerpipeError
 
-__version__ = "0.11.4"
+__version__ = "0.12.0"
 
 __all__ = [
     "__version__",
@@ -17,5 +17,6 @@ __all__ = [
     "ConfigError",
     "InputError",
     "PdalError",
+    "DiskSpaceError",
     "ModelError",
 ]

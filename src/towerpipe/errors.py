@@ -41,5 +41,22 @@ class PdalError(TowerpipeError):
     """The ``pdal`` command-line tool is missing or a pipeline failed."""
 
 
+class DiskSpaceError(TowerpipeError):
+    """A disk has no room for what a step writes (names the directory or file and the fix).
+
+    Parameters
+    ----------
+    path
+        The directory or file that could not be written.
+    cause
+        How much room was needed and is free, and where to find more.
+    """
+
+    def __init__(self, path: str | PathLike[str], cause: str):
+        self.path = str(path)
+        self.cause = cause
+        super().__init__(f"{self.path}: {cause}")
+
+
 class ModelError(TowerpipeError):
     """A model file is missing, corrupt, or does not fit the data."""

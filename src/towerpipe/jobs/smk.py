@@ -19,13 +19,15 @@ from collections.abc import Callable
 from typing import Any
 
 from towerpipe.errors import TowerpipeError
+from towerpipe.io.diskspace import full_disk_error
 
 
 def run_step(smk: Any, step: Callable[[], Any]) -> Any:
     """Run one library call for a Snakemake job.
 
-    Logging goes to the job's ``log`` file. A :class:`TowerpipeError` becomes a
-    one-line message (naming file and cause) on stderr and in the log, and exit
+    Logging goes to the job's ``log`` file. A :class:`TowerpipeError`, and an error of a
+    full disk wherever it is raised (:func:`towerpipe.io.diskspace.full_disk_error`), becomes
+    a one-line message (naming file and cause) on stderr and in the log, and exit
     status 1; Snakemake then removes the job's outputs, so nothing that looks
     complete survives. Any other exception is logged with its traceback.
     """
@@ -47,14 +49,16 @@ def run_step(smk: Any, step: Callable[[], Any]) -> Any:
     log.info("job %s: %s", smk.rule, json.dumps({k: str(v) for k, v in smk.wildcards.items()}))
     try:
         result = step()
-    except TowerpipeError as exc:
-        msg = f"{type(exc).__name__}: {exc}"
+    except Exception as exc:
+        # a full disk is no bug: said in one line wherever in the job it was met
+        err = exc if isinstance(exc, TowerpipeError) else full_disk_error(exc)
+        if err is None:
+            log.error("unexpected failure:\n%s", traceback.format_exc())
+            raise
+        msg = f"{type(err).__name__}: {err}"
         log.error(msg)
         print(f"towerpipe: {msg}", file=sys.stderr)
         sys.exit(1)
-    except Exception:
-        log.error("unexpected failure:\n%s", traceback.format_exc())
-        raise
     log.info("done")
     return result
 

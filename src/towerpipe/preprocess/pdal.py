@@ -14,11 +14,13 @@ import re
 import shutil
 import subprocess
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from towerpipe.errors import PdalError
+from towerpipe.io.diskspace import raise_if_full
 
 MIN_VERSION = (2, 2)
 INSTALL_HINT = "install it with `bash scripts/install_pdal.sh` (Debian 12) or `mamba install -c conda-forge pdal`"
@@ -76,6 +78,8 @@ def run_pipeline(stages: list[dict[str, Any]], *, what: str = "pipeline", timeou
     ------
     PdalError
         When PDAL is unusable or the pipeline exits non-zero (stderr tail in the message).
+    DiskSpaceError
+        When it exits non-zero and the disk a writer writes to is full.
     """
     pdal_version()
     doc = json.dumps({"pipeline": stages})
@@ -88,6 +92,11 @@ def run_pipeline(stages: list[dict[str, Any]], *, what: str = "pipeline", timeou
         raise PdalError(f"{what}: PDAL pipeline timed out after {timeout} s") from exc
     if proc.returncode != 0:
         tail = " | ".join(proc.stderr.strip().splitlines()[-3:])
+        for stage in stages:  # a writer that failed for want of room: said so
+            if "filename" in stage and str(stage.get("type", "")).startswith("writers."):
+                raise_if_full(
+                    Path(stage["filename"]).parent, what=f"{what}: PDAL pipeline failed (exit {proc.returncode})"
+                )
         raise PdalError(f"{what}: PDAL pipeline failed (exit {proc.returncode}): {tail}")
     return time.perf_counter() - t0
 
@@ -141,6 +150,8 @@ def read_ply_column(path: str | os.PathLike[str], name: str) -> np.ndarray:
     ------
     PdalError
         When the file is not such a PLY, is truncated, or has no property ``name``.
+    DiskSpaceError
+        When it is truncated and its disk is full (PDAL ran out of room writing it).
     """
     lines: list[str] = []
     with open(path, "rb") as f:
@@ -175,5 +186,7 @@ def read_ply_column(path: str | os.PathLike[str], name: str) -> np.ndarray:
         raise PdalError(f"{path}: no PLY property {name!r} (has {names}); add it to the writer's 'dims'")
     body = np.fromfile(path, dtype=np.dtype(fields), count=count, offset=offset)
     if len(body) != count:
+        # PDAL 2.2 exits 0 when its writer runs out of room: the file is then cut short
+        raise_if_full(path, what=f"{len(body)} points where the header says {count}")
         raise PdalError(f"{path}: {len(body)} points where the header says {count} (a truncated file)")
     return np.ascontiguousarray(body[name.lower()])

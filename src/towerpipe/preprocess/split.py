@@ -14,6 +14,7 @@ import logging
 import os
 import time
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -22,6 +23,7 @@ from towerpipe import classes
 from towerpipe.config import PreprocessConfig
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.io.blockcache import BlockCache, BlockCacheWriter
+from towerpipe.io.diskspace import WORK_BYTES_PER_POINT, require_free
 from towerpipe.io.las import BLOCK_COLUMNS, BlockHeader, check_metric_crs, color_info, iter_block, read_header
 from towerpipe.io.lasformat import check_format, own_dimensions
 from towerpipe.preprocess import tiling
@@ -76,8 +78,9 @@ def split_block(
         path, size, fingerprint, ``clash``), kept in ``meta.json`` as ``source``. A block
         with a ``clash`` (the same block in a second file) is refused.
 
-    Every check that can fail a block runs here, before any compute: readable, not
-    truncated, a CRS in metres (:func:`towerpipe.io.las.check_metric_crs`), a LAS
+    Every check that can fail a block runs here, before any compute: room on the disk for its
+    work files (:func:`towerpipe.io.diskspace.require_free`: a :class:`DiskSpaceError`, never
+    recorded), readable, not truncated, a CRS in metres (:func:`towerpipe.io.las.check_metric_crs`), a LAS
     version and point format the merge writes (:func:`towerpipe.io.lasformat.check_format`).
     The tiles come from the points (``bounds``, ``tiles``: the occupied tiles); a header
     whose bounds contradict the points is kept as ``header_warnings`` (a QA warning).
@@ -147,6 +150,13 @@ def _split_block(
             f"({_crs_name(zone_crs)}); reproject it or put it in a zone of its own",
         )
     n = header.point_count
+    # the block's work files (cache, tiles, classified LAZ), before any is written
+    require_free(
+        Path(out_dir).parent,
+        n * WORK_BYTES_PER_POINT,
+        what=f"block {block} ({n:,} points)",
+        fix="point `workdir` in the config at a larger disk",
+    )
     with BlockCache.create(out_dir) as tmp:
         meta = _stream_block(it, tmp, header, n, cfg, block)
         bounds = meta["bounds"]
