@@ -342,6 +342,8 @@ class PreprocessConfig(Section):
     min_ground_fraction: float
     #: ``"smrf"`` or ``"csf"``.
     ground_filter: str
+    #: Input classes that are noise in the delivery (left out of the processing with the withheld points).
+    noise_classes: list[int]
     #: Run PDAL's statistical outlier filter (slow: superlinear in PDAL 2.2).
     outlier: bool
     #: Neighbours of the outlier filter.

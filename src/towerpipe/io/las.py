@@ -219,6 +219,9 @@ def _chunk_columns(points: laspy.ScaleAwarePointRecord, dims: set[str]) -> dict[
         "classification": np.asarray(points.classification, dtype=np.uint8),
         "return_number": np.asarray(points.return_number, dtype=np.uint8),
         "number_of_returns": np.asarray(points.number_of_returns, dtype=np.uint8),
+        # not a cache column: the split leaves these points out of the processing (LAS: "should
+        # not be included in processing")
+        "withheld": np.asarray(points.withheld, dtype=bool),
     }
     for name in ("red", "green", "blue", "nir"):
         cols[name] = np.asarray(points[name], dtype=np.uint16) if name in dims else np.zeros(n, np.uint16)

@@ -3,7 +3,11 @@
 :func:`split_block` (one Snakemake job per block) runs every check that can fail a
 block, streams the decoded columns and raw point records into a
 :class:`towerpipe.io.blockcache.BlockCache` (memory-mapped by the tiles), and decides
-where ground comes from: class 2 when the block has enough of it, else PDAL's SMRF.
+where ground comes from: class 2 when the block has enough of it, else PDAL's SMRF. The
+points of the delivery's noise classes (``preprocess.noise_classes``) and those whose LAS
+*withheld* flag is set ("not to be included in processing") are noise from the cache on
+(class 7 in its ``classification`` column): left out of the ground, the DTM, the heights and
+the model. The merge writes the input's own records, so they keep their class.
 This module also owns the header checks (:func:`header_warnings`) and the zone-CRS
 comparison of the split.
 """
@@ -229,10 +233,21 @@ def _stream_block(
     stats = AttributeStats(header.dimensions)
     mins, maxs = np.full(3, np.inf), np.full(3, -np.inf)
     class_counts = np.zeros(256, np.int64)
+    noise_classes = np.asarray(sorted(cfg.noise_classes), np.uint8)
+    n_noise = n_withheld = 0
     progress = Progress(f"split {block}, read", n, "points", logger=log)
     try:
         for chunk in it:
             progress.update(len(chunk["x"]))
+            stats.update(chunk)  # the input's own classes and attributes
+            class_counts += np.bincount(chunk["classification"], minlength=256)
+            # the delivery's noise classes and its withheld points are noise from here on (the
+            # cache's class only: the merge writes the input's records, their class unchanged)
+            out = np.isin(chunk["classification"], noise_classes) | chunk["withheld"]
+            n_noise += int(out.sum())
+            n_withheld += int(chunk["withheld"].sum())
+            if out.any():
+                chunk = {**chunk, "classification": np.where(out, classes.LOW_NOISE, chunk["classification"])}
             for c in BLOCK_COLUMNS:
                 cols[c].write(chunk[c])
             if records is None:
@@ -240,10 +255,8 @@ def _stream_block(
             records.write(chunk["records"])
             for c in maxima:
                 maxima[c] = max(maxima[c], int(chunk[c].max()))
-            stats.update(chunk)
             mins = np.minimum(mins, [chunk["x"].min(), chunk["y"].min(), chunk["z"].min()])
             maxs = np.maximum(maxs, [chunk["x"].max(), chunk["y"].max(), chunk["z"].max()])
-            class_counts += np.bincount(chunk["classification"], minlength=256)
     finally:
         for stream in [*cols.values(), *([] if records is None else [records])]:
             stream.close()
@@ -266,6 +279,9 @@ def _stream_block(
         "ground_fraction": ground_fraction,
         "ground_source": "class2" if ground_fraction >= cfg.min_ground_fraction else cfg.ground_filter,
         "class_counts": {str(k): int(v) for k, v in enumerate(class_counts) if v},
+        "noise_classes": noise_classes.tolist(),
+        "noise_points": n_noise,
+        "withheld_points": n_withheld,
         "timings": {"read": t_read},
     }
 

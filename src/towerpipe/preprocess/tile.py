@@ -432,6 +432,10 @@ def summarize_block(cache_dir: str | os.PathLike[str], tile_paths: Sequence[str]
         "ground_source": m["ground_source"],
         "ground_fraction": m["ground_fraction"],
         "class_counts": m["class_counts"],
+        # the points the split made noise (the delivery's noise classes, the withheld flag)
+        "noise_classes": m.get("noise_classes"),
+        "noise_points": m.get("noise_points"),
+        "withheld_points": m.get("withheld_points"),
         "counts": totals,
         "tiles": tiles,
         "warnings": warnings,

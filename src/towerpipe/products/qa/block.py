@@ -252,7 +252,14 @@ def block_report(
     points_model_input = int(sum(int(m.get("points_model_input_core") or 0) for m in pred_metas))
 
     # ---- per-stage counts
-    stage_counts: list[tuple[str, int]] = [(f"tiles: {k.replace('_', ' ')}", int(v)) for k, v in tile_counts.items()]
+    stage_counts: list[tuple[str, int]] = []
+    if stats.get("noise_points") is not None:  # the split's noise (blocks split before 0.12.0 lack it)
+        noise_classes = ", ".join(str(c) for c in stats.get("noise_classes") or []) or "none"
+        stage_counts += [
+            (f"input: noise classes ({noise_classes}) or withheld, left out", int(stats["noise_points"])),
+            ("… of them withheld (LAS flag)", int(stats.get("withheld_points") or 0)),
+        ]
+    stage_counts += [(f"tiles: {k.replace('_', ' ')}", int(v)) for k, v in tile_counts.items()]
     if pred_metas:
         stage_counts.append(("model input (core points)", points_model_input))
     if n_points is not None:
