@@ -67,6 +67,8 @@ def test_a_full_disk_is_found_behind_the_error_a_library_raised(tmp_path):
     assert full_disk_error(ValueError("IoError: No space left on device (os error 28)")) is not None
     assert full_disk_error(OSError(errno.EDQUOT, "Disk quota exceeded")) is not None
     assert full_disk_error(OSError(errno.EACCES, "Permission denied")) is None
+    said = DiskSpaceError(tmp_path, "the disk is full (1 MiB free: [Errno 28] No space left on device)")
+    assert full_disk_error(said) is said  # said once, where it was met
     assert full_disk_error(KeyError("x")) is None
 
 
@@ -98,6 +100,17 @@ def test_a_job_that_fills_the_disk_ends_with_one_line_and_status_1(tmp_path, cap
     line = capsys.readouterr().err.strip().splitlines()[-1]
     assert line.startswith(f"towerpipe: DiskSpaceError: {tmp_path / 'y.npy'}: the disk is full (")
     assert "Traceback" not in (tmp_path / "job.log").read_text()
+
+    # a towerpipe error made of a full disk is the disk's
+    def pdal_step():
+        try:
+            raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "z.las"))
+        except OSError as exc:
+            raise PdalError("pipeline failed") from exc
+
+    with pytest.raises(SystemExit):
+        run_step(_smk(tmp_path), pdal_step)
+    assert f"towerpipe: DiskSpaceError: {tmp_path / 'z.las'}: the disk is full (" in capsys.readouterr().err
     # any other failure keeps its traceback
     with pytest.raises(ZeroDivisionError):
         run_step(_smk(tmp_path), lambda: 1 / 0)

@@ -113,6 +113,8 @@ def full_disk_error(exc: BaseException, *, fix: str = MOVE_FIX) -> DiskSpaceErro
     e: BaseException | None = exc
     while e is not None and id(e) not in seen:
         seen.add(id(e))
+        if isinstance(e, DiskSpaceError):  # said already, where it was met
+            return e
         full = isinstance(e, OSError) and e.errno in _FULL_ERRNOS
         if full or any(t in str(e) for t in _FULL_TEXT):
             # the file where the error names it, else the fuller of the temporary and current directories

@@ -50,8 +50,9 @@ def run_step(smk: Any, step: Callable[[], Any]) -> Any:
     try:
         result = step()
     except Exception as exc:
-        # a full disk is no bug: said in one line wherever in the job it was met
-        err = exc if isinstance(exc, TowerpipeError) else full_disk_error(exc)
+        # a full disk is no bug: said in one line wherever in the job it was met, whatever
+        # error a library made of it
+        err = full_disk_error(exc) or (exc if isinstance(exc, TowerpipeError) else None)
         if err is None:
             log.error("unexpected failure:\n%s", traceback.format_exc())
             raise

@@ -247,7 +247,8 @@ def _stream_block(
             n_noise += int(out.sum())
             n_withheld += int(chunk["withheld"].sum())
             if out.any():
-                chunk = {**chunk, "classification": np.where(out, classes.LOW_NOISE, chunk["classification"])}
+                cls = np.where(out, classes.LOW_NOISE, chunk["classification"]).astype(np.uint8)
+                chunk = {**chunk, "classification": cls}
             for c in BLOCK_COLUMNS:
                 cols[c].write(chunk[c])
             if records is None:
