@@ -342,8 +342,9 @@ class PreprocessConfig(Section):
     min_ground_fraction: float
     #: ``"smrf"`` or ``"csf"``.
     ground_filter: str
-    #: Input classes that are noise in the delivery (left out of the processing with the withheld points).
-    noise_classes: list[int]
+    #: Input classes that are noise in the delivery besides :data:`towerpipe.classes.NOISE` (left out
+    #: of the processing with them and the withheld points).
+    extra_noise_classes: list[int]
     #: Run PDAL's statistical outlier filter (slow: superlinear in PDAL 2.2).
     outlier: bool
     #: Neighbours of the outlier filter.

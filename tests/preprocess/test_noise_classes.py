@@ -36,7 +36,7 @@ def delivery(tmp_path):
 
 def test_noise_classes_and_withheld_points_are_noise_in_the_cache_only(tmp_path, delivery):
     path, cls, withheld = delivery
-    settings = preprocess_settings(noise_classes=[7, 18, ARTEFACTS])
+    settings = preprocess_settings(extra_noise_classes=[ARTEFACTS])
     meta = split_block(path, tmp_path / "cache", block="b", zone="z", settings=settings)
     noise = withheld | np.isin(cls, (7, 18, ARTEFACTS))
     assert meta["noise_points"] == int(noise.sum()) > meta["withheld_points"] == int(withheld.sum()) > 0
@@ -54,7 +54,7 @@ def test_noise_classes_and_withheld_points_are_noise_in_the_cache_only(tmp_path,
 @pytest.mark.usefixtures("pdal_cli")
 def test_they_are_no_ground_and_no_model_input_and_keep_their_class_and_flag_in_the_output(tmp_path, delivery):
     path, cls, withheld = delivery
-    settings = preprocess_settings(noise_classes=[7, 18, ARTEFACTS], tile_size=1000.0)
+    settings = preprocess_settings(extra_noise_classes=[ARTEFACTS], tile_size=1000.0)
     meta = split_block(path, tmp_path / "cache", block="b", zone="z", settings=settings)
     (tile,) = meta["tiles"]
     preprocess_tile("z", "b", tile, {"b": tmp_path / "cache"}, tmp_path / "tile.npz", settings=settings)

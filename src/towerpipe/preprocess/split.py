@@ -4,7 +4,8 @@
 block, streams the decoded columns and raw point records into a
 :class:`towerpipe.io.blockcache.BlockCache` (memory-mapped by the tiles), and decides
 where ground comes from: class 2 when the block has enough of it, else PDAL's SMRF. The
-points of the delivery's noise classes (``preprocess.noise_classes``) and those whose LAS
+points of the noise classes (ASPRS 7 and 18, and the delivery's own in
+``preprocess.extra_noise_classes``) and those whose LAS
 *withheld* flag is set ("not to be included in processing") are noise from the cache on
 (class 7 in its ``classification`` column): left out of the ground, the DTM, the heights and
 the model. The merge writes the input's own records, so they keep their class.
@@ -233,7 +234,7 @@ def _stream_block(
     stats = AttributeStats(header.dimensions)
     mins, maxs = np.full(3, np.inf), np.full(3, -np.inf)
     class_counts = np.zeros(256, np.int64)
-    noise_classes = np.asarray(sorted(cfg.noise_classes), np.uint8)
+    noise_classes = np.asarray(sorted({*classes.NOISE, *cfg.extra_noise_classes}), np.uint8)
     n_noise = n_withheld = 0
     progress = Progress(f"split {block}, read", n, "points", logger=log)
     try:
