@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import json
+
 import geopandas as gpd
 import laspy
 import numpy as np
 import shapely
 
-from towerpipe.evaluation.evaluate import false_tower_sources, summary_line, zone_points
+from towerpipe.evaluation.evaluate import false_tower_sources, hard_negatives, summary_line, zone_points
 
 
 def write_block(path, x, y, cls):
@@ -63,3 +65,22 @@ def test_summary_line_says_n_a_where_a_ratio_is_undefined():
     assert "precision 0.500 recall 1.000" in summary_line(
         {**res, "towers_predicted": 2, "tower_precision": 0.5, "tower_recall": 1.0}
     )
+
+
+def test_hard_negatives_counts_the_objects_a_reported_tower_stands_on(tmp_path):
+    """The generated zone's recorded cranes and masts by kind, and on how many a reported tower stands."""
+    negs = [
+        {"kind": "crane", "x": 10.0, "y": 10.0, "height": 40.0},
+        {"kind": "crane", "x": 200.0, "y": 10.0, "height": 35.0},
+        {"kind": "telecom_mast", "x": 100.0, "y": 100.0, "height": 30.0},
+    ]
+    (tmp_path / "synth_meta.json").write_text(json.dumps({"seed": 1, "negatives": negs}))
+    pred = gpd.GeoDataFrame(
+        {"tower_id": ["T1", "T2"]}, geometry=[shapely.box(12, 12, 16, 16), shapely.box(300, 300, 304, 304)]
+    )
+    assert hard_negatives(tmp_path, pred) == {
+        "crane": {"objects": 2, "reported": 1},
+        "telecom_mast": {"objects": 1, "reported": 0},
+    }
+    assert hard_negatives(tmp_path, pred.iloc[:0])["crane"] == {"objects": 2, "reported": 0}
+    assert hard_negatives(tmp_path / "real_zone", pred) == {}  # no metadata: a real zone records none

@@ -414,3 +414,33 @@ def test_realshape_zone_tower_height_scales_the_real_shapes(tmp_path):
     for _, r in small.towers.iterrows():
         z = pts["z"][pts["TowerId"] == r["tower_id"]]
         assert z.max() - r["base_z"] <= r["height"] + 0.5
+
+
+@pytest.mark.shared
+def test_cranes_beside_lines_on_real_backgrounds(tmp_path):
+    """``cranes_beside_lines`` stands tower cranes (class 1, no tower id) 12-40 m across a line of the
+    tile, records them in the metadata, and leaves a zone without them as it was."""
+    from towerpipe.synth.negatives import BESIDE_LINE_ACROSS_M
+
+    kw = _one_family_on_a_real_tile(11, "uav", (10, 20))
+    plain = generate_zone(tmp_path / "plain", **kw)
+    none = generate_zone(tmp_path / "none", **kw, cranes_beside_lines=0)
+    np.testing.assert_array_equal(_all_points(none)["x"], _all_points(plain)["x"])
+    assert json.loads((tmp_path / "none" / "synth_meta.json").read_text())["negatives"] == []
+
+    t = generate_zone(tmp_path / "cranes", **kw, cranes_beside_lines=3)
+    negs = t.meta["negatives"]
+    assert len(negs) == 3 and {n["kind"] for n in negs} == {"crane"}
+    assert json.loads((tmp_path / "cranes" / "synth_meta.json").read_text())["negatives"] == negs
+    p = _all_points(t)
+    wires = p["classification"] == 14
+    wx, wy = p["x"][wires], p["y"][wires]
+    for n in negs:
+        assert 20.0 <= n["height"] <= 55.0
+        # the mast's points: class 1, no tower id, from the ground up to the jib
+        mast = (np.hypot(p["x"] - n["x"], p["y"] - n["y"]) < 1.5) & (p["classification"] == 1)
+        assert mast.sum() > 20 and not p["TowerId"][mast].any()
+        # beside a line: its conductors pass within the cranes' range across it
+        assert float(np.hypot(wx - n["x"], wy - n["y"]).min()) < BESIDE_LINE_ACROSS_M[1] + 2.0
+    # the towers are those of the zone without cranes
+    assert t.towers["design"].tolist() == plain.towers["design"].tolist()

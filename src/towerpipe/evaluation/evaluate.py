@@ -117,6 +117,28 @@ def false_tower_sources(false_towers: gpd.GeoDataFrame, labelled: dict[str, np.n
     return rows
 
 
+def hard_negatives(input_dir: str | os.PathLike[str], pred: gpd.GeoDataFrame, max_dist: float = 5.0) -> dict:
+    """The hard negatives a generated zone records (``negatives`` of its ``synth_meta.json``:
+    cranes, masts, turbines, chimneys, poles) by kind: how many stand in the zone, and on how
+    many a reported tower stands (its footprint within ``max_dist`` m of the object's base).
+
+    Returns ``{}`` for a zone that records none (a real zone, or one generated without them).
+    """
+    import shapely
+
+    from towerpipe.synth.truth import META_JSON
+
+    path = Path(input_dir) / META_JSON
+    negs = (json.loads(path.read_text()).get("negatives") or []) if path.exists() else []
+    out: dict[str, dict[str, int]] = {}
+    for n in negs:
+        d = out.setdefault(str(n["kind"]), {"objects": 0, "reported": 0})
+        d["objects"] += 1
+        if len(pred) and float(pred.geometry.distance(shapely.Point(n["x"], n["y"])).min()) <= max_dist:
+            d["reported"] += 1
+    return out
+
+
 def evaluate_zone(
     input_dir: str | os.PathLike[str],
     results_dir: str | os.PathLike[str],
@@ -186,6 +208,7 @@ def evaluate_zone(
     }
     false = pred[pred["tower_id"].astype(str).isin(res["unmatched_pred"])] if len(pred) else pred
     res["false_towers"] = false_tower_sources(false, labelled)
+    res["hard_negatives"] = hard_negatives(input_dir, pred, max_dist)
     if out_json:
         Path(out_json).write_text(json.dumps(res, indent=1, default=str))
     return res
@@ -321,6 +344,11 @@ def _cli(args: argparse.Namespace) -> int:
             f"false tower {t['tower_id']}: {t['height_m']} m, {t['n_points']} points, mean probability "
             f"{t['prob_mean']}; input classes of its points {t['input_classes']}"
         )
+    if res["hard_negatives"]:
+        kinds = ", ".join(
+            f"{k} {d['objects']} ({d['reported']} reported)" for k, d in sorted(res["hard_negatives"].items())
+        )
+        print(f"hard negatives of the generated zone: {kinds}")
     return 0
 
 

@@ -6,7 +6,8 @@ stand on its real ground away from buildings, at a density of their own; with ``
 they stand along a straight line across the tile and carry conductors (catenaries from
 each tower to the next and out of the tile on both sides, as a corridor crossing it).
 A tile can be used several times (``copies``), each copy moved 3 km east with towers of
-its own, so that one small background holds enough towers for a benchmark.
+its own, so that one small background holds enough towers for a benchmark. ``cranes``
+puts tower cranes beside the lines (hard negatives that the conductors pass near).
 
 Inserted points are coloured as a colourised flight colours them: a share of a tower's
 points (:attr:`~towerpipe.synth.params.SceneParams.tower_own_color`) takes the tower's own
@@ -37,6 +38,7 @@ from towerpipe import classes
 from towerpipe.errors import ConfigError, InputError
 from towerpipe.synth import color as col
 from towerpipe.synth.lasout import write_block
+from towerpipe.synth.negatives import crane_beside_line
 from towerpipe.synth.params import SceneParams
 from towerpipe.synth.primitives import sample_segments, segments
 from towerpipe.synth.real import RealTowerLibrary, attachments, realise, to_world
@@ -162,6 +164,7 @@ def generate_background_zone(
     tower_height: tuple[float, float] | None = None,
     lines: bool = False,
     variant: str | list[str] = "intact",
+    cranes: int = 0,
 ) -> ZoneTruth:
     """Insert towers into the real background tiles of ``backgrounds`` (see the module docstring).
 
@@ -193,6 +196,9 @@ def generate_background_zone(
         Towers on parallel lines across each tile, with conductors.
     variant
         One of :data:`VARIANTS`, or a list of them (degraded in every way listed).
+    cranes
+        Tower cranes per tile copy, each beside a line of the tile
+        (:func:`towerpipe.synth.negatives.crane_beside_line`; recorded in the metadata's ``negatives``).
     """
     variants = [variant] if isinstance(variant, str) else list(variant)
     if not variants or set(variants) - set(VARIANTS):
@@ -203,7 +209,7 @@ def generate_background_zone(
     lib = RealTowerLibrary(real_towers, tower_families) if tower_source != "synthetic" else None
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict] = []
-    blocks, spans = [], []
+    blocks, spans, negatives = [], [], []
     crs_out = None
     next_id = 1
     for copy in range(copies):
@@ -224,7 +230,9 @@ def generate_background_zone(
                 tower_density=tower_density,
                 tower_height=tower_height,
                 lines=lines,
+                cranes=cranes,
             )
+            negatives += ins["negatives"]
             next_id += len(ins["rows"])
             rows += ins["rows"]
             spans += ins["spans"]
@@ -242,15 +250,9 @@ def generate_background_zone(
             )
             for r in ins["rows"]:
                 r["block"] = r["blocks"] = name
+            n_pts, bounds = int(len(pts["x"])), ins["bounds"]
             blocks.append(
-                {
-                    "name": name,
-                    "path": str(path),
-                    "source": str(f),
-                    "copy": copy,
-                    "n_points": int(len(pts["x"])),
-                    "bounds": ins["bounds"],
-                }
+                {"name": name, "path": str(path), "source": str(f), "copy": copy, "n_points": n_pts, "bounds": bounds}
             )
             log.info("background block %s (%s, copy %d): %d towers", name, f.name, copy, len(ins["rows"]))
     gdf = gpd.GeoDataFrame(rows, columns=TRUTH_COLUMNS, geometry="geometry", crs=crs_out)
@@ -269,6 +271,7 @@ def generate_background_zone(
         "blocks": blocks,
         "params": params.to_dict(),
         "spans": spans,
+        "negatives": negatives,
     }
     (out / META_JSON).write_text(json.dumps(meta, indent=1))
     return ZoneTruth(out, blocks, gdf, np.array(spans, np.int64).reshape(-1, 2), meta)
@@ -287,8 +290,10 @@ def _insert(
     tower_density,
     tower_height: tuple[float, float] | None = None,
     lines: bool,
+    cranes: int = 0,
 ) -> dict:
-    """One tile (moved ``dx`` east) with its towers and conductors: points, truth rows, spans."""
+    """One tile (moved ``dx`` east) with its towers, conductors and cranes: points, truth rows,
+    spans, negatives."""
     from towerpipe.synth.scene import block_name
 
     xyz = np.c_[np.asarray(las.x) + dx, las.y, las.z]
@@ -301,6 +306,9 @@ def _insert(
     bld = xyz[cls == 6, :2]
     btree = cKDTree(bld) if len(bld) else None
     gtree = cKDTree(xyz[cls == 2, :2]) if (cls == 2).any() else cKDTree(xyz[:, :2])
+
+    def in_box(p: np.ndarray) -> np.ndarray:
+        return p[(p[:, 0] >= xmin) & (p[:, 0] <= xmax) & (p[:, 1] >= ymin) & (p[:, 1] <= ymax)]
 
     def clear(p):
         """Away from buildings, and on ground the tile has data of (a tile's box can be mostly empty)."""
@@ -333,9 +341,9 @@ def _insert(
             pts = pts[rng.random(len(pts)) < vis]
             att = t.attach
             material = col.WOOD if design in WOODEN else col.STEEL
-        inside = (pts[:, 0] >= xmin) & (pts[:, 0] <= xmax) & (pts[:, 1] >= ymin) & (pts[:, 1] <= ymax)
-        if inside.sum() >= 5:
-            towers.append((first_id + len(towers), design, h, base_z, pts[inside], _three(att, head), material))
+        pts = in_box(pts)
+        if len(pts) >= 5:
+            towers.append((first_id + len(towers), design, h, base_z, pts, _three(att, head), material))
             if lines:
                 wires.append(_conductors(towers[-1][5], head, float(rng.uniform(*LINE_SPAN)), gz, tile_density, rng))
     parts, rows = [], []
@@ -364,9 +372,16 @@ def _insert(
             }
         )
     if wires:
-        w = np.concatenate(wires)
-        w = w[(w[:, 0] >= xmin) & (w[:, 0] <= xmax) & (w[:, 1] >= ymin) & (w[:, 1] <= ymax)]
-        parts.append((w, 14, 0, col.WIRE, 0.3, 1.0))
+        parts.append((in_box(np.concatenate(wires)), 14, 0, col.WIRE, 0.3, 1.0))
+    negatives = []
+    for _ in range(cranes if len(where) else 0):
+        k = int(rng.integers(len(where)))
+        neg = crane_beside_line(rng, where[k], float(heading[k]), gz, clear)
+        if neg is not None:
+            dens = float(rng.uniform(*tower_density)) if tower_density else tile_density
+            c, _ = sample_segments(neg.prim, dens, rng, beam=params.member_beam, vertical_factor=params.vertical_factor)
+            parts.append((in_box(c), classes.OTHER, 0, col.STEEL, 0.7, 1.0))
+            negatives.append({"kind": neg.kind, "x": neg.x, "y": neg.y, "height": round(neg.height, 3)})
     points = _points(las, xyz, cls, parts, rng)
     return {
         "points": points,
@@ -374,6 +389,7 @@ def _insert(
         "name": block_name(np.floor(xmin), np.floor(ymin)),
         "bounds": [float(xmin), float(ymin), float(xmax), float(ymax)],
         "spans": [],
+        "negatives": negatives,
     }
 
 

@@ -100,6 +100,49 @@ _BUILDERS = {
 }
 
 
+#: A tower crane beside a power line (:func:`crane_beside_line`): its mast this far (m) across
+#: from the line's axis (its jib, 30-60 m, may swing over the conductors), this far along the
+#: line from a tower.
+BESIDE_LINE_ACROSS_M, BESIDE_LINE_ALONG_M = (12.0, 40.0), 80.0
+
+
+def crane_beside_line(
+    rng: np.random.Generator, station: np.ndarray, heading: float, terrain_z, clear, tries: int = 50
+) -> Negative | None:
+    """A tower crane standing beside a power line, as on a building site next to a corridor.
+
+    Parameters
+    ----------
+    rng
+        Random generator.
+    station, heading
+        A tower of the line (plan position) and the line's heading (radians).
+    terrain_z
+        ``terrain_z(x, y)`` of arrays: the ground height.
+    clear
+        ``clear(p)``: whether a crane may stand at plan position ``p`` (ground under it, no building).
+    tries
+        Positions drawn before giving up.
+
+    Returns
+    -------
+    Negative or None
+        The crane (kind ``"crane"``), ``None`` where no drawn position was clear.
+    """
+    along = np.array([np.cos(heading), np.sin(heading)])
+    across = np.array([-np.sin(heading), np.cos(heading)])
+    build, (lo, hi) = _BUILDERS["crane"]
+    for _ in range(tries):
+        off = rng.choice([-1.0, 1.0]) * rng.uniform(*BESIDE_LINE_ACROSS_M)
+        p = np.asarray(station, float) + rng.uniform(-BESIDE_LINE_ALONG_M, BESIDE_LINE_ALONG_M) * along + off * across
+        if clear(p):
+            h = float(rng.uniform(lo, hi))
+            z = float(terrain_z(p[:1], p[1:])[0])
+            prim = build(h, rng).transformed(float(p[0]), float(p[1]), z, float(rng.uniform(0, 2 * np.pi)))
+            return Negative("crane", float(p[0]), float(p[1]), h, prim)
+    return None
+
+
 def make_negatives(
     seed: int, bounds, params: SceneParams, terrain_z, roads, avoid
 ) -> tuple[list[Negative], Primitives]:

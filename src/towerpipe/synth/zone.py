@@ -48,6 +48,7 @@ def generate_zone(
     lines: bool = False,
     variant: str = "intact",
     tower_variety: bool = False,
+    cranes_beside_lines: int = 0,
     **overrides,
 ) -> ZoneTruth:
     """Generate a synthetic airborne zone of adjoining LAZ blocks with truth.
@@ -84,6 +85,8 @@ def generate_zone(
         density range (pts/m²), the height range (m) the real shapes are scaled to, towers
         along a line with conductors, and the attribute variant
         (:data:`towerpipe.synth.background.VARIANTS`).
+    cranes_beside_lines
+        Zones on real backgrounds only: tower cranes per tile copy, each beside a line.
     tower_variety
         Apply :data:`towerpipe.synth.params.TOWER_VARIETY` (every design, orthophoto
         colours, per-tower intensity, varied real shapes) before ``overrides``.
@@ -116,6 +119,7 @@ def generate_zone(
             variant=variant,
             tower_density=tuple(tower_density) if tower_density else None,
             tower_height=tuple(tower_height) if tower_height else None,
+            cranes=cranes_beside_lines,
         )
     p = params if params is not None else get_preset(preset)
     p = with_overrides(p, **overrides)
