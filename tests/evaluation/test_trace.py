@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from towerpipe.errors import InputError
-from towerpipe.evaluation.trace import GATE_STAGES, RULE_NAMES, _gate_stage, trace_table, trace_zone
+from towerpipe.evaluation.trace import GATE_STAGES, RULE_NAMES, _gate_stage, _reported, trace_table, trace_zone
 from towerpipe.towers.extract import TRACE_RULES
 
 
@@ -68,3 +68,18 @@ def test_a_tower_never_segmented_is_told_which_gate_refused_it():
 def test_a_zone_never_run_names_the_run_to_do(tmp_path):
     with pytest.raises(InputError, match=r"snakemake --cores 2 results/z1/"):
         trace_zone(tmp_path, "z1", tmp_path, inference={"threshold": 0.3}, towers={})
+
+
+def test_a_found_tower_counts_the_points_it_reports_that_are_no_tower():
+    """Crowns painted with a found tower: its reported points across blocks, and those of them the
+    input does not label 15; the table shows both for found towers only."""
+    import numpy as np
+
+    members = {7: (np.array(["b1", "b1", "b1", "b2", "b2"]), np.array([3, 4, 9, 0, 5]))}
+    labels = {"b1": np.array([3, 4, 5]), "b2": np.array([0])}
+    assert _reported(members, "7", labels) == {"reported_points": 5, "reported_other": 2}
+    assert _reported(members, "8", labels) == {"reported_points": 0, "reported_other": 0}
+    found = {**_row("2", "found"), "reported_points": 5, "reported_other": 2}
+    lines = trace_table([found, _row("10", "core", 0.24, 105)]).splitlines()
+    assert lines[0].endswith("| reported points | of them not tower |")
+    assert lines[3].endswith("| 5 | 2 |") and lines[2].endswith("| 105 |  |  |")

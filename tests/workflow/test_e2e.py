@@ -178,5 +178,6 @@ def test_trace_tells_found_from_missed_as_the_scores_do(zone_run):
     for r in rows:
         if r["stage"] in RULE_NAMES:
             assert r["cluster_points"] > 0
+    assert all(0 <= r["reported_other"] < r["reported_points"] for r in found)
     table = trace_table(rows)
     assert table.splitlines()[-1] == f"{len(found)} of {len(rows)} true towers found."

@@ -7,6 +7,8 @@ run them, with a ``trace`` (:func:`towerpipe.towers.extract.extract_towers`) tha
 what decided every cluster. A true tower is then:
 
 - ``found``: a reported tower matches it (within 5 m, :func:`towerpipe.towers.matching.match_towers`);
+  the points that tower reports are counted, and those of them the input does not label as
+  tower (crowns or ground painted with it: what its point IoU loses besides the points it misses);
 - ``not segmented``: no point within 1 m of its footprint was segmented; the windows' gates
   (:func:`towerpipe.inference.windows.window_gates`, recorded by each inference job) then say why:
   ``no window`` (no window centred within 1 m of its footprint: no height peak on it),
@@ -90,15 +92,17 @@ def trace_zone(
         ``no window``, ``shape gate``, ``classifier gate``, ``not segmented``, ``faint``, ``no
         cluster`` or a rule of :data:`RULE_NAMES`), ``value``
         (what that stage measured: the highest probability, the shape score, ...),
-        ``cluster_points`` (of the deciding cluster) and ``max_prob`` (the highest
-        single-view probability segmented within 1 m of it). True towers under
+        ``cluster_points`` (of the deciding cluster), ``max_prob`` (the highest
+        single-view probability segmented within 1 m of it) and, for a found tower,
+        ``reported_points`` (the points its reported tower classifies as tower) and
+        ``reported_other`` (those of them not labelled tower in the input). True towers under
         ``towers.min_points`` points are left out, as the scores leave them out.
     """
     import geopandas as gpd
     import shapely
 
     from towerpipe.config import TowersConfig
-    from towerpipe.evaluation.calibrate import NEAR_TOWER_M, zone_survey, zone_tiles, zone_towers
+    from towerpipe.evaluation.calibrate import NEAR_TOWER_M, tower_labels, zone_survey, zone_tiles, zone_towers
     from towerpipe.io import workdir
     from towerpipe.io.predictions import load_pred
     from towerpipe.towers.matching import match_towers
@@ -125,7 +129,8 @@ def trace_zone(
         crs=truth.crs,
         trace=trace,
     )
-    matched = {str(m["truth"]) for m in match_towers(found.towers, truth, max_dist=5.0)["matches"]}
+    matched = {str(m["truth"]): m["pred"] for m in match_towers(found.towers, truth, max_dist=5.0)["matches"]}
+    labels = tower_labels(Path(input_dir)) if matched else {}
     x = np.concatenate([np.asarray(p.arrays["x"], np.float64) for p in preds])
     y = np.concatenate([np.asarray(p.arrays["y"], np.float64) for p in preds])
     prob = np.concatenate([np.asarray(p.arrays["prob_single"], np.float64) for p in preds])
@@ -147,9 +152,11 @@ def trace_zone(
             "stage": "found",
             "value": float("nan"),
             "cluster_points": 0,
+            "reported_points": 0,
+            "reported_other": 0,
         }
         if str(t["tower_id"]) in matched:
-            pass
+            row.update(_reported(found.members, matched[str(t["tower_id"])], labels))
         elif not here.any():
             stage, value = _gate_stage(near, gates)
             row.update(stage=stage, value=value)
@@ -169,6 +176,18 @@ def trace_zone(
                 row.update(stage=best["rule"], value=best["value"], cluster_points=len(best["x"]))
         rows.append(row)
     return rows
+
+
+def _reported(members: Mapping[Any, Any], tower_id: Any, labels: Mapping[str, np.ndarray]) -> dict[str, int]:
+    """The points a reported tower classifies as tower, and those of them the input does not label 15."""
+    key = int(tower_id) if str(tower_id).isdigit() else tower_id  # the members' keys are the ids as numbers
+    blocks, idx = members.get(key, ((), ()))
+    blocks, idx = np.asarray(blocks).astype(str), np.asarray(idx, np.int64)
+    other = sum(
+        int(np.isin(idx[blocks == b], labels.get(str(b), np.empty(0, np.int64)), invert=True).sum())
+        for b in np.unique(blocks)
+    )
+    return {"reported_points": int(idx.size), "reported_other": other}
 
 
 def _window_gates(preds: Sequence[Any], inference: Mapping[str, Any]) -> dict[str, Any] | None:
@@ -218,15 +237,17 @@ def trace_table(rows: Sequence[Mapping[str, Any]]) -> str:
 
     order = sorted(rows, key=key)
     lines = [
-        "| tower | design | height (m) | true points | highest probability | stage | value | cluster points |",
-        "|---|---|---|---|---|---|---|---|",
+        "| tower | design | height (m) | true points | highest probability | stage | value | cluster points "
+        "| reported points | of them not tower |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in order:
         stage = RULE_NAMES.get(r["stage"]) or GATE_STAGES.get(r["stage"], r["stage"])
         value = "" if not np.isfinite(r["value"]) else f"{r['value']:.3f}"
         lines.append(
             f"| {r['tower_id']} | {r['design']} | {r['height_m']:.1f} | {r['n_points']} | {r['max_prob']:.2f} | "
-            f"{stage} | {value} | {r['cluster_points'] or ''} |"
+            f"{stage} | {value} | {r['cluster_points'] or ''} | {r.get('reported_points') or ''} | "
+            f"{r.get('reported_other', '') if r.get('reported_points') else ''} |"
         )
     missed = sum(r["stage"] != "found" for r in rows)
     lines.append("")
