@@ -10,6 +10,7 @@ import numpy as np
 import shapely
 
 from towerpipe.evaluation.evaluate import false_tower_sources, hard_negatives, summary_line, zone_points
+from towerpipe.synth.truth import META_JSON
 
 
 def write_block(path, x, y, cls):
@@ -74,7 +75,7 @@ def test_hard_negatives_counts_the_objects_a_reported_tower_stands_on(tmp_path):
         {"kind": "crane", "x": 200.0, "y": 10.0, "height": 35.0},
         {"kind": "telecom_mast", "x": 100.0, "y": 100.0, "height": 30.0},
     ]
-    (tmp_path / "synth_meta.json").write_text(json.dumps({"seed": 1, "negatives": negs}))
+    (tmp_path / META_JSON).write_text(json.dumps({"seed": 1, "negatives": negs}))
     pred = gpd.GeoDataFrame(
         {"tower_id": ["T1", "T2"]}, geometry=[shapely.box(12, 12, 16, 16), shapely.box(300, 300, 304, 304)]
     )

@@ -421,17 +421,18 @@ def test_cranes_beside_lines_on_real_backgrounds(tmp_path):
     """``cranes_beside_lines`` stands tower cranes (class 1, no tower id) 12-40 m across a line of the
     tile, records them in the metadata, and leaves a zone without them as it was."""
     from towerpipe.synth.negatives import BESIDE_LINE_ACROSS_M
+    from towerpipe.synth.truth import META_JSON
 
     kw = _one_family_on_a_real_tile(11, "uav", (10, 20))
     plain = generate_zone(tmp_path / "plain", **kw)
     none = generate_zone(tmp_path / "none", **kw, cranes_beside_lines=0)
     np.testing.assert_array_equal(_all_points(none)["x"], _all_points(plain)["x"])
-    assert json.loads((tmp_path / "none" / "synth_meta.json").read_text())["negatives"] == []
+    assert json.loads((tmp_path / "none" / META_JSON).read_text())["negatives"] == []
 
     t = generate_zone(tmp_path / "cranes", **kw, cranes_beside_lines=3)
     negs = t.meta["negatives"]
     assert len(negs) == 3 and {n["kind"] for n in negs} == {"crane"}
-    assert json.loads((tmp_path / "cranes" / "synth_meta.json").read_text())["negatives"] == negs
+    assert json.loads((tmp_path / "cranes" / META_JSON).read_text())["negatives"] == negs
     p = _all_points(t)
     wires = p["classification"] == 14
     wx, wy = p["x"][wires], p["y"][wires]
