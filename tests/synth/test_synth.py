@@ -445,3 +445,30 @@ def test_cranes_beside_lines_on_real_backgrounds(tmp_path):
         assert float(np.hypot(wx - n["x"], wy - n["y"]).min()) < BESIDE_LINE_ACROSS_M[1] + 2.0
     # the towers are those of the zone without cranes
     assert t.towers["design"].tolist() == plain.towers["design"].tolist()
+
+
+def test_cranes_beside_lines_on_generated_zones(tmp_path):
+    """On a generated zone ``cranes_beside_lines`` stands that many tower cranes in each block that
+    holds a line tower, beside one of its towers, and changes nothing else of the zone."""
+    from towerpipe.synth.negatives import BESIDE_LINE_ACROSS_M
+
+    kw = dict(seed=5, blocks=2, size=300, density=4, preset="catalonia", lines_per_km2=8.0)
+    plain = generate_zone(tmp_path / "plain", **kw)
+    t = generate_zone(tmp_path / "cranes", **kw, cranes_beside_lines=2)
+    cranes = [n for n in t.meta["negatives"] if n["kind"] == "crane"]
+    others = [n for n in t.meta["negatives"] if n["kind"] != "crane"]
+    assert others == plain.meta["negatives"]
+    bounds = [b["bounds"] for b in t.meta["blocks"]]
+    with_towers = [
+        b for b in bounds if any(b[0] <= x < b[2] and b[1] <= y < b[3] for x, y in zip(t.towers["x"], t.towers["y"]))
+    ]
+    assert len(cranes) == 2 * len(with_towers) > 0
+    p = _all_points(t)
+    wires = p["classification"] == 14
+    wx, wy = p["x"][wires], p["y"][wires]
+    for n in cranes:
+        mast = (np.hypot(p["x"] - n["x"], p["y"] - n["y"]) < 1.5) & (p["classification"] == 1)
+        assert mast.sum() > 20 and not p["TowerId"][mast].any()
+        assert float(np.hypot(wx - n["x"], wy - n["y"]).min()) < BESIDE_LINE_ACROSS_M[1] + 2.0
+    assert t.towers["design"].tolist() == plain.towers["design"].tolist()
+    assert (t.towers["n_points"] == plain.towers["n_points"]).all()

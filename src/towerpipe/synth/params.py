@@ -65,6 +65,7 @@ class SceneParams:
     # hard negatives (per km²)
     cranes: float = 0.4
     telecom_masts: float = 0.6
+    cranes_beside_lines: int = 0  # per block, each beside a line tower (towerpipe.synth.negatives)
     wind_turbines: float = 0.3
     chimneys: float = 0.4
     poles_along_roads: float = 0.6  # probability that a road carries poles

@@ -28,7 +28,7 @@ from towerpipe.synth.buildings import (
     rasterize_roofs,
     sample_walls,
 )
-from towerpipe.synth.negatives import Negative, make_negatives
+from towerpipe.synth.negatives import Negative, crane_beside_line, make_negatives
 from towerpipe.synth.params import SceneParams
 from towerpipe.synth.primitives import Primitives, sample_segments
 from towerpipe.synth.rng import derive
@@ -146,6 +146,7 @@ def build_zone(
 
     buildings = make_buildings(seed, bounds, params, terrain.z, avoid)
     negatives, pole_wires = make_negatives(seed, bounds, params, terrain.z, roads, avoid)
+    negatives += _cranes_beside_lines(seed, bl, lines.towers, params.cranes_beside_lines, terrain.z, avoid)
     trees = make_trees(seed, bounds, params)
     # corridor clearing under the wires
     if lines.axes and len(trees):
@@ -173,6 +174,31 @@ def build_zone(
         pole_wires,
         greenness,
     )
+
+
+def _cranes_beside_lines(seed: int, blocks, towers: list[Tower], per_block: int, terrain_z, avoid) -> list[Negative]:
+    """``per_block`` tower cranes in each block that holds a line tower, each beside one of its
+    towers (:func:`towerpipe.synth.negatives.crane_beside_line`), standing inside the block and
+    clear of roads, towers and the lines' axes."""
+    out: list[Negative] = []
+    if per_block <= 0 or not towers:
+        return out
+    rng = derive(seed, "neg", "crane_beside_line")
+    for b in blocks:
+        here = [t for t in towers if b[0] <= t.x < b[2] and b[1] <= t.y < b[3]]
+        if not here:
+            continue
+
+        def clear(p, b=b) -> bool:
+            inside = b[0] <= p[0] < b[2] and b[1] <= p[1] < b[3]
+            return bool(inside and not avoid(np.asarray(p[:1]), np.asarray(p[1:]), 1.0)[0])
+
+        for _ in range(int(per_block)):
+            t = here[int(rng.integers(len(here)))]
+            neg = crane_beside_line(rng, np.array([t.x, t.y]), float(t.rot) + math.pi / 2, terrain_z, clear)
+            if neg is not None:
+                out.append(neg)
+    return out
 
 
 def _in(b, x, y) -> np.ndarray:

@@ -86,7 +86,8 @@ def generate_zone(
         along a line with conductors, and the attribute variant
         (:data:`towerpipe.synth.background.VARIANTS`).
     cranes_beside_lines
-        Zones on real backgrounds only: tower cranes per tile copy, each beside a line.
+        Tower cranes per block (per tile copy on real backgrounds), each beside a line tower of
+        the block; blocks without one get none.
     tower_variety
         Apply :data:`towerpipe.synth.params.TOWER_VARIETY` (every design, orthophoto
         colours, per-tower intensity, varied real shapes) before ``overrides``.
@@ -123,6 +124,8 @@ def generate_zone(
         )
     p = params if params is not None else get_preset(preset)
     p = with_overrides(p, **overrides)
+    if cranes_beside_lines:
+        p = with_overrides(p, cranes_beside_lines=int(cranes_beside_lines))
     if edge_tower:
         p = with_overrides(p, edge_tower=True)
     factory = None

@@ -46,13 +46,13 @@ holds are clustered and each cluster is judged by rules 4-8 (its highest probabi
 ``rescue_threshold``: a thin pole or a sparse real lattice that the segmenter paints mostly
 at 0.1-0.3 is found and outlined when its object is shaped like a tower.
 
-Rule 12, the conductors' vouch (``vouch_height``, off at 0): a cluster the shape check drops,
+Rule 12, the conductors' vouch (``vouch_height``, 15 m by default, off at 0): a cluster the shape check drops,
 not a rescue's, and with no split part to judge instead, is kept when conductors point at it
 (a known support of at least ``min_wire_support``) and its top stands ``vouch_height`` m or more
 above their median height in its 80-160 m ring (:func:`towerpipe.towers.wires.conductor_heights`): a tower carries
 its conductors at its top, a crown under a line stays below them.
 
-Rule 13, tall clusters (``tall_shape_score``, ``None``: off): a cluster at least ``wire_min_height``
+Rule 13, tall clusters (``tall_shape_score``, 0.92 by default, ``None``: off): a cluster at least ``wire_min_height``
 high passes the shape check at ``tall_shape_score`` instead of ``min_shape_score``; rule 7 then
 judges it, so a tall object passes only with conductors pointing at it, or with its ring outside
 the data (an unknown support never drops): the conductors are a second opinion that a crane, a
