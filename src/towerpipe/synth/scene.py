@@ -184,17 +184,17 @@ def _cranes_beside_lines(seed: int, blocks, towers: list[Tower], per_block: int,
     if per_block <= 0 or not towers:
         return out
     rng = derive(seed, "neg", "crane_beside_line")
+    txy = np.array([[t.x, t.y] for t in towers])
     for b in blocks:
-        here = [t for t in towers if b[0] <= t.x < b[2] and b[1] <= t.y < b[3]]
-        if not here:
+        here = np.flatnonzero(_in(b, txy[:, 0], txy[:, 1]))
+        if not len(here):
             continue
 
         def clear(p, b=b) -> bool:
-            inside = b[0] <= p[0] < b[2] and b[1] <= p[1] < b[3]
-            return bool(inside and not avoid(np.asarray(p[:1]), np.asarray(p[1:]), 1.0)[0])
+            return bool(_in(b, p[:1], p[1:])[0] and not avoid(p[:1], p[1:], 1.0)[0])
 
         for _ in range(int(per_block)):
-            t = here[int(rng.integers(len(here)))]
+            t = towers[int(here[int(rng.integers(len(here)))])]
             neg = crane_beside_line(rng, np.array([t.x, t.y]), float(t.rot) + math.pi / 2, terrain_z, clear)
             if neg is not None:
                 out.append(neg)
