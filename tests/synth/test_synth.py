@@ -417,10 +417,23 @@ def test_realshape_zone_tower_height_scales_the_real_shapes(tmp_path):
 
 
 @pytest.mark.shared
+def _assert_cranes_beside_lines(p, cranes):
+    """Each crane stands 20-55 m high on a mast of class 1 points with no tower id (from the ground
+    up to the jib), beside a line: its conductors pass within the cranes' range across it."""
+    from towerpipe.synth.negatives import BESIDE_LINE_ACROSS_M
+
+    wires = p["classification"] == 14
+    wx, wy = p["x"][wires], p["y"][wires]
+    for n in cranes:
+        assert 20.0 <= n["height"] <= 55.0
+        mast = (np.hypot(p["x"] - n["x"], p["y"] - n["y"]) < 1.5) & (p["classification"] == 1)
+        assert mast.sum() > 20 and not p["TowerId"][mast].any()
+        assert float(np.hypot(wx - n["x"], wy - n["y"]).min()) < BESIDE_LINE_ACROSS_M[1] + 2.0
+
+
 def test_cranes_beside_lines_on_real_backgrounds(tmp_path):
     """``cranes_beside_lines`` stands tower cranes (class 1, no tower id) 12-40 m across a line of the
     tile, records them in the metadata, and leaves a zone without them as it was."""
-    from towerpipe.synth.negatives import BESIDE_LINE_ACROSS_M
     from towerpipe.synth.truth import META_JSON
 
     kw = _one_family_on_a_real_tile(11, "uav", (10, 20))
@@ -433,16 +446,7 @@ def test_cranes_beside_lines_on_real_backgrounds(tmp_path):
     negs = t.meta["negatives"]
     assert len(negs) == 3 and {n["kind"] for n in negs} == {"crane"}
     assert json.loads((tmp_path / "cranes" / META_JSON).read_text())["negatives"] == negs
-    p = _all_points(t)
-    wires = p["classification"] == 14
-    wx, wy = p["x"][wires], p["y"][wires]
-    for n in negs:
-        assert 20.0 <= n["height"] <= 55.0
-        # the mast's points: class 1, no tower id, from the ground up to the jib
-        mast = (np.hypot(p["x"] - n["x"], p["y"] - n["y"]) < 1.5) & (p["classification"] == 1)
-        assert mast.sum() > 20 and not p["TowerId"][mast].any()
-        # beside a line: its conductors pass within the cranes' range across it
-        assert float(np.hypot(wx - n["x"], wy - n["y"]).min()) < BESIDE_LINE_ACROSS_M[1] + 2.0
+    _assert_cranes_beside_lines(_all_points(t), negs)
     # the towers are those of the zone without cranes
     assert t.towers["design"].tolist() == plain.towers["design"].tolist()
 
@@ -450,7 +454,6 @@ def test_cranes_beside_lines_on_real_backgrounds(tmp_path):
 def test_cranes_beside_lines_on_generated_zones(tmp_path):
     """On a generated zone ``cranes_beside_lines`` stands that many tower cranes in each block that
     holds a line tower, beside one of its towers, and changes nothing else of the zone."""
-    from towerpipe.synth.negatives import BESIDE_LINE_ACROSS_M
 
     kw = dict(seed=5, blocks=2, size=300, density=4, preset="catalonia", lines_per_km2=8.0)
     plain = generate_zone(tmp_path / "plain", **kw)
@@ -463,12 +466,6 @@ def test_cranes_beside_lines_on_generated_zones(tmp_path):
         b for b in bounds if any(b[0] <= x < b[2] and b[1] <= y < b[3] for x, y in zip(t.towers["x"], t.towers["y"]))
     ]
     assert len(cranes) == 2 * len(with_towers) > 0
-    p = _all_points(t)
-    wires = p["classification"] == 14
-    wx, wy = p["x"][wires], p["y"][wires]
-    for n in cranes:
-        mast = (np.hypot(p["x"] - n["x"], p["y"] - n["y"]) < 1.5) & (p["classification"] == 1)
-        assert mast.sum() > 20 and not p["TowerId"][mast].any()
-        assert float(np.hypot(wx - n["x"], wy - n["y"]).min()) < BESIDE_LINE_ACROSS_M[1] + 2.0
+    _assert_cranes_beside_lines(_all_points(t), cranes)
     assert t.towers["design"].tolist() == plain.towers["design"].tolist()
     assert (t.towers["n_points"] == plain.towers["n_points"]).all()
