@@ -267,6 +267,13 @@ class TowersConfig(Section):
     #: Rule 12: a cluster the shape check drops and no split replaces is kept when the conductors
     #: pointing at it lie at least this far (m, median) below its top (0: never).
     vouch_height: float
+    #: Rule 14: a cluster the conductor rule judges (or rule 12 keeps) is dropped when the
+    #: conductors pointing at it lie this unevenly on the two sides of its base (0: never;
+    #: :func:`towerpipe.towers.conductor_rules.conductor_balance`).
+    min_conductor_balance: float
+    #: Rule 15: a cluster at least ``wire_min_height`` high whose narrow plan reaches this far (m)
+    #: from its base on one side is dropped, a crane's jib (0: never; :mod:`towerpipe.towers.plan`).
+    max_arm_reach: float
     #: Rule 10: clusters no accepted tower holds, from the points at or above this
     #: probability, are judged again (0: never; see :func:`towerpipe.towers.extract.extract_towers`).
     rescue_threshold: float

@@ -44,9 +44,11 @@ RULE_NAMES = {
     "core": "no confident core (towers.min_core_prob)",
     "floating": "floating above the ground (towers.max_base_ratio)",
     "points": "too few points reported (towers.min_points)",
+    "jib": "a narrow arm reaching far on one side, a crane's jib (towers.max_arm_reach)",
     "context": "no tile around it for the rescue's shape check",
     "shape": "shape check (towers.min_shape_score)",
     "wires": "conductor support (towers.min_wire_support)",
+    "sides": "every conductor on one side of it (towers.min_conductor_balance)",
     "accepted": "reported, matched to another tower or more than 5 m away",
 }
 #: What each gate stage of a tower never segmented means to a reader.

@@ -58,6 +58,16 @@ judges it, so a tall object passes only with conductors pointing at it, or with 
 the data (an unknown support never drops): the conductors are a second opinion that a crane, a
 mast or a tree shaped like a tower lacks.
 
+Rule 14, the conductors' sides (``min_conductor_balance``, 0.2 by default, 0: off): a cluster the
+conductor rule judges (or rule 12 vouches for) is dropped when the conductors pointing at it lie on
+one side of its base (:func:`towerpipe.towers.conductor_rules.conductor_balance` below
+``min_conductor_balance``): a tower stands between its conductors, a crane or a tree beside a line
+does not.
+
+Rule 15, a crane's jib (``max_arm_reach``, 13 m by default, 0: off): a cluster at least
+``wire_min_height`` high whose plan is a narrow arm reaching ``max_arm_reach`` m or more from its
+base on one side is dropped (:mod:`towerpipe.towers.plan`).
+
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
 tower's points and the registry, never on file or processing order nor on the zone's
@@ -84,15 +94,18 @@ from towerpipe.config import TowersConfig
 from towerpipe.io.fields import GEOMETRY_GRID, conform, join_values
 from towerpipe.towers.cluster import _as_pred, _footprint, cluster_towers, gather_points
 from towerpipe.towers.column import column_mask
+from towerpipe.towers.conductor_rules import conductor_balance, vouching_support
+from towerpipe.towers.conductor_rules import support as conductor_support
 from towerpipe.towers.foot import foot_mask
+from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach
 from towerpipe.towers.records import TOWER_FIELDS, empty_towers
 from towerpipe.towers.registry import assign_ids
 from towerpipe.towers.shape import load_verifier, object_points
 
 #: What decided a cluster in a ``trace`` of :func:`extract_towers`: its core probability (rule 6),
-#: floating (7), too few points to report, no context for a rescue, the shape check (9), the
-#: conductor support (8), or accepted.
-TRACE_RULES = ("core", "floating", "points", "context", "shape", "wires", "accepted")
+#: floating (7), too few points to report, a crane's jib (15), no context for a rescue, the shape
+#: check (9), the conductor support (8), the conductors on one side (14), or accepted.
+TRACE_RULES = ("core", "floating", "points", "jib", "context", "shape", "wires", "sides", "accepted")
 
 
 @dataclass
@@ -125,36 +138,6 @@ def _decided(trace: list[dict[str, Any]], xyz: np.ndarray, rescue: bool, rule: s
 
 def _not_traced(rule: str, value: float) -> None:
     """No trace asked for."""
-
-
-def _vouching_support(
-    rules: TowersConfig, arr: Mapping[str, np.ndarray], extent: Any, hag: np.ndarray, bx: float, by: float
-) -> float | None:
-    """Rule 12: the conductor support of a cluster the shape check dropped, when its conductors
-    vouch for it (a known support of at least ``min_wire_support``, and its top ``hag.max()``
-    ``vouch_height`` m or more above their median height in its ring,
-    :func:`towerpipe.towers.wires.conductor_heights`, from the support's own search); else ``None``.
-    ``(bx, by)``: its base."""
-    if rules.vouch_height <= 0:
-        return None
-    support, heights = _support(arr, extent, bx, by, return_heights=True)
-    if not support >= rules.min_wire_support:  # NaN (unknown) never vouches
-        return None
-    if len(heights) == 0 or float(hag.max()) - float(np.median(heights)) < rules.vouch_height:
-        return None
-    return support
-
-
-def _support(arr: Mapping[str, Any], extent: Any, bx: float, by: float, **kw: Any) -> Any:
-    """The conductor support at ``(bx, by)`` (:func:`towerpipe.towers.wires.wire_support`): from the
-    context's conductor points (``arr["conductors"]``, each judged in its own tile) when it has
-    them, else from its points, the ring's judged among themselves."""
-    from towerpipe.towers.wires import wire_support
-
-    c = arr.get("conductors")
-    if c is None:
-        return wire_support(arr["x"], arr["y"], arr["z"], arr["hag"], bx, by, extent=extent, **kw)
-    return wire_support(c["x"], c["y"], c["z"], c["hag"], bx, by, extent=extent, directions=c["direction"], **kw)
 
 
 def _split_by_confidence(
@@ -230,6 +213,7 @@ def extract_towers(
           points at or above each of these in turn, and each part is judged (``()``: never);
         - ``rescue_threshold``: rule 10 (module docstring; 0 never rescues);
         - ``vouch_height``: rule 12 (module docstring; 0 never vouches);
+        - ``min_conductor_balance``, ``max_arm_reach``: rules 14 and 15 (module docstring; 0: off);
         - ``foot``, ``column``: which of a tower's points are reported (:mod:`towerpipe.towers.foot`,
           :mod:`towerpipe.towers.column`: rule 11); never whether the tower is.
     zone
@@ -371,6 +355,16 @@ def extract_towers(
         if len(g_pts) < rules.min_points:
             decided("points", len(g_pts))
             continue  # what would be reported is too few points for a tower (the paper's 20)
+        # the tower's base (median xy of its lowest third): a crane's footprint centroid lies out
+        # along its jib, its base is the mast; the conductors are measured from it
+        low = hag <= hag.min() + (hag.max() - hag.min()) / 3.0
+        bx, by = (float(v) for v in np.median(xy[low], axis=0))
+        tall = hag.max() >= rules.wire_min_height
+        if tall and rules.max_arm_reach > 0:
+            reach, width = arm_reach(xy, hag, (bx, by))
+            if width <= JIB_MAX_WIDTH_M and reach >= rules.max_arm_reach:
+                decided("jib", reach)
+                continue  # rule 15: a narrow arm reaching far out on one side, a crane's jib
         prob = pts["prob_single"][g].astype(np.float64)
         support = shape = float("nan")
         ctx = context(float(c.x), float(c.y)) if context is not None else None
@@ -379,10 +373,6 @@ def extract_towers(
             continue  # a rescue stands on the shape check, which needs the points around it
         if ctx is not None:
             arr, extent = ctx
-            # the conductors are measured from the tower's base (median xy of its lowest third): a
-            # crane's footprint centroid lies out along its jib, its base is the mast
-            low = hag <= hag.min() + (hag.max() - hag.min()) / 3.0
-            bx, by = (float(v) for v in np.median(xy[low], axis=0))
             vouch = None  # the conductor support, when rule 12 keeps a cluster the shape check drops
             # the shape check first: it is cheap, and it drops most clusters (crowns)
             if verifier is not None:
@@ -391,23 +381,28 @@ def extract_towers(
                     shape = verifier.score(arr["x"][obj], arr["y"][obj], arr["hag"][obj])
                 # rule 13: a cluster as high as the conductor rule judges passes at a lower score,
                 # the conductors pointing at it being the second opinion
-                tall = rules.tall_shape_score is not None and hag.max() >= rules.wire_min_height
-                needed = rules.tall_shape_score if tall else rules.min_shape_score
+                lower = tall and rules.tall_shape_score is not None
+                needed = rules.tall_shape_score if lower else rules.min_shape_score
                 if shape < needed or (is_rescue and np.isnan(shape)):
                     # the object under it is shaped like a tree, a roof or a crane; or it is a
                     # tower standing in crowns the segmenter painted with it: its more
                     # confident points are clustered again and each part judged
                     parts = _split_by_confidence(g, pts["prob_single"], cluster, splits)
                     if not parts and not is_rescue:
-                        vouch = _vouching_support(rules, arr, extent, hag, bx, by)
+                        vouch = vouching_support(rules, arr, extent, hag, bx, by)
                     if vouch is None:
                         decided("shape", shape)
                         queue.extend((part, rest, is_rescue) for part, rest in parts)
                         continue
-            support = _support(arr, extent, bx, by) if vouch is None else vouch
-            if hag.max() >= rules.wire_min_height and support < rules.min_wire_support:
+            support = conductor_support(arr, extent, bx, by) if vouch is None else vouch
+            if tall and support < rules.min_wire_support:
                 decided("wires", support)
                 continue
+            if (tall or vouch is not None) and rules.min_conductor_balance > 0:
+                balance = conductor_balance(arr, bx, by)
+                if balance < rules.min_conductor_balance:  # unknown (NaN) never drops
+                    decided("sides", balance)
+                    continue  # rule 14: every conductor on one side, a crane or a tree beside a line
         decided("accepted", shape)
         accepted.append((g, g_pts, footprint, touched, owned, support, shape, hag, prob))
     # the points each accepted tower reports (never whether it is one): its foot trimmed, then its column

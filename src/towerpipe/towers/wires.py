@@ -53,6 +53,7 @@ from towerpipe.towers.coverage import Coverage
 __all__ = [
     "wire_points",
     "wire_support",
+    "aimed_wire_points",
     "conductor_heights",
     "conductor_directions",
     "tile_conductor_points",
@@ -300,7 +301,7 @@ def wire_support(
     scored = avail >= min_bins
     if not scored.any() or inside.mean() < min_ring_coverage:
         return out(float("nan"), none)
-    idx, px, py = _aimed_wire_points(x, y, z, hag, cx, cy, r_min, r_max, min_hag, max_offset, directions)
+    idx, px, py, _ = aimed_wire_points(x, y, z, hag, cx, cy, r_min, r_max, min_hag, max_offset, directions)
     if len(px) == 0:
         return out(0.0, idx)
     ang = np.degrees(np.arctan2(py, px)) % 360.0
@@ -313,7 +314,7 @@ def wire_support(
     return out(float(share[scored].max()), idx)
 
 
-def _aimed_wire_points(
+def aimed_wire_points(
     x: np.ndarray,
     y: np.ndarray,
     z: np.ndarray,
@@ -325,11 +326,11 @@ def _aimed_wire_points(
     min_hag: float,
     max_offset: float,
     directions: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The wire points in the ring ``[r_min, r_max)`` m around ``(cx, cy)``, at least ``min_hag``
     high (judged among themselves by :func:`wire_points`, or already judged: ``directions``),
-    whose wire passes within ``max_offset`` m of it: their indices and their offsets
-    ``(x - cx, y - cy)``."""
+    whose wire passes within ``max_offset`` m of it: their indices, their offsets
+    ``(x - cx, y - cy)`` and their wires' ``(n, 2)`` plan directions."""
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
     dx, dy = x - cx, y - cy
     d = np.hypot(dx, dy)
@@ -339,8 +340,9 @@ def _aimed_wire_points(
         idx, u = idx[wire], u[wire]
     else:
         u = np.asarray(directions, dtype=np.float64)[idx]
-    idx = idx[np.abs(dx[idx] * u[:, 1] - dy[idx] * u[:, 0]) <= max_offset]
-    return idx, dx[idx], dy[idx]
+    aimed = np.abs(dx[idx] * u[:, 1] - dy[idx] * u[:, 0]) <= max_offset
+    idx, u = idx[aimed], u[aimed]
+    return idx, dx[idx], dy[idx], u
 
 
 def conductor_heights(
@@ -370,7 +372,7 @@ def conductor_heights(
     numpy.ndarray
         float64, one value per such point (empty when there is none).
     """
-    idx, _, _ = _aimed_wire_points(x, y, z, hag, cx, cy, r_min, r_max, min_hag, max_offset, directions)
+    idx, _, _, _ = aimed_wire_points(x, y, z, hag, cx, cy, r_min, r_max, min_hag, max_offset, directions)
     return np.asarray(hag, dtype=np.float64)[idx]
 
 

@@ -1,0 +1,62 @@
+"""A cluster's plan (rule 15, towers.max_arm_reach): a crane's jib against a tower's crossarms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
+
+from conftest import extract
+from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach
+
+BASE_Z = 100.0
+
+
+def crane(
+    cx: float, cy: float, *, height: float = 35.0, jib: float = 30.0, counter: float = 10.0, heading: float = 0.3
+):
+    """Points of a tower crane: a 1.6 m lattice mast and, at its top, a 1.6 m wide jib reaching ``jib`` m
+    one way and ``counter`` m the other along ``heading`` (rad); (xyz, hag)."""
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, height, 0.3)
+    legs = [np.c_[sx * 0.8 + 0 * t, sy * 0.8 + 0 * t, t] for sx in (-1, 1) for sy in (-1, 1)]
+    s = np.arange(-counter, jib, 0.3)
+    chords = [np.c_[s, np.full_like(s, dy), np.full_like(s, height + dz)] for dy, dz in ((-0.8, 0), (0.8, 0), (0, 1.4))]
+    local = np.concatenate(legs + chords)
+    c, sn = np.cos(heading), np.sin(heading)
+    xyz = np.c_[cx + c * local[:, 0] - sn * local[:, 1], cy + sn * local[:, 0] + c * local[:, 1], BASE_Z + local[:, 2]]
+    xyz += rng.normal(0, 0.03, xyz.shape)
+    return xyz, (xyz[:, 2] - BASE_Z).astype(np.float32)
+
+
+def test_a_crane_reaches_far_and_narrow_a_tower_near_and_wide():
+    c_xyz, c_hag = crane(0.0, 0.0)
+    reach, width = arm_reach(c_xyz[:, :2], c_hag, (0.0, 0.0))
+    assert 28.0 <= reach <= 30.0
+    assert width <= JIB_MAX_WIDTH_M
+    t_xyz, t_hag = synthetic_tower(0.0, 0.0, base_z=BASE_Z, arm=7.0)
+    reach, width = arm_reach(t_xyz[:, :2], t_hag, (0.0, 0.0))
+    assert 4.0 <= reach <= 7.5  # the crossarm: 7 m each side
+    assert width > JIB_MAX_WIDTH_M  # the legs: 6 m apart at the base
+    assert arm_reach(t_xyz[:2, :2], t_hag[:2], (0.0, 0.0)) == (0.0, 0.0)  # too few points to say
+
+
+@pytest.mark.parametrize(("max_arm_reach", "kept"), [(0.0, 1), (13.0, 0), (35.0, 1)])
+def test_rule_15_drops_a_crane_by_its_jib(max_arm_reach, kept):
+    """A 35 m crane with 20 m of jib is dropped when its reach passes ``max_arm_reach``; a tower stays.
+    (A cluster wider than 25 m is first split into its columns, each keeping 10 m of what hangs from
+    it: the jib here fits in 25 m.)"""
+    cx, cy = X0 + 250, Y0 + 250
+    c_xyz, c_hag = crane(cx, cy, jib=20.0, counter=3.0)
+    found = extract([pred_pair(c_xyz, c_hag, 0.95, ["b1"])], "b1", BOUNDS, zone="z1", max_arm_reach=max_arm_reach)
+    assert len(found.towers) == kept
+    t_xyz, t_hag = synthetic_tower(cx, cy, base_z=BASE_Z)
+    found = extract([pred_pair(t_xyz, t_hag, 0.95, ["b1"])], "b1", BOUNDS, zone="z1", max_arm_reach=max_arm_reach)
+    assert len(found.towers) == 1
+
+
+def test_rule_15_leaves_a_low_cluster_alone():
+    """The rule judges clusters at least towers.wire_min_height high only (a 15 m crane is left to the others)."""
+    c_xyz, c_hag = crane(X0 + 250, Y0 + 250, height=15.0)
+    found = extract([pred_pair(c_xyz, c_hag, 0.95, ["b1"])], "b1", BOUNDS, zone="z1", max_arm_reach=13.0)
+    assert len(found.towers) == 1
