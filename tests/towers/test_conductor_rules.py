@@ -51,18 +51,46 @@ def test_the_balance_is_unknown_with_few_conductor_points():
     assert np.isnan(conductor_balance(context(few), cx, cy))
 
 
-@pytest.mark.parametrize(("balance", "kept"), [(0.0, 1), (0.1, 0)])
-def test_rule_14_drops_a_crane_beside_a_line(balance, kept):
+class _Verifier:
+    """A shape verifier giving every object the same score."""
+
+    def __init__(self, score: float):
+        self._score = score
+
+    def score(self, x, y, hag):
+        return self._score
+
+
+@pytest.mark.parametrize(
+    ("balance", "shape", "kept"),
+    [(0.0, None, 1), (0.1, None, 0), (0.1, 0.9, 0), (0.1, 1.0, 1)],
+)
+def test_rule_14_drops_a_crane_beside_a_line(monkeypatch, balance, shape, kept):
     """A 35 m crane 10 m beside a line (its nearest conductor 5 m away: a support of 1) is dropped when
-    ``min_conductor_balance`` is on; a tower on the same line is kept."""
+    ``min_conductor_balance`` is on and its shape is in doubt (no verifier, or a score under
+    ``min_shape_score`` that rule 13 lets pass); a shape the verifier is sure of is not asked. A tower on
+    the same line is kept."""
+    import towerpipe.towers.extract as ex
+
+    if shape is not None:
+        monkeypatch.setattr(ex, "load_verifier", lambda spec: _Verifier(shape))
     rng = np.random.default_rng(2)
     cx, cy = X0 + 250, Y0 + 250
     c_xyz, c_hag = crane(cx, cy - 10.0, jib=8.0, heading=np.pi / 2)
     t_xyz, t_hag = synthetic_tower(cx + 150.0, cy, base_z=BASE_Z)
     ctx = context(c_xyz, t_xyz, line(cx, cy, 0.0, rng))
-    rules = {"min_wire_support": 0.5, "min_conductor_balance": balance, "max_arm_reach": 0.0}
+    rules = {
+        "min_wire_support": 0.5,
+        "min_conductor_balance": balance,
+        "max_arm_reach": 0.0,
+        "min_shape_score": 0.95,
+        "tall_shape_score": 0.85,
+        "split_thresholds": [],
+        "rescue_threshold": 0.0,
+    }
     preds = [pred_pair(np.r_[c_xyz, t_xyz], np.r_[c_hag, t_hag], 0.95, ["b1"])]
-    found = extract(preds, "b1", BOUNDS, zone="z1", context=lambda x, y: (ctx, EXTENT), verifier="none", **rules)
+    verifier = "none" if shape is None else "shipped"
+    found = extract(preds, "b1", BOUNDS, zone="z1", context=lambda x, y: (ctx, EXTENT), verifier=verifier, **rules)
     heights = sorted(found.towers["height_m"].round().tolist())
     assert heights == ([30.0, 36.0] if kept else [30.0])  # the tower, and the crane with its jib
     assert (found.towers["wire_support"] == 1.0).all()

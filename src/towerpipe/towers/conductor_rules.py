@@ -9,8 +9,9 @@
   its body, or over it; a crane, a mast or a tree *beside* a line has every conductor pointing at
   it on one side. The balance is the share of the conductor points counted by the support that lie
   on the less-held side of the base, or within :data:`OVER_M` of it. A tower's is about 0.5 (0.16
-  or more on the twelve calibration zones); a crane's or a tree's beside a line 0-0.14
-  (docs/model.md, "The conductors' sides and a crane's jib").
+  or more on the twelve calibration zones); a crane's or a tree's beside a line 0-0.15. The rule
+  asks it only of a cluster whose shape is in doubt: a tower strung on one side only has its
+  conductors on one side too (docs/model.md, "The conductors' sides and a crane's jib").
 """
 
 from __future__ import annotations

@@ -58,11 +58,12 @@ judges it, so a tall object passes only with conductors pointing at it, or with 
 the data (an unknown support never drops): the conductors are a second opinion that a crane, a
 mast or a tree shaped like a tower lacks.
 
-Rule 14, the conductors' sides (``min_conductor_balance``, 0.2 by default, 0: off): a cluster the
-conductor rule judges (or rule 12 vouches for) is dropped when the conductors pointing at it lie on
-one side of its base (:func:`towerpipe.towers.conductor_rules.conductor_balance` below
-``min_conductor_balance``): a tower stands between its conductors, a crane or a tree beside a line
-does not.
+Rule 14, the conductors' sides (``min_conductor_balance``, 0.125 by default, 0: off): a cluster
+whose shape is in doubt (rule 12 vouches for it, it passes the shape check only by rule 13, it has
+no shape score, or it is a rescue's) and that the conductor rule judges (or rule 12 keeps) is
+dropped when the conductors pointing at it lie on one side of its base
+(:func:`towerpipe.towers.conductor_rules.conductor_balance` below ``min_conductor_balance``): a
+tower stands between its conductors, a crane or a tree beside a line does not.
 
 Rule 15, a crane's jib (``max_arm_reach``, 13 m by default, 0: off): a cluster at least
 ``wire_min_height`` high whose plan is a narrow arm reaching ``max_arm_reach`` m or more from its
@@ -398,7 +399,10 @@ def extract_towers(
             if tall and support < rules.min_wire_support:
                 decided("wires", support)
                 continue
-            if (tall or vouch is not None) and rules.min_conductor_balance > 0:
+            # rule 14 asks where the conductors lie only of a cluster whose shape is in doubt (kept by
+            # rule 12 or 13, no shape score, or a rescue's): a one-sided line can hang from a tower
+            doubted = vouch is not None or is_rescue or not shape >= rules.min_shape_score
+            if (tall or vouch is not None) and doubted and rules.min_conductor_balance > 0:
                 balance = conductor_balance(arr, bx, by)
                 if balance < rules.min_conductor_balance:  # unknown (NaN) never drops
                     decided("sides", balance)
