@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from test_plan import crane
+from test_shape import _Scores
 from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
 from test_wires import conductor
 
@@ -51,16 +52,6 @@ def test_the_balance_is_unknown_with_few_conductor_points():
     assert np.isnan(conductor_balance(context(few), cx, cy))
 
 
-class _Verifier:
-    """A shape verifier giving every object the same score."""
-
-    def __init__(self, score: float):
-        self._score = score
-
-    def score(self, x, y, hag):
-        return self._score
-
-
 @pytest.mark.parametrize(
     ("balance", "shape", "kept"),
     [(0.0, None, 1), (0.1, None, 0), (0.1, 0.9, 0), (0.1, 1.0, 1)],
@@ -73,7 +64,7 @@ def test_rule_14_drops_a_crane_beside_a_line(monkeypatch, balance, shape, kept):
     import towerpipe.towers.extract as ex
 
     if shape is not None:
-        monkeypatch.setattr(ex, "load_verifier", lambda spec: _Verifier(shape))
+        monkeypatch.setattr(ex, "load_verifier", lambda spec: _Scores(shape))
     rng = np.random.default_rng(2)
     cx, cy = X0 + 250, Y0 + 250
     c_xyz, c_hag = crane(cx, cy - 10.0, jib=8.0, heading=np.pi / 2)
