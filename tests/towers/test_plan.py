@@ -60,3 +60,35 @@ def test_rule_15_leaves_a_low_cluster_alone():
     c_xyz, c_hag = crane(X0 + 250, Y0 + 250, height=15.0)
     found = extract([pred_pair(c_xyz, c_hag, 0.95, ["b1"])], "b1", BOUNDS, zone="z1", max_arm_reach=13.0)
     assert len(found.towers) == 1
+
+
+def test_the_rescue_does_not_find_a_dropped_crane_again(monkeypatch):
+    """A crane rule 15 drops stays dropped: the rescue, clustering at its lower threshold, would join it
+    to the faint crowns at its foot into a cluster too wide for the rule."""
+    from test_shape import _Scores
+
+    import towerpipe.towers.extract as ex
+
+    monkeypatch.setattr(ex, "load_verifier", lambda spec: _Scores(1.0))
+    rng = np.random.default_rng(6)
+    cx, cy = X0 + 250, Y0 + 250
+    c_xyz, c_hag = crane(cx, cy, jib=20.0, counter=3.0)
+    r, a = 4.0 * np.sqrt(rng.random(600)), rng.uniform(0, 2 * np.pi, 600)
+    crowns = np.c_[cx + r * np.cos(a), cy + r * np.sin(a), BASE_Z + rng.uniform(2.0, 10.0, 600)]
+    xyz = np.r_[c_xyz, crowns]
+    hag = (xyz[:, 2] - BASE_Z).astype(np.float32)
+    prob = np.r_[np.full(len(c_xyz), 0.95), np.full(len(crowns), 0.2)].astype(np.float32)
+    ctx = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "hag": hag.astype(np.float64)}
+    rules = {"max_arm_reach": 13.0, "rescue_threshold": 0.1, "min_shape_score": 0.5, "split_thresholds": []}
+    trace: list = []
+    found = extract(
+        [pred_pair(xyz, hag, prob, ["b1"])],
+        "b1",
+        BOUNDS,
+        zone="z1",
+        context=lambda x, y: (ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)),
+        trace=trace,
+        **rules,
+    )
+    assert len(found.towers) == 0
+    assert [t["rule"] for t in trace] == ["jib"]

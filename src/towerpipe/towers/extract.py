@@ -67,7 +67,8 @@ tower stands between its conductors, a crane or a tree beside a line does not.
 
 Rule 15, a crane's jib (``max_arm_reach``, 13 m by default, 0: off): a cluster at least
 ``wire_min_height`` high whose plan is a narrow arm reaching ``max_arm_reach`` m or more from its
-base on one side is dropped (:mod:`towerpipe.towers.plan`).
+base on one side is dropped (:mod:`towerpipe.towers.plan`), and the rescue leaves its points alone
+(clustered at the rescue's lower threshold with the crowns at its foot, it would be wider).
 
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
@@ -320,6 +321,7 @@ def extract_towers(
     # each cluster with the split thresholds still to try on it (rule 8) and whether the rescue
     # found it (rule 10)
     rows, geoms, rescued = [], [], False
+    cranes = np.zeros(len(pts["x"]), bool)  # the points of the clusters rule 15 dropped
     queue = deque((g, tuple(float(t) for t in rules.split_thresholds), False) for g in groups(main))
     while queue or (rescue and not rescued):
         if not queue:
@@ -329,7 +331,7 @@ def extract_towers(
             # probability, not its 90th percentile, must reach min_core_prob, and the shape check
             # must have judged it), its points those at or above that threshold
             rescued = True
-            held = held_by_clusters()
+            held = held_by_clusters() | cranes  # a crane rule 15 dropped is not found again, wider
             queue.extend(
                 (g, (), True) for g in groups(np.flatnonzero(pts["prob_single"] >= rescue)) if not held[g].any()
             )
@@ -365,6 +367,7 @@ def extract_towers(
             reach, width = arm_reach(xy, hag, (bx, by))
             if width <= JIB_MAX_WIDTH_M and reach >= rules.max_arm_reach:
                 decided("jib", reach)
+                cranes[g] = True
                 continue  # rule 15: a narrow arm reaching far out on one side, a crane's jib
         prob = pts["prob_single"][g].astype(np.float64)
         support = shape = float("nan")

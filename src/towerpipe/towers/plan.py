@@ -7,7 +7,8 @@ transmission tower's crossarms reach at most about 12 m from its body
 :data:`JIB_MAX_WIDTH_M` at its base. :func:`arm_reach` measures both from the cluster's points; the
 rule drops a cluster at least ``towers.wire_min_height`` high whose plan is at most
 :data:`JIB_MAX_WIDTH_M` wide and whose upper half reaches ``towers.max_arm_reach`` m or more from its
-base (docs/model.md, "The conductors' sides and a crane's jib").
+base, and the rescue (rule 10) leaves such a crane's points alone (docs/model.md, "The conductors'
+sides and a crane's jib").
 """
 
 from __future__ import annotations
