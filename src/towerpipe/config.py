@@ -267,8 +267,9 @@ class TowersConfig(Section):
     #: Rule 12: a cluster the shape check drops and no split replaces is kept when the conductors
     #: pointing at it lie at least this far (m, median) below its top (0: never).
     vouch_height: float
-    #: Rule 14: a cluster the conductor rule judges (or rule 12 keeps) is dropped when the
-    #: conductors pointing at it lie this unevenly on the two sides of its base (0: never;
+    #: Rule 14: a cluster whose shape is in doubt (kept by rule 12 or 13, no shape score, or a
+    #: rescue's) that the conductor rule judges (or rule 12 keeps) is dropped when the conductors
+    #: pointing at it lie more unevenly than this on the two sides of its base (0: never;
     #: :func:`towerpipe.towers.conductor_rules.conductor_balance`).
     min_conductor_balance: float
     #: Rule 15: a cluster at least ``wire_min_height`` high whose narrow plan reaches this far (m)
