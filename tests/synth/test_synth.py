@@ -416,7 +416,6 @@ def test_realshape_zone_tower_height_scales_the_real_shapes(tmp_path):
         assert z.max() - r["base_z"] <= r["height"] + 0.5
 
 
-@pytest.mark.shared
 def _assert_cranes_beside_lines(p, cranes):
     """Each crane stands 20-55 m high on a mast of class 1 points with no tower id (from the ground
     up to the jib), beside a line: its conductors pass within the cranes' range across it."""
@@ -431,6 +430,7 @@ def _assert_cranes_beside_lines(p, cranes):
         assert float(np.hypot(wx - n["x"], wy - n["y"]).min()) < BESIDE_LINE_ACROSS_M[1] + 2.0
 
 
+@pytest.mark.shared
 def test_cranes_beside_lines_on_real_backgrounds(tmp_path):
     """``cranes_beside_lines`` stands tower cranes (class 1, no tower id) 12-40 m across a line of the
     tile, records them in the metadata, and leaves a zone without them as it was."""
