@@ -5,14 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from test_plan import crane
-from test_shape import _Scores
+from test_shape import BASE_Z, _Scores
 from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
 from test_wires import conductor
 
 from conftest import extract
 from towerpipe.towers.conductor_rules import BALANCE_MIN_POINTS, conductor_balance
 
-BASE_Z = 100.0
 EXTENT = (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)
 
 

@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_shape import BASE_Z, _Scores
 from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
 
 from conftest import extract
 from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach
-
-BASE_Z = 100.0
 
 
 def crane(
@@ -19,7 +18,7 @@ def crane(
     one way and ``counter`` m the other along ``heading`` (rad); (xyz, hag)."""
     rng = np.random.default_rng(5)
     t = np.arange(0.0, height, 0.3)
-    legs = [np.c_[sx * 0.8 + 0 * t, sy * 0.8 + 0 * t, t] for sx in (-1, 1) for sy in (-1, 1)]
+    legs = [np.c_[np.full_like(t, sx * 0.8), np.full_like(t, sy * 0.8), t] for sx in (-1, 1) for sy in (-1, 1)]
     s = np.arange(-counter, jib, 0.3)
     chords = [np.c_[s, np.full_like(s, dy), np.full_like(s, height + dz)] for dy, dz in ((-0.8, 0), (0.8, 0), (0, 1.4))]
     local = np.concatenate(legs + chords)
@@ -65,8 +64,6 @@ def test_rule_15_leaves_a_low_cluster_alone():
 def test_the_rescue_does_not_find_a_dropped_crane_again(monkeypatch):
     """A crane rule 15 drops stays dropped: the rescue, clustering at its lower threshold, would join it
     to the faint crowns at its foot into a cluster too wide for the rule."""
-    from test_shape import _Scores
-
     import towerpipe.towers.extract as ex
 
     monkeypatch.setattr(ex, "load_verifier", lambda spec: _Scores(1.0))
