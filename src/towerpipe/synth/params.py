@@ -62,6 +62,10 @@ class SceneParams:
     design_weights: tuple[float, ...] = (0.35, 0.3, 0.2, 0.15)
     edge_tower: bool = False  # force one tower straddling an inner block edge
     catenary_a: tuple[float, float] = (900.0, 2200.0)
+    # stringing (towerpipe.synth.wires.strung): the share of double-circuit lines that carry one
+    # circuit only, all on one side of their towers, and the share of lines without an earth wire
+    one_side_share: float = 0.0
+    no_earth_wire_share: float = 0.0
     # hard negatives (per km²)
     cranes: float = 0.4
     telecom_masts: float = 0.6

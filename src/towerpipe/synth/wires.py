@@ -3,12 +3,15 @@
 A line is a straight or deflecting polyline that crosses the whole zone; towers
 stand every 200-400 m along it (always at deflection vertices, oriented along the
 bisector), conductors and shield wires hang between consecutive towers as
-catenaries. Some lines are doubled 24-38 m aside (towers closer than 40 m).
+catenaries. Some lines are doubled 24-38 m aside (towers closer than 40 m). With
+``one_side_share`` or ``no_earth_wire_share`` some lines are strung otherwise (:func:`strung`):
+a double-circuit line with one circuit hung, all on one side of its towers, or a line
+without an earth wire.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -32,12 +35,16 @@ class PowerLines:
         2-D polylines (k, 2) of every line route (for corridor clearing).
     spans
         (S, 2) pairs of consecutive tower ids joined by wires (both inside the zone).
+    stringing
+        Line id → how a line strung otherwise than in full is strung (:func:`strung`'s
+        ``"one side"``, ``"no earth wire"`` or both); lines strung in full are not listed.
     """
 
     towers: list[Tower]
     wires: Primitives
     axes: list[np.ndarray]
     spans: np.ndarray
+    stringing: dict[int, str] = field(default_factory=dict)
 
 
 def catenary(a: np.ndarray, b: np.ndarray, param: float, step: float = 2.0) -> np.ndarray:
@@ -54,6 +61,53 @@ def catenary(a: np.ndarray, b: np.ndarray, param: float, step: float = 2.0) -> n
     sag = param * (np.cosh((s - span / 2) / param) - np.cosh(span / (2 * param)))
     chord[:, 2] += sag
     return chord
+
+
+#: A design hangs two circuits when it has at least this many conductor attachments on each side.
+CIRCUIT_CONDUCTORS = 3
+
+
+def strung(tower: Tower, one_side: int = 0, earth_wire: bool = True) -> np.ndarray:
+    """Which of a tower's attachments carry a wire, on a line strung otherwise than in full.
+
+    Parameters
+    ----------
+    tower
+        A placed tower (its ``attach`` in world coordinates).
+    one_side
+        ``+1`` or ``-1``: a double-circuit design (:data:`CIRCUIT_CONDUCTORS` conductor
+        attachments or more on each side) carries one circuit only, on that side of the line
+        (the local x axis); other designs keep both sides. ``0``: both sides.
+    earth_wire
+        ``False``: the attachments at the tower's top (the earth wires) carry nothing.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(K,)`` bool over ``tower.attach``; the same for every tower of one design, so the
+        wires still join consecutive towers.
+    """
+    a = np.asarray(tower.attach, np.float64).reshape(-1, 3)
+    c, s = np.cos(tower.rot), np.sin(tower.rot)
+    across = c * (a[:, 0] - tower.x) + s * (a[:, 1] - tower.y)
+    top = a[:, 2] - tower.base_z >= tower.height - 0.05
+    keep = np.ones(len(a), bool)
+    if not earth_wire:
+        keep &= ~top
+    left, right = ~top & (across < -0.5), ~top & (across > 0.5)
+    if one_side and min(left.sum(), right.sum()) >= CIRCUIT_CONDUCTORS:
+        keep &= ~(right if one_side < 0 else left)
+    return keep
+
+
+def _stringing(seed: int, line: int, params: SceneParams) -> tuple[int, bool]:
+    """How a line is strung (:func:`strung`'s ``one_side`` and ``earth_wire``). Nothing is drawn
+    when both shares are 0, so zones without them are generated as before."""
+    if params.one_side_share <= 0 and params.no_earth_wire_share <= 0:
+        return 0, True
+    r = derive(seed, "stringing", line)
+    side = int(r.choice([-1, 1])) if r.random() < params.one_side_share else 0
+    return side, not r.random() < params.no_earth_wire_share
 
 
 def _route(rng: np.random.Generator, bounds, params: SceneParams, through=None, angle=None) -> np.ndarray:
@@ -168,9 +222,11 @@ def make_power_lines(
     wires = []
     spans = []
     axes = []
+    stringing: dict[int, str] = {}
     next_id = 1
     for li, (verts, design, anchor, r) in enumerate(routes):
         axes.append(verts)
+        side, earth = _stringing(seed, li, params)
         s = _stations(r, verts, params, anchor)
         pts = _along(verts, s)
         head = _heading(verts, s)
@@ -190,6 +246,12 @@ def make_power_lines(
                 derive(seed, "tower", li, k),
                 line_id=li,
             )
+            if side or not earth:
+                keep, one = strung(t, side, earth), strung(t, side)
+                how = [w for w, cut in (("one side", ~one), ("no earth wire", one & ~keep)) if cut.any()]
+                if how:
+                    stringing[li] = ", ".join(how)
+                t.attach = t.attach[keep]
             hull = t.prim.xy_points()
             inside = (hull[:, 0] >= xmin) & (hull[:, 0] < xmax) & (hull[:, 1] >= ymin) & (hull[:, 1] < ymax)
             if inside.all():
@@ -214,7 +276,7 @@ def make_power_lines(
                     spans.append((prev.tower_id, t.tower_id))
             prev = t
     wprim = segments(np.concatenate(wires), params.wire_width) if wires else Primitives.empty()
-    return PowerLines(towers, wprim, axes, np.array(spans, np.int64).reshape(-1, 2))
+    return PowerLines(towers, wprim, axes, np.array(spans, np.int64).reshape(-1, 2), stringing)
 
 
 def distance_to_polylines(x: np.ndarray, y: np.ndarray, lines: list[np.ndarray]) -> np.ndarray:

@@ -176,6 +176,7 @@ def generate_zone(
         "params": p.to_dict(),
         "tower_source": tower_source,
         "spans": zone.lines.spans.tolist(),
+        "stringing": {str(k): v for k, v in sorted(zone.lines.stringing.items())},
         "negatives": [{"kind": n.kind, "x": n.x, "y": n.y, "height": n.height} for n in zone.negatives],
         "seconds": round(time.perf_counter() - t0, 3),
     }
