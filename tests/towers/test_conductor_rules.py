@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from test_plan import crane
-from test_shape import BASE_Z, _Scores
+from test_shape import BASE_Z, _Rejects, _Scores
 from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
-from test_wires import conductor
+from test_wires import conductor, spans
 
 from conftest import extract
 from towerpipe.towers.conductor_rules import BALANCE_MIN_POINTS, conductor_balance
@@ -84,3 +84,24 @@ def test_rule_14_drops_a_crane_beside_a_line(monkeypatch, balance, shape, kept):
     heights = sorted(found.towers["height_m"].round().tolist())
     assert heights == ([30.0, 36.0] if kept else [30.0])  # the tower, and the crane with its jib
     assert (found.towers["wire_support"] == 1.0).all()
+
+
+@pytest.mark.parametrize(("balance", "rule", "kept"), [(np.nan, 0.125, 0), (np.nan, 0.0, 1), (0.4, 0.125, 1)])
+def test_a_vouch_needs_the_conductors_sides_known(monkeypatch, balance, rule, kept):
+    """A 30 m tower the verifier takes for a tree, with conductors at 28 m: rule 12 vouches for it. With
+    rule 14 on, an unknown balance (too few conductor points to say where they lie) drops it; a known
+    balance over the threshold keeps it, and so does the rule off."""
+    import towerpipe.towers.extract as ex
+
+    monkeypatch.setattr(ex, "load_verifier", lambda spec: _Rejects())
+    monkeypatch.setattr(ex, "conductor_balance", lambda arr, bx, by: balance)
+    rng = np.random.default_rng(2)
+    cx, cy = X0 + 250, Y0 + 250
+    t_xyz, t_hag = synthetic_tower(cx, cy, base_z=BASE_Z, seed=3)
+    ctx = context(t_xyz, spans(cx, cy, BASE_Z + 28.0, rng))
+    rules = {"min_shape_score": 0.5, "split_thresholds": [], "vouch_height": 5.0, "min_conductor_balance": rule}
+    pair = pred_pair(t_xyz, t_hag, 0.95, ["b1"])
+    found = extract([pair], "b1", BOUNDS, zone="z1", context=lambda x, y: (ctx, EXTENT), **rules)
+    assert len(found.towers) == kept
+    if kept:
+        assert found.towers["shape_score"].iloc[0] == 0.0  # kept against the shape check: rule 12's

@@ -11,7 +11,8 @@
   on the less-held side of the base, or within :data:`OVER_M` of it. A tower's is about 0.5 (0.16
   or more on the twelve calibration zones); a crane's or a tree's beside a line 0-0.15. The rule
   asks it only of a cluster whose shape is in doubt: a tower strung on one side only has its
-  conductors on one side too (docs/model.md, "The conductors' sides and a crane's jib").
+  conductors on one side too (docs/model.md, "The conductors' sides and a crane's jib"). An
+  unknown balance (too few points) drops only a cluster that the vouch keeps.
 """
 
 from __future__ import annotations

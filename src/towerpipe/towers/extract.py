@@ -63,7 +63,8 @@ whose shape is in doubt (rule 12 vouches for it, it passes the shape check only 
 no shape score, or it is a rescue's) and that the conductor rule judges (or rule 12 keeps) is
 dropped when the conductors pointing at it lie on one side of its base
 (:func:`towerpipe.towers.conductor_rules.conductor_balance` below ``min_conductor_balance``): a
-tower stands between its conductors, a crane or a tree beside a line does not.
+tower stands between its conductors, a crane or a tree beside a line does not. An unknown balance
+(too few conductor points) drops only a cluster rule 12 keeps: that vouch needs the sides known.
 
 Rule 15, a crane's jib (``max_arm_reach``, 13 m by default, 0: off): a cluster at least
 ``wire_min_height`` high whose plan is a narrow arm reaching ``max_arm_reach`` m or more from its
@@ -407,7 +408,9 @@ def extract_towers(
             doubted = vouch is not None or is_rescue or not shape >= rules.min_shape_score
             if (tall or vouch is not None) and doubted and rules.min_conductor_balance > 0:
                 balance = conductor_balance(arr, bx, by)
-                if balance < rules.min_conductor_balance:  # unknown (NaN) never drops
+                # unknown (NaN) drops only what rule 12 keeps against the shape check: its vouch then
+                # rests on conductors too few to say where they lie
+                if balance < rules.min_conductor_balance or (vouch is not None and np.isnan(balance)):
                     decided("sides", balance)
                     continue  # rule 14: every conductor on one side, a crane or a tree beside a line
         decided("accepted", shape)
