@@ -29,12 +29,17 @@ def _across(t):
     return across, a[:, 2] - t.base_z >= t.height - 0.05
 
 
+def _double(across, top):
+    """Whether the attachments hold a circuit on each side (three conductors or more a side)."""
+    return min((~top & (across < -0.5)).sum(), (~top & (across > 0.5)).sum()) >= CIRCUIT_CONDUCTORS
+
+
 @pytest.mark.parametrize("rot", [0.3, 2.0, -2.5])
 @pytest.mark.parametrize("design", DESIGNS)
 def test_one_side_keeps_one_circuit_and_the_earth_wire(design, rot):
     t = _tower(design, rot)
     across, top = _across(t)
-    double = min((~top & (across < -0.5)).sum(), (~top & (across > 0.5)).sum()) >= CIRCUIT_CONDUCTORS
+    double = _double(across, top)
     assert strung(t).all()
     for side in (-1, 1):
         keep = strung(t, side)
@@ -48,11 +53,7 @@ def test_one_side_keeps_one_circuit_and_the_earth_wire(design, rot):
 
 
 def test_double_circuit_designs_are_the_ones_with_three_conductors_a_side():
-    double = set()
-    for d in DESIGNS:
-        across, top = _across(_tower(d, 0.0))
-        if min((~top & (across < -0.5)).sum(), (~top & (across > 0.5)).sum()) >= CIRCUIT_CONDUCTORS:
-            double.add(d)
+    double = {d for d in DESIGNS if _double(*_across(_tower(d, 0.0)))}
     assert double == {"double_circuit", "monopole", "donau", "einebenen", "tonne"}
 
 
