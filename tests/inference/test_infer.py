@@ -16,11 +16,12 @@ import pytest
 from conftest import grid_inference, inference_settings, tower_among_crowns
 from towerpipe.errors import ConfigError, ModelError
 from towerpipe.inference.compat import check_model_compatibility
-from towerpipe.inference.infer import infer_tile, predict_tile
+from towerpipe.inference.infer import infer_tile, overhead_wires, predict_tile
 from towerpipe.inference.views import TTA_CHOICES, segment_views
 from towerpipe.io.predictions import PRED_META_KEYS, load_pred
 from towerpipe.io.tiles import Tile, empty_arrays, save_tile
 from towerpipe.model import features
+from towerpipe.towers.wires import WIRE_MIN_HAG_M
 
 R = features.NORM_RADIUS
 CORE = (400000.0, 4600000.0, 400160.0, 4600160.0)
@@ -127,6 +128,11 @@ def expected_probs(tile: Tile, passed_keys: list[tuple[int, int]], combine: str,
             vals[j].append(p[j])
     keep = np.array([len(v) > 0 for v in vals], bool)
     comb = np.array([(max(v) if combine == "max" else np.mean(v)) if v else 0.0 for v in vals], np.float32)
+    # the tile classifies no wire: what the wire detector finds is never tower (test_wires_are_never_tower...)
+    mi = np.flatnonzero(a["model_input"])
+    wire = np.zeros(len(a["x"]), bool)
+    wire[mi] = overhead_wires(a, mi, WIRE_MIN_HAG_M)
+    comb[wire[sel]] = 0.0
     return sel[keep], comb[keep]
 
 
@@ -596,3 +602,41 @@ def test_secondary_peaks_reach_a_hidden_tower_and_paint_only_near_it():
     _, st_prim = predict_tile(both, FakeBundle(), replace(base, gate=0.0))
     assert st_all["windows_total"] == st_prim["windows_total"] + 2
     assert st_all["windows_segmented"] == st_prim["windows_segmented"] + 1
+
+
+def tile_with_wire(classified: bool) -> Tile:
+    """:func:`make_tile` with a conductor 25 m up passing 6 m from the tower (one point every
+    0.25 m), classified as wire (14) or not (1, a delivery without a wire class)."""
+    tile = make_tile()
+    a = dict(tile.arrays)
+    xs = np.arange(CORE[0] - 30.0, CORE[2] + 30.0, 0.25)
+    n = len(xs)
+    w = empty_arrays(n)
+    w["x"], w["y"] = xs, np.full(n, TOWER[1] + 6.0)
+    w["hag"] = np.full(n, 25.0, np.float32)
+    w["z"] = 225.0 + 0.01 * (xs - CORE[0])
+    w["intensity"] = np.full(n, 1000, np.uint16)
+    w["return_number"], w["number_of_returns"] = np.ones(n, np.uint8), np.ones(n, np.uint8)
+    w["classification"] = np.full(n, 14 if classified else 1, np.uint8)
+    w["block_id"] = np.where(xs >= CORE[2], 1, 0).astype(np.int32)
+    w["point_index"] = np.arange(n, dtype=np.int64) + 10_000_000
+    w["core"] = (xs >= CORE[0]) & (xs < CORE[2])
+    w["model_input"] = np.ones(n, bool)
+    return Tile({k: np.concatenate([a[k], w[k]]) for k in a}, tile.meta)
+
+
+def test_wires_are_never_tower_whether_classified_or_detected():
+    """The points the delivery classifies as wire have probability 0; a tile without a wire class
+    takes the wire detector's instead. The tower keeps its points either way."""
+    settings = grid_inference(windows="candidates", min_height=10.0, gate=0.05)  # the fake gate doubts the window
+    for classified in (True, False):
+        tile = tile_with_wire(classified)
+        out, st = predict_tile(tile, FakeBundle(), settings)
+        assert st["wire_source"] == ("classified" if classified else "detected")
+        wire = out["point_index"] >= 10_000_000
+        assert wire.sum() > 20 and (out["prob"][wire] == 0).all() and (out["prob_single"][wire] == 0).all()
+        tower = np.hypot(out["x"] - TOWER[0], out["y"] - TOWER[1]) < 3
+        assert (out["prob"][tower & (out["hag"] > 10)] > 0.3).all()
+    # the rule is what takes them: the fake segmenter paints every tall point
+    painted = fake_segment(np.zeros(1, np.float32), np.full(1, 25.0 / R, np.float32))
+    assert painted[0] > 0.3

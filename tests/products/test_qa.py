@@ -207,6 +207,21 @@ def test_tower_whose_lines_may_leave_the_data_is_flagged(tmp_path):
     )
 
 
+def test_towers_of_a_delivery_without_a_wire_class_are_flagged(tmp_path):
+    """A block whose tiles took their wires from the detector (no point classified 13/14) and that
+    reports towers needs a look; a tile without wires in a delivery that classifies them does not."""
+    pts = make_block()
+    gdf = towers_of(pts)
+    tiles, preds = metas()
+    for sources, flagged in ((["detected"], True), (["classified", "detected"], False), (["classified"], False)):
+        pm = [{**preds[0], "wire_source": s} for s in sources]
+        doc = report(tmp_path, "b", stem=f"w{len(sources)}{flagged}", pred_metas=pm, towers=gdf, classified=pts)
+        assert doc["wire_sources"] == sorted(sources)
+        assert ("wires_detected" in {f["code"] for f in doc["flags"]}) == flagged
+    page = (tmp_path / "w1True.html").read_text()
+    assert "the wire detector (no wire class)" in page
+
+
 def test_clean_block_is_ok_and_uses_raster(tmp_path):
     pts = make_block()
     tif = dtm_tif(tmp_path / "dtm.tif")  # used for the hillshade and HAG when points carry no HAG

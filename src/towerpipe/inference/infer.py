@@ -92,6 +92,13 @@ def _classified_wire(arrays: Mapping[str, np.ndarray], idx: np.ndarray) -> np.nd
     return np.isin(np.asarray(arrays["classification"])[idx], classes.WIRE)
 
 
+def wire_source(arrays: Mapping[str, np.ndarray], idx: np.ndarray) -> str:
+    """Where a tile's wires come from: ``"classified"`` when the delivery classifies any of the points
+    ``idx`` as wire (:data:`towerpipe.classes.WIRE`), else ``"detected"`` (the wire detector's,
+    :func:`overhead_wires`)."""
+    return "classified" if _classified_wire(arrays, idx).any() else "detected"
+
+
 def overhead_wires(arrays: Mapping[str, np.ndarray], idx: np.ndarray, min_height: float) -> np.ndarray:
     """Bool mask over ``idx``: the points at least ``min_height`` high that look like overhead
     wire (:func:`towerpipe.towers.wires.wire_points`, or classified as wire:
@@ -130,9 +137,10 @@ def predict_tile(
         Prediction arrays (:data:`towerpipe.io.predictions.PRED_ARRAYS`) of the core points
         inside at least one segmented window, in tile order; points the input classifies as
         wire (:data:`towerpipe.classes.WIRE`) have probability 0, so reprocessing a
-        classified block gives the same towers.
+        classified block gives the same towers, and so have, in a tile where the input
+        classifies no point as wire (:func:`wire_source`), those the wire detector finds.
     stats
-        ``windows_total``, ``windows_passed_gate``, ``windows_segmented``,
+        ``windows_total``, ``windows_passed_gate``, ``windows_segmented``, ``wire_source``,
         ``windows_empty`` (windows with fewer than ``min_points`` points),
         ``windows_prefiltered`` (windows whose highest point is below ``min_height``,
         background without a classifier pass), ``windows_shape_gated`` (windows whose peak
@@ -329,7 +337,18 @@ def predict_tile(
         "prob": np.clip(acc[sel_local], 0.0, 1.0).astype(np.float32),
         "prob_single": np.clip(acc1[sel_local], 0.0, 1.0).astype(np.float32),
     }
-    wire = _classified_wire(arrays, sel)  # what the provider classified as wire is never tower
+    # what the delivery classifies as wire is never tower; in a tile where it classifies no point as
+    # wire (a flight delivered without a wire class), what the wire detector finds is never tower
+    # either: the segmenter paints pieces of conductor, and they were reported as towers
+    source = wire_source(arrays, mi)
+    if source == "detected" and len(sel):
+        if wires is None:  # grid windows: the detector has not run (the conductor layer's floor)
+            from towerpipe.towers.wires import WIRE_MIN_HAG_M
+
+            wires = overhead_wires(arrays, mi, WIRE_MIN_HAG_M)
+        wire = wires[sel_local]
+    else:
+        wire = _classified_wire(arrays, sel)
     out["prob"][wire] = 0.0
     out["prob_single"][wire] = 0.0
     timings["total"] = time.perf_counter() - t0
@@ -337,6 +356,7 @@ def predict_tile(
         "windows_total": int(n_win),
         "windows_empty": int(n_all - n_win),
         "windows_mode": windows,
+        "wire_source": source,
         "windows_prefiltered": int(n_win - n_tall),
         "windows_shape_gated": int(n_tall - n_todo),
         "shape_gate": float(settings.shape_gate) if by_shape else None,

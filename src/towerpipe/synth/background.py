@@ -372,7 +372,8 @@ def _insert(
             }
         )
     if wires:
-        parts.append((in_box(np.concatenate(wires)), 14, 0, col.WIRE, 0.3, 1.0))
+        klass = classes.WIRE_CONDUCTOR if params.wire_class else classes.OTHER
+        parts.append((in_box(np.concatenate(wires)), klass, 0, col.WIRE, 0.3, 1.0))
     negatives = []
     for _ in range(cranes if len(where) else 0):
         k = int(rng.integers(len(where)))

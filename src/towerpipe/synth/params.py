@@ -66,6 +66,9 @@ class SceneParams:
     # circuit only, all on one side of their towers, and the share of lines without an earth wire
     one_side_share: float = 0.0
     no_earth_wire_share: float = 0.0
+    # the delivery classifies conductors and earth wires (class 14); False: they come as class 1, as
+    # from providers that classify no wires
+    wire_class: bool = True
     # hard negatives (per km²)
     cranes: float = 0.4
     telecom_masts: float = 0.6

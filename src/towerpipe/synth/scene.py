@@ -400,7 +400,7 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
         if ws.any():
             sub = Primitives(wires.seg[ws], wires.width[ws], wires.tube[ws], np.zeros((0, 6)))
             xyz, _ = sample_segments(sub, local_density(sub), rng, beam=0.0, vertical_factor=p.vertical_factor)
-            add(xyz, WIRE, col.WIRE, share)
+            add(xyz, WIRE if p.wire_class else OTHER, col.WIRE, share)
     for neg in zone.negatives:
         if not _prim_bbox_hit(neg.prim, b):
             continue

@@ -249,6 +249,13 @@ def block_report(
             f"{100 * gate_ratio:.0f} % of windows passed the classifier gate (> {100 * limits.max_gate_ratio:.0f} %)",
         )
     model = next((m.get("model") for m in pred_metas if m.get("model")), None) or {}
+    wire_sources = sorted({str(m["wire_source"]) for m in pred_metas if m.get("wire_source")})  # infer.wire_source
+    if wire_sources == ["detected"] and len(gdf):
+        flag(
+            "wires_detected",
+            "no point of the delivery is classified as wire (13/14): the wire detector "
+            "alone tells conductors from towers; look for pieces of conductor among the towers",
+        )
     points_model_input = int(sum(int(m.get("points_model_input_core") or 0) for m in pred_metas))
 
     # ---- per-stage counts
@@ -455,6 +462,7 @@ def block_report(
         "ground_ratio": ground_ratio,
         "ground_sources": ground_sources,
         "ground_classified": ground_classified,
+        "wire_sources": wire_sources,
         "density": density,
         "stage_counts": dict(stage_counts),
         "tile_counts": tile_counts,
