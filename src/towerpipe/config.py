@@ -275,6 +275,9 @@ class TowersConfig(Section):
     #: Rule 15: a cluster at least ``wire_min_height`` high whose narrow plan reaches this far (m)
     #: from its base on one side is dropped, a crane's jib (0: never; :mod:`towerpipe.towers.plan`).
     max_arm_reach: float
+    #: Rule 16: a cluster whose points over every 1 m plan cell lie within this height range (m) is
+    #: dropped, a piece of conductor (0: never; :func:`towerpipe.towers.plan.tallest_stand`).
+    min_stand: float
     #: Rule 10: clusters no accepted tower holds, from the points at or above this
     #: probability, are judged again (0: never; see :func:`towerpipe.towers.extract.extract_towers`).
     rescue_threshold: float

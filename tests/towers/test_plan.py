@@ -1,4 +1,5 @@
-"""A cluster's plan (rule 15, towers.max_arm_reach): a crane's jib against a tower's crossarms."""
+"""A cluster's plan: a crane's jib against a tower's crossarms (rule 15, towers.max_arm_reach), and a piece
+of conductor, over whose plan nothing stands (rule 16, towers.min_stand)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from test_shape import BASE_Z, _Scores
 from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
 
 from conftest import extract
-from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach
+from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach, tallest_stand
 
 
 def crane(
@@ -89,3 +90,33 @@ def test_the_rescue_does_not_find_a_dropped_crane_again(monkeypatch):
     )
     assert len(found.towers) == 0
     assert [t["rule"] for t in trace] == ["jib"]
+
+
+def conductor_piece(cx: float, cy: float, *, span: float = 24.0, top: float = 15.0, sag: float = 6.0):
+    """A painted piece of conductor: a catenary-like curve ``span`` m long, ``top`` m up at its ends and
+    ``sag`` m lower in the middle, a point every 0.3 m; (xyz, hag)."""
+    s = np.arange(-span / 2, span / 2, 0.3)
+    hag = top - sag * (1 - (2 * s / span) ** 2)
+    xyz = np.c_[cx + s, np.full_like(s, cy), BASE_Z + hag]
+    return xyz, hag.astype(np.float32)
+
+
+def test_nothing_stands_over_a_conductor_a_tower_stands():
+    w_xyz, _ = conductor_piece(0.0, 0.0)
+    assert tallest_stand(w_xyz) < 1.0  # over 1 m of its plan a sagging conductor drops 0.5 m at most
+    t_xyz, _ = synthetic_tower(0.0, 0.0, base_z=BASE_Z)
+    assert tallest_stand(t_xyz) > 10.0  # its legs, slanting 2 m over 30 m
+    assert tallest_stand(np.empty((0, 3))) == 0.0
+
+
+@pytest.mark.parametrize(("min_stand", "kept"), [(0.0, 1), (1.0, 0)])
+def test_rule_16_drops_a_piece_of_conductor(min_stand, kept):
+    """A painted piece of conductor that sags below ``max_base_ratio`` of its top (not floating) is
+    dropped when nothing in it stands ``min_stand`` m over one spot; a tower stays."""
+    cx, cy = X0 + 250, Y0 + 250
+    w_xyz, w_hag = conductor_piece(cx, cy)
+    found = extract([pred_pair(w_xyz, w_hag, 0.95, ["b1"])], "b1", BOUNDS, zone="z1", min_stand=min_stand)
+    assert len(found.towers) == kept
+    t_xyz, t_hag = synthetic_tower(cx, cy, base_z=BASE_Z)
+    found = extract([pred_pair(t_xyz, t_hag, 0.95, ["b1"])], "b1", BOUNDS, zone="z1", min_stand=min_stand)
+    assert len(found.towers) == 1

@@ -347,8 +347,9 @@ def test_floating_cluster_is_not_a_tower():
     allxyz = np.concatenate([xyz, piece])
     allhag = np.concatenate([hag, (piece[:, 2] - 100).astype(np.float32)])
     pair = pred_pair(allxyz, allhag, 0.95, ["b1"])
-    assert len(extract([pair], "b1", BOUNDS, zone="z1", max_base_ratio=1.0).towers) == 2
-    kept = extract([pair], "b1", BOUNDS, zone="z1", max_base_ratio=0.7).towers
+    # rule 16 off: nothing stands over the piece either (tests/towers/test_plan.py)
+    assert len(extract([pair], "b1", BOUNDS, zone="z1", max_base_ratio=1.0, min_stand=0.0).towers) == 2
+    kept = extract([pair], "b1", BOUNDS, zone="z1", max_base_ratio=0.7, min_stand=0.0).towers
     assert len(kept) == 1 and abs(kept.iloc[0]["centroid_x"] - (X0 + 50)) < 1
 
 

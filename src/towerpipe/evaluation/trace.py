@@ -43,6 +43,7 @@ __all__ = ["GATE_STAGES", "RULE_NAMES", "trace_zone", "trace_table"]
 RULE_NAMES = {
     "core": "no confident core (towers.min_core_prob)",
     "floating": "floating above the ground (towers.max_base_ratio)",
+    "stands": "nothing in it stands, a piece of conductor (towers.min_stand)",
     "points": "too few points reported (towers.min_points)",
     "jib": "a narrow arm reaching far on one side, a crane's jib (towers.max_arm_reach)",
     "context": "no tile around it for the rescue's shape check",

@@ -71,6 +71,10 @@ Rule 15, a crane's jib (``max_arm_reach``, 13 m by default, 0: off): a cluster a
 base on one side is dropped (:mod:`towerpipe.towers.plan`), and the rescue leaves its points alone
 (clustered at the rescue's lower threshold with the crowns at its foot, it would be wider).
 
+Rule 16, nothing standing (``min_stand``, 1.5 m by default, 0: off): a cluster whose points over every
+1 m cell of its plan lie within ``min_stand`` m in height is dropped (:func:`towerpipe.towers.plan.tallest_stand`):
+a piece of conductor, which a delivery without a wire class leaves to the wire detector.
+
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
 tower's points and the registry, never on file or processing order nor on the zone's
@@ -100,15 +104,15 @@ from towerpipe.towers.column import column_mask
 from towerpipe.towers.conductor_rules import conductor_balance, vouching_support
 from towerpipe.towers.conductor_rules import support as conductor_support
 from towerpipe.towers.foot import foot_mask
-from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach
+from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach, tallest_stand
 from towerpipe.towers.records import TOWER_FIELDS, empty_towers
 from towerpipe.towers.registry import assign_ids
 from towerpipe.towers.shape import load_verifier, object_points
 
 #: What decided a cluster in a ``trace`` of :func:`extract_towers`: its core probability (rule 6),
-#: floating (7), too few points to report, a crane's jib (15), no context for a rescue, the shape
-#: check (9), the conductor support (8), the conductors on one side (14), or accepted.
-TRACE_RULES = ("core", "floating", "points", "jib", "context", "shape", "wires", "sides", "accepted")
+#: floating (7), nothing standing (16), too few points to report, a crane's jib (15), no context for a
+#: rescue, the shape check (9), the conductor support (8), the conductors on one side (14), or accepted.
+TRACE_RULES = ("core", "floating", "stands", "points", "jib", "context", "shape", "wires", "sides", "accepted")
 
 
 @dataclass
@@ -216,7 +220,7 @@ def extract_towers(
           points at or above each of these in turn, and each part is judged (``()``: never);
         - ``rescue_threshold``: rule 10 (module docstring; 0 never rescues);
         - ``vouch_height``: rule 12 (module docstring; 0 never vouches);
-        - ``min_conductor_balance``, ``max_arm_reach``: rules 14 and 15 (module docstring; 0: off);
+        - ``min_conductor_balance``, ``max_arm_reach``, ``min_stand``: rules 14-16 (module docstring; 0: off);
         - ``foot``, ``column``: which of a tower's points are reported (:mod:`towerpipe.towers.foot`,
           :mod:`towerpipe.towers.column`: rule 11); never whether the tower is.
     zone
@@ -348,6 +352,10 @@ def extract_towers(
         if hag.min() > rules.max_base_ratio * hag.max():
             decided("floating", hag.min() / max(hag.max(), 1e-9))
             continue  # floating: a piece of conductor or crossarm, not a tower standing on the ground
+        stand = tallest_stand(xyz[g]) if rules.min_stand > 0 else float("inf")
+        if stand < rules.min_stand:
+            decided("stands", stand)
+            continue  # rule 16: nothing in it stands over any spot of its plan, a piece of conductor
         xy = xyz[g, :2]
         footprint = shapely.set_precision(_footprint(xy, min_width), GEOMETRY_GRID)  # as written: 1 cm
         c = footprint.centroid

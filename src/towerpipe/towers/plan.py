@@ -1,4 +1,5 @@
-"""A cluster's plan: a crane's jib (rule 15 of :func:`towerpipe.towers.extract.extract_towers`).
+"""A cluster's plan: a crane's jib (rule 15 of :func:`towerpipe.towers.extract.extract_towers`), and
+whether anything in it stands (rule 16).
 
 A tower crane's cluster is its mast and the part of its jib the segmenter paints: in plan a narrow
 line (the jib is about 1.5-2.5 m wide) reaching 10-60 m out from the mast on one side. A
@@ -9,16 +10,24 @@ rule drops a cluster at least ``towers.wire_min_height`` high whose plan is at m
 :data:`JIB_MAX_WIDTH_M` wide and whose upper half reaches ``towers.max_arm_reach`` m or more from its
 base, and the rescue (rule 10) leaves such a crane's points alone (docs/model.md, "The conductors'
 sides and a crane's jib").
+
+A piece of conductor the segmenter paints (in a delivery that classifies no wire, where the wire
+detector missed it) hangs along a line: over each spot of its plan its points lie at one height.
+Anything that stands (a tower's body or legs, a pole, a crown) has points metres apart in height over
+some spot. :func:`tallest_stand` measures it; rule 16 drops a cluster whose tallest stand is under
+``towers.min_stand`` (docs/model.md, "A delivery without a wire class").
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["JIB_MAX_WIDTH_M", "arm_reach"]
+__all__ = ["JIB_MAX_WIDTH_M", "STAND_CELL_M", "arm_reach", "tallest_stand"]
 
 #: A plan at most this wide (m, across its long axis) may be a crane's jib and mast.
 JIB_MAX_WIDTH_M = 3.0
+#: Plan cell (m) over which :func:`tallest_stand` reads a height range.
+STAND_CELL_M = 1.0
 #: The ends of a plan are read at these percentiles of the points (a stray point does not set them).
 _ENDS = (2.0, 98.0)
 
@@ -53,3 +62,30 @@ def arm_reach(xy: np.ndarray, hag: np.ndarray, base: tuple[float, float]) -> tup
     along = np.percentile(top @ axes[:, 1], _ENDS)
     across = np.percentile(xy @ axes[:, 0], _ENDS)
     return float(max(along[1], -along[0])), float(across[1] - across[0])
+
+
+def tallest_stand(xyz: np.ndarray, cell: float = STAND_CELL_M) -> float:
+    """The largest height range (m) of a cluster's points over one plan cell of ``cell`` m.
+
+    Parameters
+    ----------
+    xyz
+        ``(n, 3)`` coordinates of the cluster's points (m; float64, any plan offset).
+    cell
+        Side (m) of the plan cells, on a grid from the origin.
+
+    Returns
+    -------
+    float
+        0 for no point.
+    """
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    if not len(xyz):
+        return 0.0
+    _, cells = np.unique(np.floor(xyz[:, :2] / cell).astype(np.int64), axis=0, return_inverse=True)
+    cells = cells.ravel()
+    top = np.full(cells.max() + 1, -np.inf)
+    low = np.full(cells.max() + 1, np.inf)
+    np.maximum.at(top, cells, xyz[:, 2])
+    np.minimum.at(low, cells, xyz[:, 2])
+    return float((top - low).max())
