@@ -22,3 +22,37 @@ def test_a_zone_delivered_without_a_wire_class_differs_only_in_the_wires_class(t
     assert (cb[wire] == classes.OTHER).all() and (cb[~wire] == ca[~wire]).all()
     assert np.array_equal(np.asarray(a.x), np.asarray(b.x)) and np.array_equal(np.asarray(a.z), np.asarray(b.z))
     assert bare.towers["n_points"].tolist() == plain.towers["n_points"].tolist()
+
+
+def test_a_real_background_zone_delivered_without_a_wire_class(tmp_path):
+    """The benchmark's ``no_wire_class`` variant (and ``wire_class: false``): the same real-background
+    zone, its conductors class 1."""
+    from conftest import BACKGROUNDS, TOWERS
+
+    kw = dict(
+        seed=3,
+        real_backgrounds=BACKGROUNDS,
+        background_files=["ign_rgbnir_small.laz"],
+        copies=1,
+        lines=True,
+        tower_source="real",
+        real_towers=TOWERS,
+        tower_families=["uav"],
+        tower_density=(8, 15),
+    )
+    zones = {
+        name: generate_zone(tmp_path / name, **kw, **extra)
+        for name, extra in (("intact", {}), ("variant", {"variant": "no_wire_class"}), ("key", {"wire_class": False}))
+    }
+    (a,) = (laspy.read(p) for p in sorted((tmp_path / "intact").glob("*.la[sz]")))
+    ca = np.asarray(a.classification)
+    wire = np.isin(ca, classes.WIRE)
+    assert wire.sum() > 5  # the small tile holds a few spans
+    for name in ("variant", "key"):
+        (b,) = (laspy.read(p) for p in sorted((tmp_path / name).glob("*.la[sz]")))
+        cb = np.asarray(b.classification)
+        assert (
+            not np.isin(cb, classes.WIRE).any() and (cb[wire] == classes.OTHER).all() and (cb[~wire] == ca[~wire]).all()
+        )
+        assert np.array_equal(np.asarray(a.z), np.asarray(b.z))
+        assert zones[name].towers["n_points"].tolist() == zones["intact"].towers["n_points"].tolist()

@@ -11,7 +11,7 @@ instead, leaving one *source* out:
   with conductors, thinned to 4-15 pts/m² (zones ``realshape_<family>_<variant>`` of
   ``config/models.yaml``, :mod:`towerpipe.synth.background`);
 * each zone exists intact and degraded (:data:`VARIANTS`): intensity, returns, scan angle
-  and GPS time all 0; NIR all 0; no colour at all;
+  and GPS time all 0; NIR all 0; no colour at all; no wire class (conductors class 1);
 * each recipe (a feature set of the shipped family) is trained once per family *without*
   that family (``<model>-without-<family>``) and judged on that family's zones where its
   features are usable (their attributes valid on the zone), with the configured inference

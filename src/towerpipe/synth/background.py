@@ -19,7 +19,8 @@ vegetation, about red elsewhere); one without colour an orthophoto colour from i
 
 ``variant`` then degrades the whole zone as public data sets often are:
 ``no_intensity`` (intensity, return numbers, scan angle and GPS time all 0),
-``no_nir`` (NIR all 0) or ``no_colour`` (point format 6: no RGB, no NIR).
+``no_nir`` (NIR all 0), ``no_colour`` (point format 6: no RGB, no NIR) or ``no_wire_class``
+(the conductors class 1, as ``wire_class: false`` delivers them).
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ from towerpipe.synth.wires import catenary
 log = logging.getLogger(__name__)
 
 #: Ways a zone's attributes are degraded (see the module docstring).
-VARIANTS = ("intact", "no_intensity", "no_nir", "no_colour")
+VARIANTS = ("intact", "no_intensity", "no_nir", "no_colour", "no_wire_class")
 #: East shift (m) between copies of a background tile.
 COPY_SPACING = 3000.0
 #: Span (m) to a line's next tower, and the gap between parallel lines across a tile.
@@ -493,4 +494,6 @@ def _degrade(pts: dict, variant: str) -> dict:
             pts[k] = np.zeros_like(pts[k])
     elif variant == "no_nir":
         pts["nir"] = np.zeros_like(pts["nir"])
+    elif variant == "no_wire_class":
+        pts["classification"][np.isin(pts["classification"], classes.WIRE)] = classes.OTHER
     return pts
