@@ -278,6 +278,14 @@ class TowersConfig(Section):
     #: Rule 16: a cluster whose points over every 1 m plan cell lie within this height range (m) is
     #: dropped, a piece of conductor (0: never; :func:`towerpipe.towers.plan.tallest_stand`).
     min_stand: float
+    #: Rule 17: a cluster more than this share of whose points lie on the lines of the conductors the
+    #: wire detector finds around it is dropped, a piece of conductor (1: never;
+    #: :func:`towerpipe.towers.conductor_rules.line_share`).
+    max_line_share: float
+    #: Rule 18: a cluster that passes the shape check is judged again without the points of its object
+    #: on those conductors' lines, and dropped below this score (0: never;
+    #: :func:`towerpipe.towers.conductor_rules.bare_score`).
+    min_bare_score: float
     #: Rule 10: clusters no accepted tower holds, from the points at or above this
     #: probability, are judged again (0: never; see :func:`towerpipe.towers.extract.extract_towers`).
     rescue_threshold: float

@@ -1,4 +1,5 @@
-"""What a cluster's conductors say about it: the sides of rule 14 (towers.min_conductor_balance)."""
+"""What a cluster's conductors say about it: the sides of rule 14 (towers.min_conductor_balance) and the
+conductor's line of rule 17 (towers.max_line_share)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
 from test_wires import conductor, spans
 
 from conftest import extract
-from towerpipe.towers.conductor_rules import BALANCE_MIN_POINTS, conductor_balance
+from towerpipe.towers.conductor_rules import BALANCE_MIN_POINTS, conductor_balance, line_share
 
 EXTENT = (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)
 
@@ -105,3 +106,90 @@ def test_a_vouch_needs_the_conductors_sides_known(monkeypatch, balance, rule, ke
     assert len(found.towers) == kept
     if kept:
         assert found.towers["shape_score"].iloc[0] == 0.0  # kept against the shape check: rule 12's
+
+
+def detected(xyz: np.ndarray, direction=(1.0, 0.0)) -> dict[str, np.ndarray]:
+    """Conductor points as the wire detector gives them (``arr["conductors"]``), their wire along ``direction``."""
+    c = context(xyz)
+    return {**c, "direction": np.tile(np.asarray(direction, np.float64), (len(xyz), 1))}
+
+
+def test_a_piece_of_conductor_lies_on_its_line_a_tower_does_not():
+    """The detector found a line but for 12 m of it: those 12 m lie on the lines of the conductors found
+    either side; the tower the line hangs from holds them only at its crossarms' tips."""
+    rng = np.random.default_rng(3)
+    cx, cy = X0 + 250, Y0 + 250
+    wires = line(cx, cy, 0.0, rng)
+    gap = np.abs(wires[:, 0] - (cx - 60.0)) < 6.0
+    found = context(wires[~gap])
+    found["conductors"] = detected(wires[~gap])
+    assert line_share(found, *wires[gap].T) > 0.95
+    t_xyz, _ = synthetic_tower(cx, cy, base_z=BASE_Z)
+    assert line_share(found, *t_xyz.T) < 0.2
+    assert line_share(context(wires[~gap]), *wires[gap].T) == 0.0  # no conductor points: nothing to say
+    across = detected(wires[~gap], direction=(0.0, 1.0))  # the same points, their wires crossing the piece
+    assert line_share({"conductors": across}, *wires[gap].T) < 0.5
+
+
+@pytest.mark.parametrize(("max_line_share", "kept"), [(1.0, 4), (0.9, 1)])
+def test_rule_17_drops_a_piece_of_conductor_the_detector_left(max_line_share, kept):
+    """A 14 m piece of a line (three conductors 5 m apart: three clusters) that the segmenter
+    paints and the detector missed, the rest of the line found, is dropped when ``max_line_share`` is
+    under 1; the tower on the same line stays."""
+    rng = np.random.default_rng(4)
+    cx, cy = X0 + 250, Y0 + 250
+    wires = np.concatenate(
+        [
+            conductor(cx - 300, cy + dy, cx + 300, cy + dy, BASE_Z + 28.0, sag=8.0, step=0.35, rng=rng)
+            for dy in (-5, 0, 5)
+        ]
+    )
+    gap = np.abs(wires[:, 0] - (cx - 60.0)) < 7.0
+    t_xyz, t_hag = synthetic_tower(cx, cy, base_z=BASE_Z)
+    ctx = context(t_xyz, wires)
+    ctx["conductors"] = detected(wires[~gap])
+    piece = wires[gap]
+    preds = [pred_pair(np.r_[piece, t_xyz], np.r_[piece[:, 2] - BASE_Z, t_hag], 0.95, ["b1"])]
+    rules = {"max_base_ratio": 1.0, "min_stand": 0.0, "max_arm_reach": 0.0, "max_line_share": max_line_share}
+    rules["verifier"] = "none"
+    found = extract(preds, "b1", BOUNDS, zone="z1", context=lambda x, y: (ctx, EXTENT), **rules)
+    assert len(found.towers) == kept
+    assert found.towers["height_m"].max() == pytest.approx(30.0, abs=1.0)  # the tower is always there
+
+
+class _TallObjects:
+    """A verifier that takes an object reaching 18 m for a tower (conductors over a crown make one)."""
+
+    def score(self, x, y, hag):
+        return 0.99 if np.max(hag) >= 18.0 else 0.0
+
+
+@pytest.mark.parametrize(("min_bare_score", "kept"), [(0.0, 2), (0.5, 1)])
+def test_rule_18_drops_a_crown_that_its_conductors_make_a_tower(monkeypatch, min_bare_score, kept):
+    """A 16 m crown under a line whose conductors pass 20 m up: its object, the conductors over it
+    included, passes the shape check; without them it is a crown, dropped when ``min_bare_score`` is on.
+    The tower on the same line keeps its score."""
+    import towerpipe.towers.extract as ex
+
+    monkeypatch.setattr(ex, "load_verifier", lambda spec: _TallObjects())
+    rng = np.random.default_rng(5)
+    cx, cy = X0 + 250, Y0 + 250
+    wires = np.concatenate(
+        [
+            conductor(cx - 300, cy + dy, cx + 300, cy + dy, BASE_Z + 28.0, sag=8.0, step=0.35, rng=rng)
+            for dy in (-5, 0, 5)
+        ]
+    )
+    u = rng.normal(size=(400, 3))
+    crown = u / np.linalg.norm(u, axis=1, keepdims=True) * rng.random((400, 1)) ** (1 / 3) * [3.0, 3.0, 4.0]
+    crown += [cx - 60.0, cy + 2.0, BASE_Z + 12.0]
+    t_xyz, t_hag = synthetic_tower(cx, cy, base_z=BASE_Z)
+    ctx = context(t_xyz, crown, wires)
+    ctx["conductors"] = detected(wires)
+    preds = [pred_pair(np.r_[crown, t_xyz], np.r_[crown[:, 2] - BASE_Z, t_hag], 0.95, ["b1"])]
+    rules = {"max_base_ratio": 1.0, "min_stand": 0.0, "max_arm_reach": 0.0, "min_bare_score": min_bare_score}
+    trace = []
+    found = extract(preds, "b1", BOUNDS, zone="z1", context=lambda x, y: (ctx, EXTENT), trace=trace, **rules)
+    assert len(found.towers) == kept
+    assert found.towers["height_m"].max() == pytest.approx(30.0, abs=1.0)
+    assert ("bare" in {t["rule"] for t in trace}) == (kept == 1)  # the crown, and its split parts

@@ -13,6 +13,14 @@
   asks it only of a cluster whose shape is in doubt: a tower strung on one side only has its
   conductors on one side too (docs/model.md, "The conductors' sides and a crane's jib"). An
   unknown balance (too few points) drops only a cluster that the vouch keeps.
+- **On a conductor's line** (rule 17, :func:`line_share`): the share of a cluster's points that lie
+  on the line of a conductor the wire detector found nearby. The detector misses the ends of the
+  wires it finds (where they thin, sag into a crown's reach, or cross another circuit); the
+  segmenter paints some of those points, and where the delivery classifies no wire nothing else
+  takes them away. A tower holds a conductor's line only at its crossarms' tips.
+- **Bare** (rule 18, :func:`bare_score`): the shape score of a cluster's object without its points on
+  those lines. Conductors over a crown make it look like a tower to the verifier (a body, and arms
+  at the top); without them a crown scores near 0 and a tower keeps its score.
 """
 
 from __future__ import annotations
@@ -25,7 +33,20 @@ import numpy as np
 from towerpipe.config import TowersConfig
 from towerpipe.towers.wires import AIM_M, RING_MAX_M, RING_MIN_M, WIRE_MIN_HAG_M, aimed_wire_points, wire_support
 
-__all__ = ["BALANCE_MIN_POINTS", "OVER_M", "conductor_balance", "support", "vouching_support"]
+__all__ = [
+    "BALANCE_MIN_POINTS",
+    "BARE_MIN_POINTS",
+    "LINE_ACROSS_M",
+    "LINE_DZ_M",
+    "LINE_REACH_M",
+    "OVER_M",
+    "bare_score",
+    "conductor_balance",
+    "line_share",
+    "on_conductor_lines",
+    "support",
+    "vouching_support",
+]
 
 #: A conductor point this close (m, across its wire) to the base is over the body (a shield wire, a
 #: conductor of a central crossarm): it counts on both sides.
@@ -33,6 +54,12 @@ OVER_M = 1.0
 #: The balance is known from this many counted conductor points on (fewer: unknown, ``nan``; a
 #: cluster is never dropped for it).
 BALANCE_MIN_POINTS = 20
+#: A point is on a conductor's line (rule 17) when a conductor point within :data:`LINE_REACH_M` m of it
+#: in plan has its wire pass within :data:`LINE_ACROSS_M` m of it in plan, and is within
+#: :data:`LINE_DZ_M` m of its height.
+LINE_REACH_M, LINE_ACROSS_M, LINE_DZ_M = 8.0, 0.5, 0.7
+#: Rule 18 judges an object without its conductors only when this many of its points are left.
+BARE_MIN_POINTS = 10
 
 
 def _conductors(arr: Mapping[str, Any]) -> tuple[Mapping[str, Any], Any]:
@@ -100,3 +127,47 @@ def conductor_balance(arr: Mapping[str, Any], bx: float, by: float) -> float:
     across = px * u[:, 1] - py * u[:, 0]
     over = np.abs(across) <= OVER_M
     return float(min((across > OVER_M).mean(), (across < -OVER_M).mean()) + over.mean())
+
+
+def on_conductor_lines(arr: Mapping[str, Any], x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Which of the points ``(x, y, z)`` (absolute heights) lie on the line of a conductor the wire
+    detector found around them (the context's ``arr["conductors"]``, each with its wire's plan
+    ``direction``; see :data:`LINE_REACH_M`). None does without conductor points."""
+    from scipy.spatial import cKDTree
+
+    c = arr.get("conductors")
+    x, y, z = (np.asarray(v, np.float64) for v in (x, y, z))
+    out = np.zeros(len(x), bool)
+    if c is None or len(c["x"]) == 0 or len(x) == 0:
+        return out
+    r = LINE_REACH_M
+    near = (c["x"] >= x.min() - r) & (c["x"] <= x.max() + r) & (c["y"] >= y.min() - r) & (c["y"] <= y.max() + r)
+    if not near.any():
+        return out
+    cx, cy, cz, u = c["x"][near], c["y"][near], c["z"][near], np.asarray(c["direction"])[near]
+    pairs = cKDTree(np.c_[x, y]).query_ball_tree(cKDTree(np.c_[cx, cy]), r)
+    counts = np.fromiter(map(len, pairs), np.int64, len(pairs))
+    i = np.repeat(np.arange(len(x)), counts)
+    j = np.fromiter((k for p in pairs for k in p), np.int64, int(counts.sum()))
+    across = np.abs((x[i] - cx[j]) * u[j, 1] - (y[i] - cy[j]) * u[j, 0])
+    hit = (across < LINE_ACROSS_M) & (np.abs(z[i] - cz[j]) < LINE_DZ_M)
+    out[i[hit]] = True
+    return out
+
+
+def line_share(arr: Mapping[str, Any], x: np.ndarray, y: np.ndarray, z: np.ndarray) -> float:
+    """Rule 17: the share of a cluster's points ``(x, y, z)`` that lie on the line of a conductor the
+    wire detector found around them (:func:`on_conductor_lines`); 0 without points."""
+    return float(on_conductor_lines(arr, x, y, z).mean()) if len(x) else 0.0
+
+
+def bare_score(verifier: Any, arr: Mapping[str, Any], obj: np.ndarray) -> float:
+    """Rule 18: the shape score of a cluster's object (the context's points ``obj``) without its points
+    on the conductors' lines (:func:`on_conductor_lines`); ``nan`` when fewer than
+    :data:`BARE_MIN_POINTS` are left (the object is its conductors: rule 17's to judge)."""
+    obj = np.asarray(obj)
+    if len(obj) == 0:
+        return float("nan")
+    x, y, z, hag = (np.asarray(arr[k])[obj] for k in ("x", "y", "z", "hag"))
+    bare = ~on_conductor_lines(arr, x, y, z)
+    return float(verifier.score(x[bare], y[bare], hag[bare])) if bare.sum() >= BARE_MIN_POINTS else float("nan")

@@ -46,34 +46,25 @@ holds are clustered and each cluster is judged by rules 4-8 (its highest probabi
 ``rescue_threshold``: a thin pole or a sparse real lattice that the segmenter paints mostly
 at 0.1-0.3 is found and outlined when its object is shaped like a tower.
 
-Rule 12, the conductors' vouch (``vouch_height``, 15 m by default, off at 0): a cluster the shape check drops,
-not a rescue's, and with no split part to judge instead, is kept when conductors point at it
-(a known support of at least ``min_wire_support``) and its top stands ``vouch_height`` m or more
-above their median height in its 80-160 m ring (:func:`towerpipe.towers.wires.conductor_heights`): a tower carries
-its conductors at its top, a crown under a line stays below them.
+Rules 12-18 (docs/products.md tells each with its measurements; 0 turns each off):
 
-Rule 13, tall clusters (``tall_shape_score``, 0.92 by default, ``None``: off): a cluster at least ``wire_min_height``
-high passes the shape check at ``tall_shape_score`` instead of ``min_shape_score``; rule 7 then
-judges it, so a tall object passes only with conductors pointing at it, or with its ring outside
-the data (an unknown support never drops): the conductors are a second opinion that a crane, a
-mast or a tree shaped like a tower lacks.
-
-Rule 14, the conductors' sides (``min_conductor_balance``, 0.125 by default, 0: off): a cluster
-whose shape is in doubt (rule 12 vouches for it, it passes the shape check only by rule 13, it has
-no shape score, or it is a rescue's) and that the conductor rule judges (or rule 12 keeps) is
-dropped when the conductors pointing at it lie on one side of its base
-(:func:`towerpipe.towers.conductor_rules.conductor_balance` below ``min_conductor_balance``): a
-tower stands between its conductors, a crane or a tree beside a line does not. An unknown balance
-(too few conductor points) drops only a cluster rule 12 keeps: that vouch needs the sides known.
-
-Rule 15, a crane's jib (``max_arm_reach``, 13 m by default, 0: off): a cluster at least
-``wire_min_height`` high whose plan is a narrow arm reaching ``max_arm_reach`` m or more from its
-base on one side is dropped (:mod:`towerpipe.towers.plan`), and the rescue leaves its points alone
-(clustered at the rescue's lower threshold with the crowns at its foot, it would be wider).
-
-Rule 16, nothing standing (``min_stand``, 1.5 m by default, 0: off): a cluster whose points over every
-1 m cell of its plan lie within ``min_stand`` m in height is dropped (:func:`towerpipe.towers.plan.tallest_stand`):
-a piece of conductor, which a delivery without a wire class leaves to the wire detector.
+12. the conductors' vouch (``vouch_height``): a cluster the shape check drops, with no split part to
+    judge instead, is kept when conductors point at it and its top stands ``vouch_height`` m above them
+    (:func:`towerpipe.towers.conductor_rules.vouching_support`);
+13. tall clusters (``tall_shape_score``, ``None``: off): a cluster at least ``wire_min_height`` high
+    passes the shape check at this lower score, rule 7 judging it next;
+14. the conductors' sides (``min_conductor_balance``): a cluster whose shape is in doubt is dropped
+    when the conductors pointing at it lie on one side of its base
+    (:func:`towerpipe.towers.conductor_rules.conductor_balance`);
+15. a crane's jib (``max_arm_reach``): a tall cluster whose narrow plan reaches this far on one side is
+    dropped, and the rescue leaves its points alone (:mod:`towerpipe.towers.plan`);
+16. nothing standing (``min_stand``): a cluster whose points over every 1 m plan cell lie within this
+    height range is dropped (:func:`towerpipe.towers.plan.tallest_stand`);
+17. on a conductor's line (``max_line_share``, 1: off): a cluster more than this share of whose points
+    lie on the lines of the conductors the wire detector finds around it is dropped
+    (:func:`towerpipe.towers.conductor_rules.line_share`);
+18. a crown under conductors (``min_bare_score``): a cluster that passes the shape check is judged
+    again without the points of its object on those lines, and dropped below this score.
 
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
@@ -101,7 +92,7 @@ from towerpipe.config import TowersConfig
 from towerpipe.io.fields import GEOMETRY_GRID, conform, join_values
 from towerpipe.towers.cluster import _as_pred, _footprint, cluster_towers, gather_points
 from towerpipe.towers.column import column_mask
-from towerpipe.towers.conductor_rules import conductor_balance, vouching_support
+from towerpipe.towers.conductor_rules import bare_score, conductor_balance, line_share, vouching_support
 from towerpipe.towers.conductor_rules import support as conductor_support
 from towerpipe.towers.foot import foot_mask
 from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach, tallest_stand
@@ -111,8 +102,9 @@ from towerpipe.towers.shape import load_verifier, object_points
 
 #: What decided a cluster in a ``trace`` of :func:`extract_towers`: its core probability (rule 6),
 #: floating (7), nothing standing (16), too few points to report, a crane's jib (15), no context for a
-#: rescue, the shape check (9), the conductor support (8), the conductors on one side (14), or accepted.
-TRACE_RULES = ("core", "floating", "stands", "points", "jib", "context", "shape", "wires", "sides", "accepted")
+#: rescue, on a conductor's line (17), the shape check (9), a crown under conductors (18), the conductor
+#: support (8), the conductors on one side (14), or accepted.
+TRACE_RULES = tuple("core floating stands points jib context line shape bare wires sides accepted".split())
 
 
 @dataclass
@@ -386,6 +378,11 @@ def extract_towers(
             continue  # a rescue stands on the shape check, which needs the points around it
         if ctx is not None:
             arr, extent = ctx
+            if rules.max_line_share < 1:
+                on_line = line_share(arr, *xyz[g].T)
+                if on_line > rules.max_line_share:
+                    decided("line", on_line)
+                    continue  # rule 17: it lies along the conductors found around it, a piece of one
             vouch = None  # the conductor support, when rule 12 keeps a cluster the shape check drops
             # the shape check first: it is cheap, and it drops most clusters (crowns)
             if verifier is not None:
@@ -407,6 +404,13 @@ def extract_towers(
                         decided("shape", shape)
                         queue.extend((part, rest, is_rescue) for part, rest in parts)
                         continue
+                # rule 18: judged again without the conductors through its object (nan: not judged)
+                bare = bare_score(verifier, arr, obj) if rules.min_bare_score > 0 and shape >= needed else np.nan
+                if bare < rules.min_bare_score:
+                    decided("bare", bare)
+                    parts = _split_by_confidence(g, pts["prob_single"], cluster, splits)
+                    queue.extend((part, rest, is_rescue) for part, rest in parts)
+                    continue
             support = conductor_support(arr, extent, bx, by) if vouch is None else vouch
             if tall and support < rules.min_wire_support:
                 decided("wires", support)
