@@ -132,7 +132,7 @@ def conductor_balance(arr: Mapping[str, Any], bx: float, by: float) -> float:
 def on_conductor_lines(arr: Mapping[str, Any], x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
     """Which of the points ``(x, y, z)`` (absolute heights) lie on the line of a conductor the wire
     detector found around them (the context's ``arr["conductors"]``, each with its wire's plan
-    ``direction``; see :data:`LINE_REACH_M`). None does without conductor points."""
+    ``direction``; see :data:`LINE_REACH_M`); all False without conductor points."""
     from scipy.spatial import cKDTree
 
     c = arr.get("conductors")
