@@ -75,7 +75,6 @@ compares towers with ground truth (synthetic sidecar or towers built from class-
 
 from __future__ import annotations
 
-import os
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -89,16 +88,17 @@ import pandas as pd
 import shapely
 
 from towerpipe.config import TowersConfig
-from towerpipe.io.fields import GEOMETRY_GRID, conform, join_values
+from towerpipe.io.fields import GEOMETRY_GRID, join_values
 from towerpipe.towers.cluster import _as_pred, _footprint, cluster_towers, gather_points
 from towerpipe.towers.column import column_mask
-from towerpipe.towers.conductor_rules import bare_score, conductor_balance, line_share, vouching_support
+from towerpipe.towers.conductor_rules import conductor_balance, line_share
 from towerpipe.towers.conductor_rules import support as conductor_support
 from towerpipe.towers.foot import foot_mask
 from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach, tallest_stand
-from towerpipe.towers.records import TOWER_FIELDS, empty_towers
+from towerpipe.towers.records import empty_towers, tower_record, towers_frame
 from towerpipe.towers.registry import assign_ids
-from towerpipe.towers.shape import load_verifier, object_points
+from towerpipe.towers.shape import load_verifier
+from towerpipe.towers.shape_check import shape_check
 
 #: What decided a cluster in a ``trace`` of :func:`extract_towers`: its core probability (rule 6),
 #: floating (7), nothing standing (16), too few points to report, a crane's jib (15), no context for a
@@ -312,7 +312,6 @@ def extract_towers(
         return held
 
     sources = dict(source_files or {})
-    xmin, ymin, xmax, ymax = (float(v) for v in block_bounds)
     accepted: list[tuple[Any, ...]] = []
     main = np.flatnonzero(pts["prob_single"] >= rules.threshold)
     # each cluster with the split thresholds still to try on it (rule 8) and whether the rescue
@@ -384,32 +383,16 @@ def extract_towers(
                     decided("line", on_line)
                     continue  # rule 17: it lies along the conductors found around it, a piece of one
             vouch = None  # the conductor support, when rule 12 keeps a cluster the shape check drops
-            # the shape check first: it is cheap, and it drops most clusters (crowns)
+            # the shape check first (rules 9, 12, 13 and 18): it is cheap, and it drops most clusters (crowns)
             if verifier is not None:
-                obj = object_points(footprint, arr["x"], arr["y"])
-                if len(obj):
-                    shape = verifier.score(arr["x"][obj], arr["y"][obj], arr["hag"][obj])
-                # rule 13: a cluster as high as the conductor rule judges passes at a lower score,
-                # the conductors pointing at it being the second opinion
-                lower = tall and rules.tall_shape_score is not None
-                needed = rules.tall_shape_score if lower else rules.min_shape_score
-                if shape < needed or (is_rescue and np.isnan(shape)):
-                    # the object under it is shaped like a tree, a roof or a crane; or it is a
-                    # tower standing in crowns the segmenter painted with it: its more
-                    # confident points are clustered again and each part judged
-                    parts = _split_by_confidence(g, pts["prob_single"], cluster, splits)
-                    if not parts and not is_rescue:
-                        vouch = vouching_support(rules, arr, extent, hag, bx, by)
-                    if vouch is None:
-                        decided("shape", shape)
-                        queue.extend((part, rest, is_rescue) for part, rest in parts)
-                        continue
-                # rule 18: judged again without the conductors through its object (nan: not judged)
-                bare = bare_score(verifier, arr, obj) if rules.min_bare_score > 0 and shape >= needed else np.nan
-                if bare < rules.min_bare_score:
-                    decided("bare", bare)
-                    parts = _split_by_confidence(g, pts["prob_single"], cluster, splits)
-                    queue.extend((part, rest, is_rescue) for part, rest in parts)
+                split = partial(_split_by_confidence, g, pts["prob_single"], cluster, splits)
+                verdict = shape_check(
+                    verifier, rules, footprint, arr, extent, hag, (bx, by), tall=tall, is_rescue=is_rescue, split=split
+                )
+                shape, vouch = verdict.shape, verdict.vouch
+                if verdict.failed:
+                    decided(verdict.failed, verdict.value)
+                    queue.extend((part, rest, is_rescue) for part, rest in verdict.parts)
                     continue
             support = conductor_support(arr, extent, bx, by) if vouch is None else vouch
             if tall and support < rules.min_wire_support:
@@ -451,49 +434,27 @@ def extract_towers(
             # points and tiles decide there); listed for this block's QA
             neighbours.append({"tower_id": tid, "footprint_wkt": footprint.wkt, "blocks": join_values(touched)})
             continue
-        c = footprint.centroid
-        rect = shapely.oriented_envelope(footprint)
-        ring = np.asarray(rect.exterior.coords) if isinstance(rect, shapely.Polygon) else np.zeros((2, 2))
-        sides = np.hypot(*np.diff(ring[:3], axis=0).T) if len(ring) >= 3 else np.zeros(2)
-        # top and base to the cm, and the height their difference: height_m = top_z - base_z exactly
-        top = round(float(xyz[g, 2].max()), 2)
-        base = round(float(np.median(xyz[g, 2] - hag)), 2)
         rows.append(
-            {
-                "tower_id": tid,
-                "zone": str(zone),
-                "block": str(block_name),
-                "blocks": join_values(touched),
-                "centroid_x": float(c.x),
-                "centroid_y": float(c.y),
-                "height_m": round(top - base, 2),
-                "base_z": base,
-                "top_z": top,
-                "footprint_area_m2": float(footprint.area),
-                "footprint_width_m": float(np.min(sides)),
-                "footprint_length_m": float(np.max(sides)),
-                "edge_distance_m": float(min(c.x - xmin, xmax - c.x, c.y - ymin, ymax - c.y)),
-                "n_points": int(len(g_pts)),
-                "prob_mean": float(prob.mean()),
-                "prob_max": float(prob.max()),
-                "shape_score": shape,
-                "wire_support": support,
-                "line_id": None,
-                "line_seq": None,
-                "line_chainage_m": np.nan,
-                "bearing_deg": np.nan,
-                "deflection_deg": np.nan,
-                "review_status": rev,
-                "first_seen": first if first is not None and pd.notna(first) else stamp,
-                "source_files": join_values(os.path.abspath(sources[b]) for b in touched if b in sources),
-                "model_name": str(model_meta.get("name", "")),
-                "model_version": str(model_meta.get("version", "")),
-                "processed_at": stamp,
-            }
+            tower_record(
+                footprint,
+                xyz[g, 2],
+                hag,
+                prob,
+                tower_id=tid,
+                zone=zone,
+                block=block_name,
+                block_bounds=block_bounds,
+                touched=touched,
+                n_points=len(g_pts),
+                shape_score=shape,
+                wire_support=support,
+                review_status=rev,
+                first_seen=first,
+                processed_at=stamp,
+                source_files=sources,
+                model_meta=model_meta,
+            )
         )
         geoms.append(footprint)
-    if not rows:
-        return ExtractedTowers(empty_towers(crs), members, neighbours)
-    gdf = gpd.GeoDataFrame(rows, geometry=geoms, crs=crs)
-    towers = conform(gdf.sort_values("tower_id", kind="stable"), TOWER_FIELDS, crs)
+    towers = towers_frame(rows, geoms, crs)
     return ExtractedTowers(towers, members, neighbours)

@@ -3,14 +3,19 @@ layers, :func:`towerpipe.towers.extract.extract_towers`' rows) and an empty tabl
 
 from __future__ import annotations
 
+import os
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import geopandas as gpd
+import numpy as np
+import pandas as pd
+import shapely
 
-from towerpipe.io.fields import DATETIME, Field, dtypes, empty_frame
+from towerpipe.io.fields import DATETIME, Field, conform, dtypes, empty_frame, join_values
 from towerpipe.towers.registry import REVIEW_STATUSES
 
-__all__ = ["TOWER_COLUMNS", "TOWER_FIELDS", "empty_towers"]
+__all__ = ["TOWER_COLUMNS", "TOWER_FIELDS", "empty_towers", "tower_record", "towers_frame"]
 
 #: Fields of a tower record (besides the footprint geometry), in order: the GeoPackage
 #: layers ``towers`` and ``tower_points`` use exactly these.
@@ -119,3 +124,89 @@ TOWER_COLUMNS: dict[str, str] = dtypes(TOWER_FIELDS)
 def empty_towers(crs: Any = None) -> gpd.GeoDataFrame:
     """An empty tower table with the full schema (:data:`TOWER_FIELDS` + Polygon geometry)."""
     return empty_frame(TOWER_FIELDS, crs)
+
+
+def tower_record(
+    footprint: shapely.Polygon,
+    z: np.ndarray,
+    hag: np.ndarray,
+    prob: np.ndarray,
+    *,
+    tower_id: int,
+    zone: str,
+    block: str,
+    block_bounds: Sequence[float],
+    touched: Sequence[str],
+    n_points: int,
+    shape_score: float,
+    wire_support: float,
+    review_status: str,
+    first_seen: Any,
+    processed_at: pd.Timestamp,
+    source_files: Mapping[str, str],
+    model_meta: Mapping[str, Any],
+) -> dict[str, Any]:
+    """The record of one accepted tower (:data:`TOWER_FIELDS`; the footprint is its geometry).
+
+    Parameters
+    ----------
+    footprint
+        The tower's xy footprint.
+    z, hag, prob
+        Elevation, height above ground and single-view probability of its cluster's points: its
+        top, base, height and ``prob_mean`` / ``prob_max``.
+    touched
+        The blocks its points come from; ``source_files`` maps a block to its input file.
+    first_seen
+        From the registry (``None`` or NaT: first seen now, ``processed_at``).
+    n_points, tower_id, zone, block, block_bounds, shape_score, wire_support, review_status, model_meta
+        As recorded (``block_bounds``: the owning block's, for ``edge_distance_m``).
+    """
+    xmin, ymin, xmax, ymax = (float(v) for v in block_bounds)
+    c = footprint.centroid
+    rect = shapely.oriented_envelope(footprint)
+    ring = np.asarray(rect.exterior.coords) if isinstance(rect, shapely.Polygon) else np.zeros((2, 2))
+    sides = np.hypot(*np.diff(ring[:3], axis=0).T) if len(ring) >= 3 else np.zeros(2)
+    # top and base to the cm, and the height their difference: height_m = top_z - base_z exactly
+    top = round(float(np.max(z)), 2)
+    base = round(float(np.median(np.asarray(z) - hag)), 2)
+    return {
+        "tower_id": tower_id,
+        "zone": str(zone),
+        "block": str(block),
+        "blocks": join_values(touched),
+        "centroid_x": float(c.x),
+        "centroid_y": float(c.y),
+        "height_m": round(top - base, 2),
+        "base_z": base,
+        "top_z": top,
+        "footprint_area_m2": float(footprint.area),
+        "footprint_width_m": float(np.min(sides)),
+        "footprint_length_m": float(np.max(sides)),
+        "edge_distance_m": float(min(c.x - xmin, xmax - c.x, c.y - ymin, ymax - c.y)),
+        "n_points": int(n_points),
+        "prob_mean": float(np.mean(prob)),
+        "prob_max": float(np.max(prob)),
+        "shape_score": shape_score,
+        "wire_support": wire_support,
+        "line_id": None,
+        "line_seq": None,
+        "line_chainage_m": np.nan,
+        "bearing_deg": np.nan,
+        "deflection_deg": np.nan,
+        "review_status": review_status,
+        "first_seen": first_seen if first_seen is not None and pd.notna(first_seen) else processed_at,
+        "source_files": join_values(os.path.abspath(source_files[b]) for b in touched if b in source_files),
+        "model_name": str(model_meta.get("name", "")),
+        "model_version": str(model_meta.get("version", "")),
+        "processed_at": processed_at,
+    }
+
+
+def towers_frame(rows: Sequence[dict[str, Any]], footprints: Sequence[shapely.Polygon], crs: Any) -> gpd.GeoDataFrame:
+    """The tower table of ``rows`` (:func:`tower_record`) and their footprints, sorted by ``tower_id``
+    and conformed to :data:`TOWER_FIELDS`; empty (full schema) without rows."""
+    if not rows:
+        return empty_towers(crs)
+    gdf = gpd.GeoDataFrame(list(rows), geometry=list(footprints), crs=crs)
+    return conform(gdf.sort_values("tower_id", kind="stable"), TOWER_FIELDS, crs)

@@ -1,0 +1,103 @@
+"""The shape check of a cluster (rule 9) and the rules that amend it (12, 13 and 18), for
+:func:`towerpipe.towers.extract.extract_towers`.
+
+The verifier (:mod:`towerpipe.towers.shape`) scores the object under the cluster's footprint. A
+cluster scoring below ``towers.min_shape_score`` (``towers.tall_shape_score`` for one at least
+``towers.wire_min_height`` high: rule 13) fails, and its more confident parts are judged instead;
+with no part to judge, conductors pointing at it and well below its top keep it (rule 12,
+:func:`towerpipe.towers.conductor_rules.vouching_support`). A cluster that passes is scored again
+without the points of its object on the detected conductors' lines, and fails below
+``towers.min_bare_score`` (rule 18, :func:`towerpipe.towers.conductor_rules.bare_score`).
+docs/products.md tells each rule with its measurements.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import shapely
+
+from towerpipe.config import TowersConfig
+from towerpipe.towers.conductor_rules import bare_score, vouching_support
+from towerpipe.towers.shape import object_points
+
+__all__ = ["ShapeVerdict", "shape_check"]
+
+
+@dataclass(frozen=True)
+class ShapeVerdict:
+    """What :func:`shape_check` made of a cluster."""
+
+    #: The verifier's score of the object under the footprint (NaN: no object).
+    shape: float
+    #: Rule 12's conductor support, when the vouch keeps a cluster that fails the score; else ``None``.
+    vouch: float | None = None
+    #: ``"shape"`` or ``"bare"`` (:data:`towerpipe.towers.extract.TRACE_RULES`) when it fails; ``None``: passes.
+    failed: str | None = None
+    #: What the failing rule measured.
+    value: float = float("nan")
+    #: The parts to judge instead of a failed cluster (``split()``'s answer).
+    parts: Sequence[Any] = field(default_factory=tuple)
+
+
+def shape_check(
+    verifier: Any,
+    rules: TowersConfig,
+    footprint: shapely.Geometry,
+    arr: Mapping[str, Any],
+    extent: Any,
+    hag: np.ndarray,
+    base: tuple[float, float],
+    *,
+    tall: bool,
+    is_rescue: bool,
+    split: Callable[[], Sequence[Any]],
+) -> ShapeVerdict:
+    """Judge a cluster by the shape of the object under it (see the module docstring).
+
+    Parameters
+    ----------
+    verifier
+        The shape verifier (:func:`towerpipe.towers.shape.load_verifier`).
+    rules
+        The tower rules: ``min_shape_score``, ``tall_shape_score``, ``vouch_height``,
+        ``min_wire_support``, ``min_bare_score``.
+    footprint
+        The cluster's xy footprint.
+    arr, extent
+        The points around the cluster (``x``, ``y``, ``z``, ``hag``, optionally ``conductors``) and
+        the extent they cover (:class:`towerpipe.towers.coverage.TileContext`).
+    hag
+        Heights above ground of the cluster's points.
+    base
+        The cluster's base (x, y), from which its conductors are measured.
+    tall
+        The cluster is at least ``wire_min_height`` high (rule 13 applies).
+    is_rescue
+        The rescue (rule 10) found it: an object with no score fails, and no vouch keeps it.
+    split
+        Gives the cluster's more confident parts; called only when it fails.
+    """
+    obj = object_points(footprint, arr["x"], arr["y"])
+    shape = float(verifier.score(arr["x"][obj], arr["y"][obj], arr["hag"][obj])) if len(obj) else float("nan")
+    # rule 13: a cluster as high as the conductor rule judges passes at a lower score, the
+    # conductors pointing at it being the second opinion
+    needed = rules.tall_shape_score if tall and rules.tall_shape_score is not None else rules.min_shape_score
+    vouch = None
+    if shape < needed or (is_rescue and np.isnan(shape)):
+        # the object under it is shaped like a tree, a roof or a crane; or it is a tower standing
+        # in crowns the segmenter painted with it: its more confident parts are judged instead
+        parts = split()
+        if not parts and not is_rescue:
+            vouch = vouching_support(rules, arr, extent, hag, *base)
+        if vouch is None:
+            return ShapeVerdict(shape, failed="shape", value=shape, parts=parts)
+    elif rules.min_bare_score > 0 and shape >= needed:
+        # rule 18: judged again without the conductors through its object (NaN: too few points left)
+        bare = bare_score(verifier, arr, obj)
+        if bare < rules.min_bare_score:
+            return ShapeVerdict(shape, failed="bare", value=bare, parts=split())
+    return ShapeVerdict(shape, vouch=vouch)

@@ -1,0 +1,97 @@
+"""The shape check of a cluster and the rules that amend it (:mod:`towerpipe.towers.shape_check`):
+the score needed (rule 13), the parts judged instead, the conductors' vouch (rule 12) and the bare
+score (rule 18)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+
+import towerpipe.towers.shape_check as sc
+from conftest import tower_rules
+from towerpipe.towers.shape_check import ShapeVerdict, shape_check
+
+#: A 2 x 2 m footprint and the points of a 30 m object on it.
+FOOTPRINT = shapely.box(0.0, 0.0, 2.0, 2.0)
+HAG = np.linspace(0.0, 30.0, 60)
+ARR = {"x": np.full(60, 1.0), "y": np.full(60, 1.0), "z": HAG + 100.0, "hag": HAG}
+
+
+class _ByCount:
+    """A verifier whose score is ``whole`` for the object's 60 points and ``fewer`` for fewer."""
+
+    def __init__(self, whole: float, fewer: float = 1.0):
+        self.whole, self.fewer = whole, fewer
+
+    def score(self, x, y, hag):
+        return self.whole if len(x) == 60 else self.fewer
+
+
+def judge(verifier, *, tall=False, is_rescue=False, parts=(), arr=ARR, **rules) -> tuple[ShapeVerdict, int]:
+    """The verdict, and how many times the split was asked for."""
+    asked = []
+
+    def split():
+        asked.append(1)
+        return list(parts)
+
+    rules.setdefault("min_bare_score", 0.0)
+    v = shape_check(
+        verifier,
+        tower_rules(**rules),
+        FOOTPRINT,
+        arr,
+        None,
+        HAG,
+        (1.0, 1.0),
+        tall=tall,
+        is_rescue=is_rescue,
+        split=split,
+    )
+    return v, len(asked)
+
+
+def test_a_cluster_shaped_like_a_tower_passes_and_is_never_split():
+    v, asked = judge(_ByCount(0.99), min_shape_score=0.95)
+    assert (v.failed, v.shape, v.vouch, asked) == (None, 0.99, None, 0)
+
+
+def test_a_cluster_shaped_like_a_tree_fails_and_its_parts_are_judged_instead():
+    v, asked = judge(_ByCount(0.4), min_shape_score=0.95, parts=["part"], vouch_height=0.0)
+    assert (v.failed, v.value, list(v.parts), asked) == ("shape", 0.4, ["part"], 1)
+
+
+@pytest.mark.parametrize(("tall", "failed"), [(True, None), (False, "shape")])
+def test_rule_13_a_tall_cluster_passes_at_the_lower_score(tall, failed):
+    v, _ = judge(_ByCount(0.93), tall=tall, min_shape_score=0.95, tall_shape_score=0.9, vouch_height=0.0)
+    assert v.failed == failed
+
+
+def test_a_rescue_without_an_object_fails_an_ordinary_cluster_passes():
+    far = {k: (a + 50.0 if k in ("x", "y") else a) for k, a in ARR.items()}  # nothing under the footprint
+    assert judge(_ByCount(1.0), is_rescue=True, arr=far)[0].failed == "shape"
+    v, _ = judge(_ByCount(1.0), arr=far)
+    assert v.failed is None and np.isnan(v.shape)
+
+
+@pytest.mark.parametrize(
+    ("parts", "is_rescue", "vouch"), [((), False, 0.8), (("part",), False, None), ((), True, None)]
+)
+def test_rule_12_conductors_vouch_only_for_a_cluster_with_no_part_to_judge(monkeypatch, parts, is_rescue, vouch):
+    monkeypatch.setattr(sc, "vouching_support", lambda *a: 0.8)
+    v, _ = judge(_ByCount(0.1), parts=parts, is_rescue=is_rescue)
+    assert v.vouch == vouch
+    assert v.failed == (None if vouch else "shape")
+
+
+@pytest.mark.parametrize(
+    ("bare", "min_bare_score", "failed"), [(0.05, 0.2, "bare"), (0.5, 0.2, None), (0.05, 0.0, None)]
+)
+def test_rule_18_a_cluster_that_scores_as_a_tower_only_with_its_conductors_fails(
+    monkeypatch, bare, min_bare_score, failed
+):
+    monkeypatch.setattr(sc, "bare_score", lambda verifier, arr, obj: bare)
+    v, asked = judge(_ByCount(0.99), min_shape_score=0.95, min_bare_score=min_bare_score, parts=["part"])
+    assert v.failed == failed
+    assert asked == (1 if failed else 0)
