@@ -286,6 +286,10 @@ class TowersConfig(Section):
     #: on those conductors' lines, and dropped below this score (0: never;
     #: :func:`towerpipe.towers.conductor_rules.bare_score`).
     min_bare_score: float
+    #: Rule 19: a cluster whose conductor support is unknown is dropped when the conductors within 80 m
+    #: of its base lie more unevenly than this on its two sides, or none points at it (0: never;
+    #: :func:`towerpipe.towers.conductor_rules.near_balance`).
+    min_near_balance: float
     #: Rule 10: clusters no accepted tower holds, from the points at or above this
     #: probability, are judged again (0: never; see :func:`towerpipe.towers.extract.extract_towers`).
     rescue_threshold: float

@@ -11,7 +11,7 @@ from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
 from test_wires import conductor, spans
 
 from conftest import extract
-from towerpipe.towers.conductor_rules import BALANCE_MIN_POINTS, conductor_balance, line_share
+from towerpipe.towers.conductor_rules import BALANCE_MIN_POINTS, conductor_balance, line_share, near_balance
 
 EXTENT = (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)
 
@@ -193,3 +193,38 @@ def test_rule_18_drops_a_crown_that_its_conductors_make_a_tower(monkeypatch, min
     assert len(found.towers) == kept
     assert found.towers["height_m"].max() == pytest.approx(30.0, abs=1.0)
     assert ("bare" in {t["rule"] for t in trace}) == (kept == 1)  # the crown, and its split parts
+
+
+def test_near_conductors_a_tower_between_them_a_crane_beside_them_or_by_a_passing_line():
+    """Rule 19's balance of the conductors within 80 m: about 2/3 for a base under a line (a third each
+    side, a third over), near 0 beside it (the nearest conductor 7 m away), 0 where the line passes 30 m
+    away (none of its wires points at the base), unknown with no conductor near."""
+    rng = np.random.default_rng(5)
+    cx, cy = X0 + 250, Y0 + 250
+    assert near_balance(context(line(cx, cy, 0.0, rng)), cx, cy) == pytest.approx(2 / 3, abs=0.1)
+    assert near_balance(context(line(cx, cy, 12.0, rng)), cx, cy) < 0.05
+    assert near_balance(context(line(cx, cy, 30.0, rng)), cx, cy) == 0.0
+    assert np.isnan(near_balance(context(line(cx, cy, 120.0, rng)), cx, cy))
+    # the detector's conductor points, when the context has them, are the ones read
+    wires = line(cx, cy, 30.0, rng)
+    assert near_balance({"conductors": detected(wires)}, cx, cy) == 0.0
+
+
+@pytest.mark.parametrize(("min_near_balance", "heights"), [(0.125, [30.0]), (0.0, [30.0, 36.0])])
+def test_rule_19_drops_a_crane_beside_a_line_on_a_tile_too_small_for_the_ring(min_near_balance, heights):
+    """On a 100 m tile no 80-160 m ring lies in the data: the support is unknown and rule 8 judges
+    nothing. The conductors within 80 m stand in: a crane 14 m beside the line has them all on one side
+    and is dropped; the tower the line hangs from is kept."""
+    rng = np.random.default_rng(6)
+    cx, cy = X0 + 250, Y0 + 250
+    c_xyz, c_hag = crane(cx, cy - 14.0, jib=8.0, heading=np.pi / 2)
+    t_xyz, t_hag = synthetic_tower(cx + 20.0, cy, base_z=BASE_Z)
+    wires = line(cx, cy, 0.0, rng)
+    wires = wires[np.abs(wires[:, 0] - cx) < 50.0]
+    ctx = context(c_xyz, t_xyz, wires)
+    small = (cx - 50.0, cy - 50.0, cx + 50.0, cy + 50.0)
+    rules = {"min_wire_support": 0.5, "max_arm_reach": 0.0, "min_near_balance": min_near_balance}
+    preds = [pred_pair(np.r_[c_xyz, t_xyz], np.r_[c_hag, t_hag], 0.95, ["b1"])]
+    found = extract(preds, "b1", BOUNDS, zone="z1", context=lambda x, y: (ctx, small), verifier="none", **rules)
+    assert sorted(found.towers["height_m"].round().tolist()) == heights
+    assert found.towers["wire_support"].isna().all()

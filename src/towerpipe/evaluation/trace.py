@@ -52,6 +52,7 @@ RULE_NAMES = {
     "bare": "without the conductors through it, a crown (towers.min_bare_score)",
     "wires": "conductor support (towers.min_wire_support)",
     "sides": "every conductor on one side of it (towers.min_conductor_balance)",
+    "near": "its ring outside the data, the conductors near it on one side or passing by (towers.min_near_balance)",
     "accepted": "reported, matched to another tower or more than 5 m away",
 }
 #: What each gate stage of a tower never segmented means to a reader.

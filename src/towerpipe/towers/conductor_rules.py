@@ -13,6 +13,10 @@
   asks it only of a cluster whose shape is in doubt: a tower strung on one side only has its
   conductors on one side too (docs/model.md, "The conductors' sides and a crane's jib"). An
   unknown balance (too few points) drops only a cluster that the vouch keeps.
+- **Near** (rule 19, :func:`near_balance`): where the support is unknown (the 80-160 m ring lies
+  outside the data: a small tile, the edge of a survey), the conductors nearer than the ring stand
+  in. A tower's own conductors hang from it, on both sides or over it; a crane or a tree beside a
+  line has the line's conductors on one side, or none pointing at it at all.
 - **On a conductor's line** (rule 17, :func:`line_share`): the share of a cluster's points that lie
   on the line of a conductor the wire detector found nearby. The detector misses the ends of the
   wires it finds (where they thin, sag into a crown's reach, or cross another circuit); the
@@ -39,10 +43,12 @@ __all__ = [
     "LINE_ACROSS_M",
     "LINE_DZ_M",
     "LINE_REACH_M",
+    "NEAR_AIMED_SHARE",
     "OVER_M",
     "bare_score",
     "conductor_balance",
     "line_share",
+    "near_balance",
     "on_conductor_lines",
     "support",
     "vouching_support",
@@ -58,6 +64,9 @@ BALANCE_MIN_POINTS = 20
 #: in plan has its wire pass within :data:`LINE_ACROSS_M` m of it in plan, and is within
 #: :data:`LINE_DZ_M` m of its height.
 LINE_REACH_M, LINE_ACROSS_M, LINE_DZ_M = 8.0, 0.5, 0.7
+#: Rule 19: with fewer than :data:`BALANCE_MIN_POINTS` conductor points pointing at a base, and fewer
+#: than this share of the conductor points near it, none points at it (a balance of 0).
+NEAR_AIMED_SHARE = 0.1
 #: Rule 18 judges an object without its conductors only when this many of its points are left.
 BARE_MIN_POINTS = 10
 
@@ -122,11 +131,46 @@ def conductor_balance(arr: Mapping[str, Any], bx: float, by: float) -> float:
     idx, px, py, u = aimed_wire_points(*args)
     if len(idx) < BALANCE_MIN_POINTS:
         return float("nan")
+    return _balance(px, py, u)
+
+
+def _balance(px: np.ndarray, py: np.ndarray, u: np.ndarray) -> float:
+    """The balance of conductor points at offsets ``(px, py)`` from a base, their wires' plan
+    directions ``u`` (:func:`conductor_balance`)."""
     main = np.linalg.eigh(u.T @ u)[1][:, -1]  # the wires' main direction; a wire's sign is arbitrary
     u = u * np.where(u @ main < 0, -1.0, 1.0)[:, None]
     across = px * u[:, 1] - py * u[:, 0]
     over = np.abs(across) <= OVER_M
     return float(min((across > OVER_M).mean(), (across < -OVER_M).mean()) + over.mean())
+
+
+def near_balance(arr: Mapping[str, Any], bx: float, by: float, radius: float = RING_MIN_M) -> float:
+    """Rule 19: the balance of the conductors nearer than the support's ring, for a base whose
+    support is unknown.
+
+    The conductor points within ``radius`` m of the base ``(bx, by)`` (in plan; at least
+    :data:`~towerpipe.towers.wires.WIRE_MIN_HAG_M` above ground) whose wire passes within
+    :data:`~towerpipe.towers.wires.AIM_M` of it are those that point at it; their balance is
+    :func:`conductor_balance`'s. With fewer than :data:`BALANCE_MIN_POINTS` of them it is 0 when
+    they are also fewer than :data:`NEAR_AIMED_SHARE` of the conductor points within ``radius``
+    (a line passes by, none of its wires points at it), else unknown.
+
+    Returns
+    -------
+    float
+        The balance (0-1); ``nan`` (unknown) with fewer than :data:`BALANCE_MIN_POINTS` conductor
+        points within ``radius``, or too few pointing at it to say.
+    """
+    c, directions = _conductors(arr)
+    near, px, py, u = aimed_wire_points(
+        c["x"], c["y"], c["z"], c["hag"], bx, by, 0.0, radius, WIRE_MIN_HAG_M, np.inf, directions
+    )
+    if len(near) < BALANCE_MIN_POINTS:
+        return float("nan")
+    aimed = np.abs(px * u[:, 1] - py * u[:, 0]) <= AIM_M
+    if aimed.sum() < BALANCE_MIN_POINTS:
+        return 0.0 if aimed.sum() < NEAR_AIMED_SHARE * len(near) else float("nan")
+    return _balance(px[aimed], py[aimed], u[aimed])
 
 
 def on_conductor_lines(arr: Mapping[str, Any], x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:

@@ -46,7 +46,7 @@ holds are clustered and each cluster is judged by rules 4-8 (its highest probabi
 ``rescue_threshold``: a thin pole or a sparse real lattice that the segmenter paints mostly
 at 0.1-0.3 is found and outlined when its object is shaped like a tower.
 
-Rules 12-18 (docs/products.md tells each with its measurements; 0 turns each off):
+Rules 12-19 (docs/products.md tells each with its measurements; 0 turns each off):
 
 12. the conductors' vouch (``vouch_height``): a cluster the shape check drops, with no split part to
     judge instead, is kept when conductors point at it and its top stands ``vouch_height`` m above them
@@ -64,7 +64,10 @@ Rules 12-18 (docs/products.md tells each with its measurements; 0 turns each off
     lie on the lines of the conductors the wire detector finds around it is dropped
     (:func:`towerpipe.towers.conductor_rules.line_share`);
 18. a crown under conductors (``min_bare_score``): a cluster that passes the shape check is judged
-    again without the points of its object on those lines, and dropped below this score.
+    again without the points of its object on those lines, and dropped below this score;
+19. the conductors near it (``min_near_balance``): a cluster whose support is unknown is dropped when
+    the conductors within 80 m lie on one side of it or none points at it
+    (:func:`towerpipe.towers.conductor_rules.near_balance`).
 
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
@@ -91,7 +94,7 @@ from towerpipe.config import TowersConfig
 from towerpipe.io.fields import GEOMETRY_GRID, join_values
 from towerpipe.towers.cluster import _as_pred, _footprint, cluster_towers, gather_points
 from towerpipe.towers.column import column_mask
-from towerpipe.towers.conductor_rules import conductor_balance, line_share
+from towerpipe.towers.conductor_rules import conductor_balance, line_share, near_balance
 from towerpipe.towers.conductor_rules import support as conductor_support
 from towerpipe.towers.foot import foot_mask
 from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach, tallest_stand
@@ -103,8 +106,8 @@ from towerpipe.towers.shape_check import shape_check
 #: What decided a cluster in a ``trace`` of :func:`extract_towers`: its core probability (rule 6),
 #: floating (7), nothing standing (16), too few points to report, a crane's jib (15), no context for a
 #: rescue, on a conductor's line (17), the shape check (9), a crown under conductors (18), the conductor
-#: support (8), the conductors on one side (14), or accepted.
-TRACE_RULES = tuple("core floating stands points jib context line shape bare wires sides accepted".split())
+#: support (8), the conductors on one side (14), the conductors near it on one side (19), or accepted.
+TRACE_RULES = tuple("core floating stands points jib context line shape bare wires sides near accepted".split())
 
 
 @dataclass
@@ -212,7 +215,8 @@ def extract_towers(
           points at or above each of these in turn, and each part is judged (``()``: never);
         - ``rescue_threshold``: rule 10 (module docstring; 0 never rescues);
         - ``vouch_height``: rule 12 (module docstring; 0 never vouches);
-        - ``min_conductor_balance``, ``max_arm_reach``, ``min_stand``: rules 14-16 (module docstring; 0: off);
+        - ``min_conductor_balance``, ``max_arm_reach``, ``min_stand``, ``max_line_share``, ``min_bare_score``,
+          ``min_near_balance``: rules 14-19 (module docstring; 0, or 1 for ``max_line_share``: off);
         - ``foot``, ``column``: which of a tower's points are reported (:mod:`towerpipe.towers.foot`,
           :mod:`towerpipe.towers.column`: rule 11); never whether the tower is.
     zone
@@ -398,6 +402,11 @@ def extract_towers(
             if tall and support < rules.min_wire_support:
                 decided("wires", support)
                 continue
+            if np.isnan(support) and rules.min_near_balance > 0:
+                near = near_balance(arr, bx, by)
+                if near < rules.min_near_balance:
+                    decided("near", near)
+                    continue  # rule 19: its ring out of the data, a line passing beside it
             # rule 14 asks where the conductors lie only of a cluster whose shape is in doubt (kept by
             # rule 12 or 13, no shape score, or a rescue's): a one-sided line can hang from a tower
             doubted = vouch is not None or is_rescue or not shape >= rules.min_shape_score
