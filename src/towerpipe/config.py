@@ -286,9 +286,9 @@ class TowersConfig(Section):
     #: on those conductors' lines, and dropped below this score (0: never;
     #: :func:`towerpipe.towers.conductor_rules.bare_score`).
     min_bare_score: float
-    #: Rule 19: a cluster whose conductor support is unknown is dropped when the conductors within 80 m
-    #: of its base lie more unevenly than this on its two sides, or none points at it (0: never;
-    #: :func:`towerpipe.towers.conductor_rules.near_balance`).
+    #: Rule 19: where the conductor support is unknown, or under ``min_wire_support`` for a tall cluster,
+    #: the conductors within 80 m decide: dropped (unknown support) or kept (low support) by whether their
+    #: balance reaches this (0: never, rule 8 alone; :func:`towerpipe.towers.conductor_rules.near_balance`).
     min_near_balance: float
     #: Rule 10: clusters no accepted tower holds, from the points at or above this
     #: probability, are judged again (0: never; see :func:`towerpipe.towers.extract.extract_towers`).

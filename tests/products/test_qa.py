@@ -183,7 +183,7 @@ def test_block_flags(tmp_path):
     assert {"ground_classified", "low_density", "many_windows_gated", "tower"} <= codes
     reasons = " ".join(f["reason"] for f in doc["flags"])
     assert "from the edge of the data" in reasons and "low mean probability" in reasons
-    assert "no conductors found (support 0.25)" in reasons
+    assert "few conductors found (support 0.25)" in reasons
     assert (
         "shaped like a tree (shape score 0.310, under 0.95), kept by rule 12 or 13 with conductor support 0.25"
         in reasons
@@ -197,7 +197,7 @@ def test_tower_whose_lines_may_leave_the_data_is_flagged(tmp_path):
     gdf["wire_support"] = float("nan")  # towerpipe.towers.wires: a line through it may leave the data unseen
     doc = report(tmp_path, "b", towers=gdf, classified=pts)
     tall = [t for t in doc["towers"] if t["height_m"] >= 20]
-    assert tall and all(any("leave the data unseen" in f for f in t["flags"]) for t in tall)
+    assert tall and all(any("conductor support not measured" in f for f in t["flags"]) for t in tall)
     # rule 13 keeps such a tall cluster under the shape threshold: not "by its conductors"
     gdf["shape_score"] = 0.9496
     doc = report(tmp_path, "b", stem="r13", towers=gdf, classified=pts)

@@ -210,7 +210,7 @@ def test_near_conductors_a_tower_between_them_a_crane_beside_them_or_by_a_passin
     assert near_balance({"conductors": detected(wires)}, cx, cy) == 0.0
 
 
-@pytest.mark.parametrize(("min_near_balance", "heights"), [(0.125, [30.0]), (0.0, [30.0, 36.0])])
+@pytest.mark.parametrize(("min_near_balance", "heights"), [(0.09, [30.0]), (0.0, [30.0, 36.0])])
 def test_rule_19_drops_a_crane_beside_a_line_on_a_tile_too_small_for_the_ring(min_near_balance, heights):
     """On a 100 m tile no 80-160 m ring lies in the data: the support is unknown and rule 8 judges
     nothing. The conductors within 80 m stand in: a crane 14 m beside the line has them all on one side
@@ -228,3 +228,21 @@ def test_rule_19_drops_a_crane_beside_a_line_on_a_tile_too_small_for_the_ring(mi
     found = extract(preds, "b1", BOUNDS, zone="z1", context=lambda x, y: (ctx, small), verifier="none", **rules)
     assert sorted(found.towers["height_m"].round().tolist()) == heights
     assert found.towers["wire_support"].isna().all()
+
+
+@pytest.mark.parametrize(("min_near_balance", "kept"), [(0.09, 1), (0.0, 0)])
+def test_rule_19_keeps_a_tower_whose_far_conductors_were_not_found(min_near_balance, kept):
+    """A 30 m tower whose conductors the detector found only within 60 m of it (a sparse flight: the
+    80-160 m ring, in the data, holds none): its support is 0 and rule 8 drops it, but the conductors
+    near it hang on both sides of it and over it, so rule 19 keeps it."""
+    rng = np.random.default_rng(7)
+    cx, cy = X0 + 250, Y0 + 250
+    t_xyz, t_hag = synthetic_tower(cx, cy, base_z=BASE_Z)
+    wires = line(cx, cy, 0.0, rng)
+    ctx = context(t_xyz, wires[np.abs(wires[:, 0] - cx) < 60.0])
+    rules = {"min_wire_support": 0.5, "min_near_balance": min_near_balance}
+    preds = [pred_pair(t_xyz, t_hag, 0.95, ["b1"])]
+    found = extract(preds, "b1", BOUNDS, zone="z1", context=lambda x, y: (ctx, EXTENT), verifier="none", **rules)
+    assert len(found.towers) == kept
+    if kept:
+        assert found.towers["wire_support"].iloc[0] == 0.0  # recorded as measured

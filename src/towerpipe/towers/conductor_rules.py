@@ -13,10 +13,12 @@
   asks it only of a cluster whose shape is in doubt: a tower strung on one side only has its
   conductors on one side too (docs/model.md, "The conductors' sides and a crane's jib"). An
   unknown balance (too few points) drops only a cluster that the vouch keeps.
-- **Near** (rule 19, :func:`near_balance`): where the support is unknown (the 80-160 m ring lies
-  outside the data: a small tile, the edge of a survey), the conductors nearer than the ring stand
-  in. A tower's own conductors hang from it, on both sides or over it; a crane or a tree beside a
-  line has the line's conductors on one side, or none pointing at it at all.
+- **Near** (rule 19, :func:`near_balance`): where the support cannot decide, the conductors nearer
+  than its ring do. Unknown (the 80-160 m ring lies outside the data: a small tile, the edge of a
+  survey): a tower's own conductors hang from it, on both sides or over it, while a crane or a tree
+  beside a line has the line's conductors on one side, or none pointing at it at all. Under
+  ``min_wire_support`` (a sparse flight, whose far conductors the detector barely finds): conductors
+  hanging on both sides of a cluster or over it keep it.
 - **On a conductor's line** (rule 17, :func:`line_share`): the share of a cluster's points that lie
   on the line of a conductor the wire detector found nearby. The detector misses the ends of the
   wires it finds (where they thin, sag into a crown's reach, or cross another circuit); the

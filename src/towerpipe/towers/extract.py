@@ -65,8 +65,9 @@ Rules 12-19 (docs/products.md tells each with its measurements; 0 turns each off
     (:func:`towerpipe.towers.conductor_rules.line_share`);
 18. a crown under conductors (``min_bare_score``): a cluster that passes the shape check is judged
     again without the points of its object on those lines, and dropped below this score;
-19. the conductors near it (``min_near_balance``): a cluster whose support is unknown is dropped when
-    the conductors within 80 m lie on one side of it or none points at it
+19. the conductors near it (``min_near_balance``): where the support is unknown, a cluster is dropped
+    when the conductors within 80 m lie on one side of it or none points at it; a tall one under
+    ``min_wire_support`` is kept when they hang on both sides of it or over it
     (:func:`towerpipe.towers.conductor_rules.near_balance`).
 
 A tower's id is the zone registry's when it matches a registered tower, else made from
@@ -399,14 +400,16 @@ def extract_towers(
                     queue.extend((part, rest, is_rescue) for part, rest in verdict.parts)
                     continue
             support = conductor_support(arr, extent, bx, by) if vouch is None else vouch
-            if tall and support < rules.min_wire_support:
+            # rule 19: where the ring says nothing (unknown) or too little (a tall cluster under
+            # min_wire_support), the conductors nearer than the ring decide
+            weak = tall and support < rules.min_wire_support
+            near = near_balance(arr, bx, by) if rules.min_near_balance > 0 and (weak or np.isnan(support)) else np.nan
+            if weak and not near >= rules.min_near_balance:
                 decided("wires", support)
-                continue
-            if np.isnan(support) and rules.min_near_balance > 0:
-                near = near_balance(arr, bx, by)
-                if near < rules.min_near_balance:
-                    decided("near", near)
-                    continue  # rule 19: its ring out of the data, a line passing beside it
+                continue  # rule 8, unless the conductors near it hang on both sides of it or over it
+            if np.isnan(support) and near < rules.min_near_balance:
+                decided("near", near)
+                continue  # its ring out of the data, a line passing beside it
             # rule 14 asks where the conductors lie only of a cluster whose shape is in doubt (kept by
             # rule 12 or 13, no shape score, or a rescue's): a one-sided line can hang from a tower
             doubted = vouch is not None or is_rescue or not shape >= rules.min_shape_score

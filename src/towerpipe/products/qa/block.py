@@ -349,12 +349,13 @@ def block_report(
         if r.prob_mean < limits.min_tower_prob:
             tflags.append(f"low mean probability {r.prob_mean:.2f}")
         support = float(getattr(r, "wire_support", float("nan")))
+        tall, near = r.height_m >= limits.wire_min_height, "kept by rule 19: conductors within 80 m hang from it"
         if math.isfinite(support) and support < limits.min_wire_support:
-            tflags.append(f"no conductors found (support {support:.2f}): a pole, or not a tower?")
-        elif not math.isfinite(support) and "wire_support" in gdf.columns and r.height_m >= limits.wire_min_height:
             tflags.append(
-                "a line through it could leave the data unseen: conductor support (80-160 m) not measured, kept"
+                f"few conductors found (support {support:.2f}){', ' + near if tall else ': a pole, or not a tower?'}"
             )
+        elif not math.isfinite(support) and "wire_support" in gdf.columns and tall:
+            tflags.append(f"conductor support not measured (80-160 m ring outside the data); {near}, or too few")
         shape = float(getattr(r, "shape_score", float("nan")))
         if math.isfinite(shape) and shape < limits.min_shape_score:
             # only rule 12 (the conductors' vouch) or rule 13 (tall clusters) keep such a tower,
