@@ -201,8 +201,8 @@ def extract_towers(
           is below this is dropped (0 keeps every cluster); the LAS keeps its points'
           probabilities. ``prob_mean`` and ``prob_max`` of a tower are of the same probabilities;
         - ``min_wire_support``, ``wire_min_height``: towers with a max HAG of at least
-          ``wire_min_height`` (m) and a wire support below ``min_wire_support`` are dropped (0
-          keeps every tower; an unknown, NaN, support never drops one);
+          ``wire_min_height`` (m) and a wire support below ``min_wire_support`` are dropped unless
+          rule 19 keeps them (0 keeps every tower; an unknown, NaN, support drops one only by rule 19);
         - ``max_base_ratio``: towers whose lowest point is higher than this share of their
           height above ground are dropped (1 keeps all): a tower stands on the ground, a
           floating cluster is a piece of conductor or crossarm;
