@@ -148,7 +148,7 @@ def _balance(px: np.ndarray, py: np.ndarray, u: np.ndarray) -> float:
 
 def near_balance(arr: Mapping[str, Any], bx: float, by: float, radius: float = RING_MIN_M) -> float:
     """Rule 19: the balance of the conductors nearer than the support's ring, for a base whose
-    support is unknown.
+    support cannot decide (unknown, or under ``min_wire_support``).
 
     The conductor points within ``radius`` m of the base ``(bx, by)`` (in plan; at least
     :data:`~towerpipe.towers.wires.WIRE_MIN_HAG_M` above ground) whose wire passes within
