@@ -84,3 +84,34 @@ def test_the_schema_bounds_secondary_peaks_by_the_peak_radius():
     schema = load_yaml(REPO / SCHEMA_FILE, "schema")
     sec = schema["properties"]["inference"]["properties"]["secondary_radius"]
     assert sec["exclusiveMaximum"] == PEAK_RADIUS and sec["default"] == 0
+
+
+@pytest.mark.shared
+def test_a_10_m_lattice_as_a_flight_samples_it_has_a_peak_at_the_shipped_floor():
+    """The lowest towers the product looks for are 10 m high, but a flight seldom samples a small
+    tower's very top: every real UAV and TS40K lattice scaled to 10 m and sampled at 10 pts/m² tops
+    out under 10 m. A floor of 10 m gives almost none of them a window; the shipped floor
+    (``inference.min_height``) gives each a peak on its axis, and the shipped floor of the tower
+    rules (``towers.min_height``) keeps nearly all."""
+    from conftest import UAV_TOWERS, schema_config
+    from towerpipe.synth.real import airborne_resample, load_real_towers
+
+    cfg = schema_config()
+    floor, tower_floor = cfg["inference"]["min_height"], cfg["towers"]["min_height"]
+    rng = np.random.default_rng(0)
+    tops, found, at_10 = [], [], []
+    for name, xyz in load_real_towers(UAV_TOWERS.parent):
+        if not name.startswith(("uav:", "ts40k:")):
+            continue
+        h = xyz[:, 2] - xyz[:, 2].min()
+        p = airborne_resample(np.c_[xyz[:, :2] * 10.0 / h.max(), h * 10.0 / h.max()], 10.0, rng)
+        x, y, hag = p[:, 0], p[:, 1], p[:, 2]
+        cx, cy = x.mean(), y.mean()
+        tops.append(hag.max())
+        _, centers, _ = height_peaks(x, y, hag, min_height=floor)
+        found.append(len(centers) > 0 and np.hypot(centers[:, 0] - cx, centers[:, 1] - cy).min() < 3.0)
+        at_10.append(len(height_peaks(x, y, hag, min_height=10.0)[1]) > 0)
+    tops = np.asarray(tops)
+    assert len(tops) >= 25 and (tops < 10.0).all(), tops
+    assert all(found) and not any(at_10)
+    assert np.mean(tops >= tower_floor) >= 0.85, np.sort(tops)

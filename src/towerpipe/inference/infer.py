@@ -419,8 +419,8 @@ def infer_tile(
         - ``batch_size``: windows per classifier call;
         - ``min_points``: windows with fewer model-input points are skipped as empty;
         - ``min_height``: pre-filter (not in the paper): windows whose highest model-input
-          point is below this HAG (m) are background without a classifier pass. Transmission
-          towers are 14-58 m tall, so 10 m loses no tower and skips open land and low
+          point is below this HAG (m) are background without a classifier pass (the shipped
+          8 m sits under what a flight shows of a 10 m tower's top), skipping open land and low
           vegetation at no model cost. ``None``: every window is classified;
         - ``tta``: views of each segmented window averaged (:func:`towerpipe.inference.views.segment_views`): 1, 2, 4 or 8;
         - ``windows``: ``"candidates"`` (windows centred on height peaks) or ``"grid"``
