@@ -90,7 +90,7 @@ def test_the_schema_bounds_secondary_peaks_by_the_peak_radius():
 def test_a_10_m_lattice_as_a_flight_samples_it_has_a_peak_at_the_shipped_floor():
     """The lowest towers the product looks for are 10 m high, but a flight seldom samples a small
     tower's very top: every real UAV and TS40K lattice scaled to 10 m and sampled at 10 pts/m² tops
-    out under 10 m. A floor of 10 m gives almost none of them a window; the shipped floor
+    out under 10 m. A floor of 10 m gives none of them a window; the shipped floor
     (``inference.min_height``) gives each a peak on its axis, and the shipped floor of the tower
     rules (``towers.min_height``) keeps nearly all."""
     from conftest import UAV_TOWERS, schema_config
