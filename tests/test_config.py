@@ -27,7 +27,7 @@ def test_shipped_config_is_valid_and_defaults_come_from_the_schema():
     assert cfg["workdir"] == "work"
     small = validate_config({"zones": {"z": {"input": "in"}}}, SCHEMA)
     assert small["preprocess"]["tile_size"] == SCHEMA["properties"]["preprocess"]["properties"]["tile_size"]["default"]
-    assert small["towers"]["min_points"] == 20
+    assert small["towers"]["min_points"] == 20 and small["towers"]["min_split_points"] == 20
 
 
 def test_unknown_keys_name_the_closest_valid_one():

@@ -264,6 +264,9 @@ class TowersConfig(Section):
     #: A cluster the shape check drops is clustered again from its points at or above each
     #: of these probabilities in turn, and each part is judged (empty: never).
     split_thresholds: Sequence[float]
+    #: A split's parts with fewer points (at least ``min_points``) are not clusters: a part cut from a
+    #: crown at a higher probability is mostly its top.
+    min_split_points: int
     #: Rule 12: a cluster the shape check drops and no split replaces is kept when the conductors
     #: pointing at it lie at least this far (m, median) below its top (0: never).
     vouch_height: float

@@ -181,6 +181,39 @@ def test_a_tower_among_painted_crowns_is_split_from_them(monkeypatch):
     assert found.towers["shape_score"].iloc[0] == 1.0
 
 
+def _pole(cx: float, cy: float, n: int, seed: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """A thin pole of ``n`` points standing 1-12 m high (absolute z 100 m above its hag); (xyz, hag)."""
+    rng = np.random.default_rng(seed)
+    hag = np.linspace(1.0, 12.0, n)
+    return np.c_[cx + rng.normal(0, 0.1, n), cy + rng.normal(0, 0.1, n), 100.0 + hag], hag
+
+
+@pytest.mark.parametrize(("min_split_points", "towers"), [(20, 0), (15, 1)])
+def test_a_splits_parts_need_min_split_points(monkeypatch, min_split_points, towers):
+    """A wide crown painted at 0.6 with a thin 16-point spike in it painted at 0.9: split at 0.7, the
+    spike alone is narrow enough to pass the shape check. Under ``min_split_points`` it is no part,
+    and nothing is reported; the same spike standing alone is a tower of ``min_points`` 15."""
+    import towerpipe.towers.extract as ex
+
+    monkeypatch.setattr(ex, "load_verifier", lambda spec: _NarrowVerifier())
+    p_xyz, p_hag = _pole(X0 + 50, Y0 + 50, 16)
+    cx, cy, ch = tree(X0 + 50, Y0 + 50, height=11.0, crown=7.0, n=1500, seed=3)
+    xyz = np.r_[p_xyz, np.c_[cx, cy, 100.0 + ch]]
+    hag = np.r_[p_hag, ch].astype(np.float32)
+    prob = np.r_[np.full(len(p_xyz), 0.9), np.full(len(cx), 0.6)]
+    ctx = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "hag": hag.astype(np.float64)}
+
+    def context(x, y):
+        return ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)
+
+    rules = {"min_shape_score": 0.5, "split_thresholds": [0.7], "min_points": 15}
+    kw = {"zone": "z1", "context": context, **rules, "min_split_points": min_split_points}
+    found = extract([pred_pair(xyz, hag, prob, ["b1"])], "b1", BOUNDS, **kw)
+    assert len(found.towers) == towers
+    alone = extract([pred_pair(p_xyz, p_hag.astype(np.float32), prob[: len(p_xyz)], ["b1"])], "b1", BOUNDS, **kw)
+    assert len(alone.towers) == 1 and int(alone.towers["n_points"].iloc[0]) == 16
+
+
 def _faint_scene():
     """A confident tower, a faint one (a thin lattice the segmenter paints at 0.15-0.25, its
     halo at 0.12) and a faint crown, 100 m apart; (pair, context, index ranges)."""

@@ -36,8 +36,8 @@ of its body that ``rules.column`` adds (rule 11, :mod:`towerpipe.towers.column`)
    paints, roofs, cranes.
    This check runs before rule 7 (it is cheap and drops most clusters). A cluster it drops
    is clustered again from its points at or above each of ``split_thresholds`` in turn
-   (until one gives clusters) and each part judged by rules 4-8: a tower standing among the
-   crowns that the segmenter paints with it.
+   (until one gives clusters of at least ``min_split_points``) and each part judged by rules
+   4-8: a tower standing among the crowns that the segmenter paints with it.
 
 The split is rule 9. Rule 10, the rescue (``rescue_threshold``, with the shape check only):
 after the other rules, the points at or above ``rescue_threshold`` that no accepted tower
@@ -212,8 +212,9 @@ def extract_towers(
         - ``tall_shape_score``: rule 13, the shape score a cluster at least ``wire_min_height`` high
           needs instead of ``min_shape_score`` (``None``: ``min_shape_score``); the conductor rule
           judges it next;
-        - ``split_thresholds``: a cluster the shape check drops is clustered again from its
-          points at or above each of these in turn, and each part is judged (``()``: never);
+        - ``split_thresholds``, ``min_split_points``: a cluster the shape check drops is clustered
+          again from its points at or above each of these in turn, and each part of at least
+          ``min_split_points`` points (and ``min_points``) is judged (``()``: never);
         - ``rescue_threshold``: rule 10 (module docstring; 0 never rescues);
         - ``vouch_height``: rule 12 (module docstring; 0 never vouches);
         - ``min_conductor_balance``, ``max_arm_reach``, ``min_stand``, ``max_line_share``, ``min_bare_score``,
@@ -290,7 +291,7 @@ def extract_towers(
     pts = gather_points(preds, column_t if 0 < column_t < floor else floor)
     xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
 
-    def cluster(idx: np.ndarray) -> np.ndarray:
+    def cluster(idx: np.ndarray, min_points: int = rules.min_points) -> np.ndarray:
         """Tower labels of the points ``idx`` (the clustering of rules 1-4)."""
         return cluster_towers(
             xyz[idx],
@@ -298,9 +299,13 @@ def extract_towers(
             linkage=rules.linkage,
             merge_gap=merge_gap,
             max_extent=max_extent,
-            min_points=rules.min_points,
+            min_points=min_points,
             min_height=rules.min_height,
         )
+
+    # a split's parts (rule 9) need more points than a cluster of the main pass: cut from a crown
+    # at a higher probability, a small part is mostly its top
+    cluster_part = partial(cluster, min_points=max(rules.min_points, rules.min_split_points))
 
     def groups(idx: np.ndarray) -> list[np.ndarray]:
         """The clusters of the points ``idx``, each as indices into ``pts``."""
@@ -390,7 +395,7 @@ def extract_towers(
             vouch = None  # the conductor support, when rule 12 keeps a cluster the shape check drops
             # the shape check first (rules 9, 12, 13 and 18): it is cheap, and it drops most clusters (crowns)
             if verifier is not None:
-                split = partial(_split_by_confidence, g, pts["prob_single"], cluster, splits)
+                split = partial(_split_by_confidence, g, pts["prob_single"], cluster_part, splits)
                 verdict = shape_check(
                     verifier, rules, footprint, arr, extent, hag, (bx, by), tall=tall, is_rescue=is_rescue, split=split
                 )
