@@ -303,8 +303,8 @@ def extract_towers(
             min_height=rules.min_height,
         )
 
-    # a split's parts (rule 9) need more points than a cluster of the main pass: cut from a crown
-    # at a higher probability, a small part is mostly its top
+    # a split's parts (rule 9) need min_split_points too, more than a cluster of the main pass when
+    # min_points is lowered: cut from a crown at a higher probability, a small part is mostly its top
     cluster_part = partial(cluster, min_points=max(rules.min_points, rules.min_split_points))
 
     def groups(idx: np.ndarray) -> list[np.ndarray]:
