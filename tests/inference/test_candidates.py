@@ -6,7 +6,36 @@ import numpy as np
 import pytest
 
 from conftest import tower_among_crowns
-from towerpipe.inference.candidates import PEAK_RADIUS, candidate_windows, height_peaks
+from towerpipe.inference.candidates import PEAK_RADIUS, candidate_windows, disk_maximum, height_peaks
+
+
+@pytest.mark.parametrize(
+    ("shape", "radius", "res"),
+    [
+        ((580, 580), 10.0, 1.0),
+        ((37, 91), 10.0, 1.0),
+        ((5, 3), 10.0, 1.0),
+        ((1, 40), 10.0, 1.0),
+        ((90, 70), 3.5, 1.0),
+        ((64, 64), 7.0, 1.0),
+        ((60, 50), 10.0, 0.5),
+        ((40, 40), 2.6, 0.7),
+    ],
+)
+def test_disk_maximum_is_the_2d_maximum_filter_of_the_disk(shape, radius, res):
+    """The height peaks' disk maximum, as runs of rows, is ``scipy.ndimage.maximum_filter`` over the
+    disk footprint, cell for cell (empty cells ``-inf``, nothing beyond the raster's edge)."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(int(radius * 10) + shape[0])
+    r = (rng.random(shape) * 40).astype(np.float32)
+    r[rng.random(shape) < 0.5] = -np.inf
+    k = int(np.ceil(radius / res))
+    disk = np.hypot(*np.mgrid[-k : k + 1, -k : k + 1]) * res <= radius
+    want = ndimage.maximum_filter(r, footprint=disk, mode="constant", cval=-np.inf)
+    got = disk_maximum(r, radius, res)
+    assert got.dtype == r.dtype
+    np.testing.assert_array_equal(got, want)
 
 
 def test_height_peaks_find_tower_tops_not_wires_or_crowns():

@@ -68,6 +68,19 @@ def test_descriptor_names_and_invariance_to_place_and_heading():
         assert turned[i(name)] == pytest.approx(d[i(name)], abs=0.05), name
 
 
+def test_descriptor_does_not_hang_on_the_order_of_the_points():
+    """The shape gate finds an object's points through a k-d tree, in the tree's order: the
+    descriptor is the same (to rounding) in any order, and the plan hull of its voxels is that of
+    their columns."""
+    xyz, hag = synthetic_tower(0.0, 0.0, height=24.0, seed=4)
+    d = shape_descriptor(xyz[:, 0], xyz[:, 1], hag)
+    p = np.random.default_rng(0).permutation(len(hag))
+    np.testing.assert_allclose(shape_descriptor(xyz[p, 0], xyz[p, 1], hag[p]), d, rtol=0, atol=1e-12)
+    x, y, h = tree(3.0, -2.0)
+    q = np.random.default_rng(1).permutation(len(h))
+    np.testing.assert_allclose(shape_descriptor(x[q], y[q], h[q]), shape_descriptor(x, y, h), rtol=0, atol=1e-12)
+
+
 def test_descriptor_tells_a_lattice_from_a_crown():
     xyz, hag = synthetic_tower(0.0, 0.0, height=24.0, seed=1)
     tower = shape_descriptor(xyz[:, 0], xyz[:, 1], hag)

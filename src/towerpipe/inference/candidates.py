@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["PEAK_RADIUS", "PEAK_RES", "CandidateWindows", "candidate_windows", "height_peaks"]
+__all__ = ["PEAK_RADIUS", "PEAK_RES", "CandidateWindows", "candidate_windows", "disk_maximum", "height_peaks"]
 
 #: Candidate windows: cell (m) of the height raster, and the radius (m) within which a
 #: candidate is the highest point (a tower's crossarm reach). With the overhead wires left
@@ -101,6 +101,36 @@ class CandidateWindows:
         )
 
 
+def disk_maximum(r: np.ndarray, radius: float, res: float = 1.0) -> np.ndarray:
+    """The maximum of raster ``r`` (cells of ``res``) over a disk of ``radius`` around each cell
+    (outside the raster: ``-inf``).
+
+    Equal to ``scipy.ndimage.maximum_filter(r, footprint=disk, mode="constant", cval=-np.inf)``
+    for the disk of the cells whose centres lie within ``radius``: the disk is a stack of
+    horizontal runs, one per row offset, so its maximum is the largest of the row offsets' 1-D
+    running maxima (one per run length), shifted by the offset. A tenth of the 2-D filter's time
+    on a tile's raster.
+    """
+    from scipy import ndimage
+
+    k = int(np.ceil(radius / res))
+    disk = np.hypot(*np.mgrid[-k : k + 1, -k : k + 1]) * res <= radius
+    count = disk.sum(axis=1)  # the run of row offset d - k: count[d] cells, centred
+    widths = {int(c) for c in count if c}
+    runs = {c: ndimage.maximum_filter1d(r, c, axis=1, mode="constant", cval=-np.inf) for c in widths}
+    out = np.full(r.shape, -np.inf, r.dtype)
+    n = r.shape[0]
+    for d, c in enumerate(count.tolist()):
+        s = d - k  # out[i] takes the run of row i + s
+        if c and abs(s) < n:
+            src = runs[int(c)]
+            if s >= 0:
+                np.maximum(out[: n - s], src[s:], out=out[: n - s])
+            else:
+                np.maximum(out[-s:], src[: n + s], out=out[-s:])
+    return out
+
+
 def height_peaks(
     x: np.ndarray,
     y: np.ndarray,
@@ -129,9 +159,7 @@ def height_peaks(
     ox, oy = int(ix.min()), int(iy.min())
     r = np.full((int(ix.max()) - ox + 1, int(iy.max()) - oy + 1), -np.inf, np.float32)
     np.maximum.at(r, (ix - ox, iy - oy), np.asarray(hag, np.float32))
-    k = int(np.ceil(radius / res))
-    disk = np.hypot(*np.mgrid[-k : k + 1, -k : k + 1]) * res <= radius
-    peak = (r == ndimage.maximum_filter(r, footprint=disk, mode="constant", cval=-np.inf)) & (r >= min_height)
+    peak = (r == disk_maximum(r, radius, res)) & (r >= min_height)
     lab, n = ndimage.label(peak, structure=np.ones((3, 3), bool))
     if n == 0:
         return empty

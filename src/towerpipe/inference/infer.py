@@ -190,7 +190,8 @@ def predict_tile(
 
         floor = 0.0 if min_height is None else min_height
         wires = overhead_wires(arrays, mi, floor)
-        tree = cKDTree(np.c_[arrays["x"][mi], arrays["y"][mi]])  # the windows' and the shape gate's
+        # the windows' and the shape gate's; unbalanced, built in half the time (both sort what it finds)
+        tree = cKDTree(np.c_[arrays["x"][mi], arrays["y"][mi]], balanced_tree=False)
         ws: TileWindows | CandidateWindows = candidate_windows(
             arrays["x"][mi],
             arrays["y"][mi],

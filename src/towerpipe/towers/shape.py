@@ -138,8 +138,9 @@ def shape_descriptor(x: np.ndarray, y: np.ndarray, hag: np.ndarray) -> np.ndarra
     d = q[:, :2] - q[:, :2].mean(axis=0)
     radius = np.hypot(d[:, 0], d[:, 1])
     band = (rel * N_BANDS).astype(int)
-    share = np.bincount(band, minlength=N_BANDS) / len(q)
-    rms = np.array([np.sqrt(np.mean(radius[band == i] ** 2)) if (band == i).any() else 0.0 for i in range(N_BANDS)])
+    n_band = np.bincount(band, minlength=N_BANDS)
+    share = n_band / len(q)
+    rms = np.sqrt(np.bincount(band, radius**2, minlength=N_BANDS) / np.maximum(n_band, 1))
     plan = np.linalg.eigvalsh(np.cov(d.T)) if len(q) > 2 else np.full(2, 1e-3)
     major, minor = np.sqrt(np.clip(plan[::-1], 1e-6, None))
     if len(q) > 3:
@@ -150,7 +151,8 @@ def shape_descriptor(x: np.ndarray, y: np.ndarray, hag: np.ndarray) -> np.ndarra
     slices = np.unique(np.floor(q[:, 2]).astype(np.int64))
     gaps = np.diff(np.sort(np.r_[0.0, q[:, 2], height]))
     columns = unique_rows(vox[:, :2])
-    hull = shapely.convex_hull(shapely.multipoints(q[:, :2]))
+    # the plan hull of the voxels is that of their columns (a column's voxels share its centre)
+    hull = shapely.convex_hull(shapely.multipoints((columns + 0.5) * VOXEL_M))
     area = max(float(hull.area), VOXEL_M * VOXEL_M)
     top, middle = rel >= 0.8, (rel >= 0.3) & (rel < 0.7)
     r_top = np.sqrt(np.mean(radius[top] ** 2)) if top.any() else 0.0
@@ -239,7 +241,7 @@ def peak_objects(
     # the object lies within radius + OBJECT_BUFFER_M of its peak: one tree of the tile's points
     tree = cKDTree(np.c_[x, y]) if tree is None else tree
     for i, local in enumerate(tree.query_ball_point(centers, radius + OBJECT_BUFFER_M)):
-        local = np.asarray(local, np.int64)
+        local = np.sort(np.asarray(local, np.int64))  # in the points' order, whatever the tree
         d = np.hypot(x[local] - centers[i, 0], y[local] - centers[i, 1])
         near = local[keep[local] & (d <= radius)]
         if len(near) < 5:
