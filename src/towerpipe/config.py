@@ -293,6 +293,10 @@ class TowersConfig(Section):
     #: the conductors within 80 m decide: dropped (unknown support) or kept (low support) by whether their
     #: balance reaches this (0: never, rule 8 alone; :func:`towerpipe.towers.conductor_rules.near_balance`).
     min_near_balance: float
+    #: Rule 20: a cluster with at least this many conductor points pointing at it over its top, and
+    #: fewer at or below it, is dropped, a crown under a line (0: never;
+    #: :func:`towerpipe.towers.conductor_rules.under_line`).
+    under_line: int
     #: Rule 10: clusters no accepted tower holds, from the points at or above this
     #: probability, are judged again (0: never; see :func:`towerpipe.towers.extract.extract_towers`).
     rescue_threshold: float

@@ -106,13 +106,13 @@ def test_a_tower_hidden_by_crowns_gets_a_secondary_window_of_limited_reach():
 
 def test_the_schema_bounds_secondary_peaks_by_the_peak_radius():
     """inference.secondary_radius names the peaks within it that are not peaks within PEAK_RADIUS:
-    the schema's bound is that constant."""
+    the schema's bound is that constant, and its default (on from 0.22.0, with rule 20) lies within it."""
     from conftest import REPO
     from towerpipe.config import SCHEMA_FILE, load_yaml
 
     schema = load_yaml(REPO / SCHEMA_FILE, "schema")
     sec = schema["properties"]["inference"]["properties"]["secondary_radius"]
-    assert sec["exclusiveMaximum"] == PEAK_RADIUS and sec["default"] == 0
+    assert sec["exclusiveMaximum"] == PEAK_RADIUS and 0 < sec["default"] < PEAK_RADIUS
 
 
 @pytest.mark.shared

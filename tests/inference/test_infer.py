@@ -587,7 +587,7 @@ def test_secondary_peaks_reach_a_hidden_tower_and_paint_only_near_it():
     the probabilities within secondary_reach of its centre only; a secondary peak within
     PEAK_RADIUS of a segmented primary peak is not segmented."""
     tile = tile_with_hidden_tower()
-    base = grid_inference(windows="candidates", min_height=10.0, gate=0.5)
+    base = grid_inference(windows="candidates", min_height=10.0, gate=0.5, secondary_radius=0.0)
     off, st_off = predict_tile(tile, CentreColumn(), base)
     assert st_off["windows_segmented"] == 0 and len(off["x"]) == 0
     on, st_on = predict_tile(tile, CentreColumn(), replace(base, secondary_radius=7.0, secondary_reach=4.0))

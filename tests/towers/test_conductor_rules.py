@@ -1,5 +1,5 @@
-"""What a cluster's conductors say about it: the sides of rule 14 (towers.min_conductor_balance) and the
-conductor's line of rule 17 (towers.max_line_share)."""
+"""What a cluster's conductors say about it: the sides of rule 14 (towers.min_conductor_balance), the
+conductor's line of rule 17 (towers.max_line_share) and a line over a crown (rule 20, towers.under_line)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,14 @@ from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
 from test_wires import conductor, spans
 
 from conftest import extract
-from towerpipe.towers.conductor_rules import BALANCE_MIN_POINTS, conductor_balance, line_share, near_balance
+from towerpipe.towers.conductor_rules import (
+    BALANCE_MIN_POINTS,
+    UNDER_LINE_GAP_M,
+    conductor_balance,
+    line_share,
+    near_balance,
+    under_line,
+)
 
 EXTENT = (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)
 
@@ -188,6 +195,7 @@ def test_rule_18_drops_a_crown_that_its_conductors_make_a_tower(monkeypatch, min
     ctx["conductors"] = detected(wires)
     preds = [pred_pair(np.r_[crown, t_xyz], np.r_[crown[:, 2] - BASE_Z, t_hag], 0.95, ["b1"])]
     rules = {"max_base_ratio": 1.0, "min_stand": 0.0, "max_arm_reach": 0.0, "min_bare_score": min_bare_score}
+    rules["under_line"] = 0  # rule 20 drops this crown too (the line 4 m over it): rule 18 alone here
     trace = []
     found = extract(preds, "b1", BOUNDS, zone="z1", context=lambda x, y: (ctx, EXTENT), trace=trace, **rules)
     assert len(found.towers) == kept
@@ -246,3 +254,87 @@ def test_rule_19_keeps_a_tower_whose_far_conductors_were_not_found(min_near_bala
     assert len(found.towers) == kept
     if kept:
         assert found.towers["wire_support"].iloc[0] == 0.0  # recorded as measured
+
+
+def _three_wires(x0: float, x1: float, y: float, z: float, sag: float, rng: np.random.Generator) -> np.ndarray:
+    """Three conductors 5 m apart along x from ``x0`` to ``x1``, hung at elevation ``z``, sagging ``sag``."""
+    return np.concatenate(
+        [conductor(x0, y + dy, x1, y + dy, z, sag=sag, step=0.35, rng=rng) for dy in (-5.0, 0.0, 5.0)]
+    )
+
+
+def test_a_tower_holds_its_conductors_a_crown_under_a_line_has_them_over_it():
+    """Rule 20's counts: the conductors within 25 m pointing at a base, over the top of its object by
+    more than 2 m or not. A tower hangs its own at or below its top, also when the segmenter painted
+    only its lower half (the object's points above carry the top up); a crown under a line has the
+    line over it only, clear of it (the conductor points over its footprint are not its top); a line
+    passing by points at neither."""
+    rng = np.random.default_rng(8)
+    cx, cy = X0 + 250, Y0 + 250
+    wires = _three_wires(cx - 300, cx + 300, cy, BASE_Z + 28.0, 8.0, rng)
+    t_xyz, _ = synthetic_tower(cx - 300.0, cy, base_z=BASE_Z)
+    u = rng.normal(size=(300, 3))
+    crown = u / np.linalg.norm(u, axis=1, keepdims=True) * [3.0, 3.0, 2.0] + [cx - 60.0, cy, BASE_Z + 12.0]
+    ctx = context(t_xyz, crown, wires)
+    ctx["conductors"] = detected(wires)
+    n_t, n_c = len(t_xyz), len(crown)
+    tower, crown_obj = np.arange(n_t), n_t + np.arange(n_c)
+    over_crown = n_t + n_c + np.flatnonzero(np.hypot(wires[:, 0] - (cx - 60.0), wires[:, 1] - cy) < 4.0)
+    c_top = float(crown[:, 2].max())
+    over, under = under_line(ctx, cx - 60.0, cy, c_top, np.r_[crown_obj, over_crown])
+    assert over > 50 and under == 0
+    over, under = under_line(ctx, cx - 300.0, cy, float(t_xyz[:, 2].max()), tower)
+    assert over == 0 and under > 50
+    half = float(np.quantile(t_xyz[:, 2], 0.5))  # what a segmenter painted, the lower half: the object carries it up
+    assert under_line(ctx, cx - 300.0, cy, half, tower) == (over, under)
+    assert under_line(ctx, cx - 300.0, cy, half, tower[:0])[0] > 50  # without its object it would not
+    assert under_line(ctx, cx - 60.0, cy + 40.0, c_top, crown_obj) == (0, 0)  # a line passing by
+    assert UNDER_LINE_GAP_M < float(wires[np.hypot(wires[:, 0] - (cx - 60.0), wires[:, 1] - cy) < 4.0, 2].min()) - c_top
+
+
+@pytest.mark.parametrize(("under_line_points", "heights"), [(0, [14.0, 20.0, 30.0, 30.0]), (5, [20.0, 30.0, 30.0])])
+def test_rule_20_drops_a_crown_under_a_line_not_a_tower_under_a_crossing_line(under_line_points, heights):
+    """A 14 m crown under a line strung between two 30 m towers passes every other rule (the shape check
+    off, conductors pointing at it from both sides); rule 20 drops it. A 20 m tower of a lower line,
+    another line crossing 20 m over it, holds its own conductors and stays."""
+    rng = np.random.default_rng(9)
+    cx, cy = X0 + 250, Y0 + 250
+    a, b = cx - 150.0, cx + 150.0  # the line's towers, 300 m apart
+    t1, h1 = synthetic_tower(a, cy, base_z=BASE_Z)
+    t2, h2 = synthetic_tower(b, cy, base_z=BASE_Z, seed=1)
+    t3, h3 = synthetic_tower(cx, cy + 120.0, height=20.0, base_z=BASE_Z, seed=2)
+    along = np.concatenate(
+        [
+            _three_wires(a - 300, a, cy, BASE_Z + 28.0, 8.0, rng),
+            _three_wires(a, b, cy, BASE_Z + 28.0, 8.0, rng),
+            _three_wires(b, b + 300, cy, BASE_Z + 28.0, 8.0, rng),
+            _three_wires(cx - 250, cx, cy + 120.0, BASE_Z + 18.0, 5.0, rng),  # the lower line, from the 20 m tower
+            _three_wires(cx, cx + 250, cy + 120.0, BASE_Z + 18.0, 5.0, rng),
+        ]
+    )
+    crossing = np.concatenate(
+        [
+            conductor(cx + dx, cy + 20.0, cx + dx, cy + 420.0, BASE_Z + 42.0, sag=4.0, step=0.35, rng=rng)
+            for dx in (-5, 0, 5)
+        ]
+    )
+    u = rng.normal(size=(400, 3))
+    crown = u / np.linalg.norm(u, axis=1, keepdims=True) * rng.random((400, 1)) ** (1 / 3) * [3.0, 3.0, 2.0]
+    crown += [cx + 40.0, cy, BASE_Z + 12.0]
+    crown[:, 2] = np.minimum(crown[:, 2], BASE_Z + 14.0)
+    ctx = context(t1, t2, t3, crown, along, crossing)
+    by_x, by_y = detected(along), detected(crossing, direction=(0.0, 1.0))
+    ctx["conductors"] = {k: np.concatenate([by_x[k], by_y[k]]) for k in by_x}
+    t3_obj = len(t1) + len(t2) + np.arange(len(t3))
+    assert (
+        under_line(ctx, cx, cy + 120.0, float(t3[:, 2].max()), t3_obj)[0] >= 5
+    )  # the line crossing over the 20 m tower
+    xyz = np.r_[t1, t2, t3, crown]
+    preds = [pred_pair(xyz, np.r_[h1, h2, h3, crown[:, 2] - BASE_Z], 0.95, ["b1"])]
+    rules = {"max_base_ratio": 1.0, "min_stand": 0.0, "max_arm_reach": 0.0, "under_line": under_line_points}
+    trace = []
+    found = extract(
+        preds, "b1", BOUNDS, zone="z1", context=lambda x, y: (ctx, EXTENT), verifier="none", trace=trace, **rules
+    )
+    assert sorted(found.towers["height_m"].round().tolist()) == heights
+    assert ("under" in {t["rule"] for t in trace}) == (under_line_points > 0)

@@ -24,6 +24,9 @@
   wires it finds (where they thin, sag into a crown's reach, or cross another circuit); the
   segmenter paints some of those points, and where the delivery classifies no wire nothing else
   takes them away. A tower holds a conductor's line only at its crossarms' tips.
+- **Under a line** (rule 20, :func:`under_line`): a tower carries its own conductors, at or below its
+  top; a crown under a line has the line's conductors only over it (the line's clearance over the
+  vegetation), none at or below its top.
 - **Bare** (rule 18, :func:`bare_score`): the shape score of a cluster's object without its points on
   those lines. Conductors over a crown make it look like a tower to the verifier (a body, and arms
   at the top); without them a crown scores near 0 and a tower keeps its score.
@@ -52,7 +55,11 @@ __all__ = [
     "line_share",
     "near_balance",
     "on_conductor_lines",
+    "UNDER_LINE_CLEARANCE_M",
+    "UNDER_LINE_GAP_M",
+    "UNDER_LINE_RADIUS_M",
     "support",
+    "under_line",
     "vouching_support",
 ]
 
@@ -71,6 +78,12 @@ LINE_REACH_M, LINE_ACROSS_M, LINE_DZ_M = 8.0, 0.5, 0.7
 NEAR_AIMED_SHARE = 0.1
 #: Rule 18 judges an object without its conductors only when this many of its points are left.
 BARE_MIN_POINTS = 10
+#: Rule 20 counts the conductor points within :data:`UNDER_LINE_RADIUS_M` m of a base (in plan) whose
+#: wire points at it, and tells those more than :data:`UNDER_LINE_CLEARANCE_M` m over the top of its
+#: object from the rest: a tower's own conductors hang at or below its top (its earth wire at it), a
+#: crown under a line has the line's only over it, clear of it by more than :data:`UNDER_LINE_GAP_M` m
+#: of empty height (docs/model.md, "Rule 20").
+UNDER_LINE_RADIUS_M, UNDER_LINE_CLEARANCE_M, UNDER_LINE_GAP_M = 25.0, 2.0, 4.0
 
 
 def _conductors(arr: Mapping[str, Any]) -> tuple[Mapping[str, Any], Any]:
@@ -173,6 +186,36 @@ def near_balance(arr: Mapping[str, Any], bx: float, by: float, radius: float = R
     if aimed.sum() < BALANCE_MIN_POINTS:
         return 0.0 if aimed.sum() < NEAR_AIMED_SHARE * len(near) else float("nan")
     return _balance(px[aimed], py[aimed], u[aimed])
+
+
+def under_line(arr: Mapping[str, Any], bx: float, by: float, top: float, obj: np.ndarray) -> tuple[int, int]:
+    """Rule 20: the conductor points within :data:`UNDER_LINE_RADIUS_M` m of a base ``(bx, by)`` whose
+    wire passes within :data:`~towerpipe.towers.wires.AIM_M` of it, against the top of its object.
+
+    The top is the cluster's highest point ``top`` (an elevation), raised through the points of its
+    object (the context's points ``obj``, as the shape check takes them) above it while no empty
+    height of more than :data:`UNDER_LINE_GAP_M` m parts them: the whole of a tower, also where the
+    segmenter painted only its lower part, but not a line passing over a crown, which stands clear of
+    it.
+
+    Returns
+    -------
+    over, under
+        How many stand more than :data:`UNDER_LINE_CLEARANCE_M` m above that top, and how many do not.
+    """
+    c, directions = _conductors(arr)
+    idx, _, _, _ = aimed_wire_points(
+        c["x"], c["y"], c["z"], c["hag"], bx, by, 0.0, UNDER_LINE_RADIUS_M, WIRE_MIN_HAG_M, AIM_M, directions
+    )
+    zs = np.sort(np.asarray(arr["z"], np.float64)[np.asarray(obj, np.int64)])
+    zs = zs[zs > top]
+    if len(zs):
+        steps = np.diff(np.r_[top, zs])
+        clear = np.flatnonzero(steps > UNDER_LINE_GAP_M)
+        reach = clear[0] if len(clear) else len(zs)
+        top = float(zs[reach - 1]) if reach else top
+    over = int((np.asarray(c["z"], np.float64)[idx] > top + UNDER_LINE_CLEARANCE_M).sum())
+    return over, len(idx) - over
 
 
 def on_conductor_lines(arr: Mapping[str, Any], x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:

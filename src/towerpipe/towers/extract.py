@@ -46,7 +46,7 @@ holds are clustered and each cluster is judged by rules 4-8 (its highest probabi
 ``rescue_threshold``: a thin pole or a sparse real lattice that the segmenter paints mostly
 at 0.1-0.3 is found and outlined when its object is shaped like a tower.
 
-Rules 12-19 (docs/products.md tells each with its measurements; 0 turns each off):
+Rules 12-20 (docs/products.md tells each with its measurements; 0 turns each off):
 
 12. the conductors' vouch (``vouch_height``): a cluster the shape check drops, with no split part to
     judge instead, is kept when conductors point at it and its top stands ``vouch_height`` m above them
@@ -68,7 +68,10 @@ Rules 12-19 (docs/products.md tells each with its measurements; 0 turns each off
 19. the conductors near it (``min_near_balance``): where the support is unknown, a cluster is dropped
     when the conductors within 80 m lie on one side of it or none points at it; a tall one under
     ``min_wire_support`` is kept when they hang on both sides of it or over it
-    (:func:`towerpipe.towers.conductor_rules.near_balance`).
+    (:func:`towerpipe.towers.conductor_rules.near_balance`);
+20. a line over it (``under_line``): a cluster with at least this many conductor points within 25 m
+    pointing at it more than 2 m over its top, and fewer at or below, is dropped: a crown under a line
+    (:func:`towerpipe.towers.conductor_rules.under_line`).
 
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
@@ -95,20 +98,21 @@ from towerpipe.config import TowersConfig
 from towerpipe.io.fields import GEOMETRY_GRID, join_values
 from towerpipe.towers.cluster import _as_pred, _footprint, cluster_towers, gather_points
 from towerpipe.towers.column import column_mask
-from towerpipe.towers.conductor_rules import conductor_balance, line_share, near_balance
+from towerpipe.towers.conductor_rules import conductor_balance, line_share, near_balance, under_line
 from towerpipe.towers.conductor_rules import support as conductor_support
 from towerpipe.towers.foot import foot_mask
 from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach, tallest_stand
 from towerpipe.towers.records import empty_towers, tower_record, towers_frame
 from towerpipe.towers.registry import assign_ids
-from towerpipe.towers.shape import load_verifier
+from towerpipe.towers.shape import load_verifier, object_points
 from towerpipe.towers.shape_check import shape_check
 
 #: What decided a cluster in a ``trace`` of :func:`extract_towers`: its core probability (rule 6),
 #: floating (7), nothing standing (16), too few points to report, a crane's jib (15), no context for a
 #: rescue, on a conductor's line (17), the shape check (9), a crown under conductors (18), the conductor
-#: support (8), the conductors on one side (14), the conductors near it on one side (19), or accepted.
-TRACE_RULES = tuple("core floating stands points jib context line shape bare wires sides near accepted".split())
+#: support (8), the conductors on one side (14), the conductors near it on one side (19), a line over
+#: it (20), or accepted.
+TRACE_RULES = tuple("core floating stands points jib context line shape bare under wires sides near accepted".split())
 
 
 @dataclass
@@ -404,6 +408,12 @@ def extract_towers(
                     decided(verdict.failed, verdict.value)
                     queue.extend((part, rest, is_rescue) for part, rest in verdict.parts)
                     continue
+            if rules.under_line > 0:
+                obj = object_points(footprint, arr["x"], arr["y"])
+                over, under = under_line(arr, bx, by, float(xyz[g, 2].max()), obj)
+                if over >= rules.under_line and under < rules.under_line:
+                    decided("under", under)
+                    continue  # rule 20: a line's conductors pass over it and none hangs from it, a crown
             support = conductor_support(arr, extent, bx, by) if vouch is None else vouch
             # rule 19: where the ring says nothing (unknown) or too little (a tall cluster under
             # min_wire_support), the conductors nearer than the ring decide
