@@ -207,14 +207,14 @@ def under_line(arr: Mapping[str, Any], bx: float, by: float, top: float, obj: np
     idx, _, _, _ = aimed_wire_points(
         c["x"], c["y"], c["z"], c["hag"], bx, by, 0.0, UNDER_LINE_RADIUS_M, WIRE_MIN_HAG_M, AIM_M, directions
     )
-    zs = np.sort(np.asarray(arr["z"], np.float64)[np.asarray(obj, np.int64)])
+    zs = np.sort(np.asarray(arr["z"])[np.asarray(obj, np.int64)].astype(np.float64))
     zs = zs[zs > top]
     if len(zs):
         steps = np.diff(np.r_[top, zs])
         clear = np.flatnonzero(steps > UNDER_LINE_GAP_M)
         reach = clear[0] if len(clear) else len(zs)
         top = float(zs[reach - 1]) if reach else top
-    over = int((np.asarray(c["z"], np.float64)[idx] > top + UNDER_LINE_CLEARANCE_M).sum())
+    over = int((np.asarray(c["z"])[idx] > top + UNDER_LINE_CLEARANCE_M).sum())
     return over, len(idx) - over
 
 

@@ -396,20 +396,20 @@ def extract_towers(
                 if on_line > rules.max_line_share:
                     decided("line", on_line)
                     continue  # rule 17: it lies along the conductors found around it, a piece of one
-            vouch = None  # the conductor support, when rule 12 keeps a cluster the shape check drops
+            vouch = obj = None  # rule 12's conductor support when it keeps a cluster; the object judged
             # the shape check first (rules 9, 12, 13 and 18): it is cheap, and it drops most clusters (crowns)
             if verifier is not None:
                 split = partial(_split_by_confidence, g, pts["prob_single"], cluster_part, splits)
                 verdict = shape_check(
                     verifier, rules, footprint, arr, extent, hag, (bx, by), tall=tall, is_rescue=is_rescue, split=split
                 )
-                shape, vouch = verdict.shape, verdict.vouch
+                shape, vouch, obj = verdict.shape, verdict.vouch, verdict.obj
                 if verdict.failed:
                     decided(verdict.failed, verdict.value)
                     queue.extend((part, rest, is_rescue) for part, rest in verdict.parts)
                     continue
             if rules.under_line > 0:
-                obj = object_points(footprint, arr["x"], arr["y"])
+                obj = object_points(footprint, arr["x"], arr["y"]) if obj is None else obj
                 over, under = under_line(arr, bx, by, float(xyz[g, 2].max()), obj)
                 if over >= rules.under_line and under < rules.under_line:
                     decided("under", under)

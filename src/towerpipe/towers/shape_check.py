@@ -41,6 +41,8 @@ class ShapeVerdict:
     value: float = float("nan")
     #: The parts to judge instead of a failed cluster (``split()``'s answer).
     parts: Sequence[Any] = field(default_factory=tuple)
+    #: The object judged: indices of the context's points under the footprint (rule 20 reads it too).
+    obj: np.ndarray | None = None
 
 
 def shape_check(
@@ -100,4 +102,4 @@ def shape_check(
         bare = bare_score(verifier, arr, obj)
         if bare < rules.min_bare_score:
             return ShapeVerdict(shape, failed="bare", value=bare, parts=split())
-    return ShapeVerdict(shape, vouch=vouch)
+    return ShapeVerdict(shape, vouch=vouch, obj=obj)
