@@ -70,8 +70,7 @@ def test_descriptor_names_and_invariance_to_place_and_heading():
 
 def test_descriptor_does_not_hang_on_the_order_of_the_points():
     """The shape gate finds an object's points through a k-d tree, in the tree's order: the
-    descriptor is the same (to rounding) in any order, and the plan hull of its voxels is that of
-    their columns."""
+    descriptor is the same (to rounding) in any order."""
     xyz, hag = synthetic_tower(0.0, 0.0, height=24.0, seed=4)
     d = shape_descriptor(xyz[:, 0], xyz[:, 1], hag)
     p = np.random.default_rng(0).permutation(len(hag))
