@@ -152,6 +152,51 @@ def test_stamp_cards_writes_the_transfer_figures(tmp_path, random_model_factory)
     assert card["transfer"]["score"] == 0.93 and card["transfer"]["per_family"][0]["recall"] == 0.95
     assert card["transfer"]["resolution"] == 0.08
     assert "## Transfer" in (model / "MODEL_CARD.md").read_text()
+    assert card["transfer"]["spread"] == 0.0 and len(card["transfer"]["runs"]) == 1
+
+
+def _scores(path, score, recall):
+    path.write_text(
+        json.dumps(
+            {
+                "transfer": {"shape": {"score": score, "point_iou": 0.6, "families": ["uav"], "resolution": 0.01}},
+                "rows": [{"recipe": "shape", "usable": True, "family": "uav", "variant": "intact", "recall": recall}],
+            }
+        )
+    )
+    return path
+
+
+def test_stamp_cards_adds_a_training_to_the_earlier_runs(tmp_path, random_model_factory):
+    """``--add``: the mean of the runs' scores and their spread (a tie margin of ``auto``); the
+    per-family rows of the latest; a card stamped before runs were kept counts as one run; without
+    it a run replaces them all."""
+    import shutil
+
+    from towerpipe.model.cards import read_card, write_card
+    from towerpipe.model.choice import transfer_resolution
+
+    model = tmp_path / "m"
+    shutil.copytree(random_model_factory("shape"), model)
+    card = read_card(model)
+    card["transfer"] = {"score": 0.9, "point_iou": 0.8, "resolution": 0.01, "per_family": [], "families": ["uav"]}
+    write_card(model, card)  # as stamped before runs were kept
+    stamp_cards(_scores(tmp_path / "a.json", 0.8, 0.75), {"shape": model}, add=True)
+    t = read_card(model)["transfer"]
+    assert [r["score"] for r in t["runs"]] == [0.9, 0.8] and t["score"] == pytest.approx(0.85)
+    assert t["spread"] == pytest.approx(0.1) and t["point_iou"] == pytest.approx(0.7)
+    assert t["per_family"][0]["recall"] == 0.75
+    assert transfer_resolution({"transfer": t}) == pytest.approx(0.1)  # the spread, larger than a tower
+    stamp_cards(_scores(tmp_path / "b.json", 0.87, 0.8), {"shape": model}, add=True)
+    t = read_card(model)["transfer"]
+    assert (
+        len(t["runs"]) == 3
+        and t["score"] == pytest.approx((0.9 + 0.8 + 0.87) / 3)
+        and t["spread"] == pytest.approx(0.1)
+    )
+    stamp_cards(_scores(tmp_path / "c.json", 0.7, 0.5), {"shape": model})
+    t = read_card(model)["transfer"]
+    assert [r["score"] for r in t["runs"]] == [0.7] and t["spread"] == 0.0
 
 
 @pytest.mark.parametrize(

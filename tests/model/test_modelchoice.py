@@ -33,7 +33,7 @@ def shipped(tmp_path, monkeypatch):
         if fs not in RELEASES:
             monkeypatch.delitem(modelcard.MODEL_RELEASES, fs)
 
-    def scores(resolution=None, **transfer):
+    def scores(resolution=None, spread=None, **transfer):
         for fs, r in RELEASES.items():
             d = tmp_path / f"towerpipe-{fs}-v{r}"
             d.mkdir(exist_ok=True)
@@ -49,7 +49,7 @@ def shipped(tmp_path, monkeypatch):
                 "metrics": {},
                 "code": {},
                 "config_hash": "0",
-                "transfer": {"score": transfer.get(fs), "resolution": resolution},
+                "transfer": {"score": transfer.get(fs), "resolution": resolution, "spread": spread},
             }
             (d / "model_card.json").write_text(json.dumps(card))
         return tmp_path
@@ -93,6 +93,12 @@ def test_scores_within_one_benchmark_tower_tie_and_the_leaner_model_wins(shipped
     # a card stamped without a resolution: strict order, as before the rule
     shipped(geometry=0.890, shape=0.881, full=0.5, rgb=0.6)
     assert choose_model("auto", every, zone="z")["feature_set"] == "geometry"
+    # scores apart by more than a tower, but within the spread between trainings of a recipe: a tie
+    shipped(resolution=0.014, geometry=0.882, shape=0.840, full=0.5, rgb=0.6)
+    assert choose_model("auto", every, zone="z")["feature_set"] == "geometry"
+    shipped(resolution=0.014, spread=0.051, geometry=0.882, shape=0.840, full=0.5, rgb=0.6)
+    c = choose_model("auto", every, zone="z")
+    assert c["feature_set"] == "shape" and "0.051" in c["reason"]
     # the tie is among usable models only: without intensity, geometry is not a candidate
     shipped(resolution=0.5, geometry=0.95, shape=0.2, rgb=0.6, full=0.1)
     assert choose_model("auto", {"a": _attrs("rgb", "nir")}, zone="z")["feature_set"] == "shape"

@@ -24,12 +24,15 @@ intact zones (all recipes are usable there), and its **resolution** what one tow
 in it (:func:`score_resolution`); ``inference.model: auto`` (:mod:`towerpipe.model.choice`)
 picks the usable shipped model with the highest score, scores closer than the resolution
 counting as a tie that the model reading fewer sensor attributes wins; both are recorded
-in each shipped card by :func:`stamp_cards`. The ``auto`` rows of the report
+in each shipped card by :func:`stamp_cards`. Two trainings of one recipe can differ by more
+than a tower (the leave-one-source-out models are trained again each run): stamped with
+``--add``, a card keeps every run, its score is their mean and the spread of their scores
+widens the tie. The ``auto`` rows of the report
 are what a user gets: per family and variant, the recipe ``auto`` would choose.
 
 ``snakemake --cores 2 results/benchmark/realshape/`` trains what is missing and writes
 ``report.md`` and ``scores.json``; ``towerpipe realshape-stamp`` copies the scores into the
-shipped cards.
+shipped cards (``--add``: as one more training of the recipes already stamped).
 """
 
 from __future__ import annotations
@@ -321,7 +324,9 @@ def report_markdown(result: Mapping[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def stamp_cards(scores_json: str | os.PathLike[str], models: Mapping[str, str | os.PathLike[str]]) -> list[Path]:
+def stamp_cards(
+    scores_json: str | os.PathLike[str], models: Mapping[str, str | os.PathLike[str]], *, add: bool = False
+) -> list[Path]:
     """Write each recipe's transfer figures into its shipped model's card (``transfer``).
 
     Parameters
@@ -330,6 +335,12 @@ def stamp_cards(scores_json: str | os.PathLike[str], models: Mapping[str, str | 
         The benchmark's ``scores.json``.
     models
         Recipe (feature set) -> shipped model directory.
+    add
+        This run is another training of the same recipes: it joins the card's earlier ``runs``
+        (a card stamped before runs were kept counts as one), ``score`` and ``point_iou`` become
+        their means and ``spread`` the range of their scores, which ``inference.model: auto``
+        reads as a tie margin (:func:`towerpipe.model.choice.transfer_resolution`); the other
+        figures are this run's. Without it, this run replaces the card's figures.
     """
     from towerpipe.model.cards import read_card, write_card
 
@@ -340,28 +351,44 @@ def stamp_cards(scores_json: str | os.PathLike[str], models: Mapping[str, str | 
         if t is None:
             continue
         card = read_card(model)
-        card["transfer"] = {
-            "benchmark": "real-shape, leave one source out (towerpipe.evaluation.realshape)",
+        run = {
             "score": t["score"],
-            "resolution": t.get("resolution"),
             "point_iou": t["point_iou"],
-            "families": t["families"],
             "per_family": [
                 {k: r.get(k) for k in ("family", "variant", "gate_recall", "recall", "precision", "point_iou")}
                 for r in result["rows"]
                 if r["recipe"] == recipe and r["usable"]
             ],
         }
+        old = card.get("transfer") or {}
+        runs = [*(old.get("runs") or ([_run_of(old)] if old.get("score") is not None else []))] if add else []
+        runs.append(run)
+        scores = [r["score"] for r in runs]
+        card["transfer"] = {
+            "benchmark": "real-shape, leave one source out (towerpipe.evaluation.realshape)",
+            "score": float(np.mean(scores)),
+            "resolution": t.get("resolution"),
+            "spread": float(max(scores) - min(scores)),
+            "point_iou": float(np.mean([r["point_iou"] for r in runs])),
+            "families": t["families"],
+            "per_family": run["per_family"],
+            "runs": runs,
+        }
         write_card(model, card)
         done.append(Path(model))
     return done
+
+
+def _run_of(transfer: Mapping[str, Any]) -> dict[str, Any]:
+    """A card's transfer record stamped before runs were kept, as one run."""
+    return {k: transfer.get(k) for k in ("score", "point_iou", "per_family")}
 
 
 def _stamp(args: argparse.Namespace) -> int:
     from towerpipe.model.cards import MODEL_RELEASES, default_model_path
 
     models = {fs: default_model_path(fs) for fs in MODEL_RELEASES}
-    for p in stamp_cards(args.scores, models):
+    for p in stamp_cards(args.scores, models, add=args.add):
         print(f"stamped {p / 'model_card.json'}")
     return 0
 
@@ -374,4 +401,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "model cards (what inference.model: auto ranks by)",
     )
     p.add_argument("--scores", default="results/benchmark/realshape/scores.json")
+    p.add_argument(
+        "--add",
+        action="store_true",
+        help="another training of the same recipes: keep the cards' earlier runs, stamp their mean "
+        "score and its spread (a tie margin of inference.model: auto)",
+    )
     p.set_defaults(func=_stamp)

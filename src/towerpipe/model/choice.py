@@ -10,8 +10,10 @@
     real-shape benchmark (``docs/model.md``). Richer is not better: a column that only
     carried the training generator's signature does not help on real data. Scores closer
     than one benchmark tower (the card's ``transfer.resolution``: a difference the benchmark
-    cannot tell from chance) are a tie, and the tie goes to the model that reads fewer
-    sensor attributes, the one a degenerate column can mislead least.
+    cannot tell from chance), or than the spread of a recipe's score between trainings
+    (``transfer.spread``, where the card holds several ``runs``), are a tie, and the tie goes
+    to the model that reads fewer sensor attributes, the one a degenerate column can mislead
+    least.
 a feature set (``full``, ``rgb``, ``geometry``, ``shape``)
     That shipped model.
 a path
@@ -74,15 +76,18 @@ def transfer_score(card: Mapping[str, Any] | None) -> float | None:
 
 
 def transfer_resolution(card: Mapping[str, Any] | None) -> float:
-    """The smallest score difference the card's benchmark can tell (``transfer.resolution``; 0 where not recorded)."""
-    return float(_transfer(card).get("resolution") or 0.0)
+    """The smallest score difference the card's benchmark can tell: one tower
+    (``transfer.resolution``), or the spread of the score between trainings of the recipe
+    (``transfer.spread``) where that is larger; 0 where neither is recorded."""
+    t = _transfer(card)
+    return max(float(t.get("resolution") or 0.0), float(t.get("spread") or 0.0))
 
 
 def best_transfer(usable: list[dict[str, Any]]) -> tuple[dict[str, Any], bool, float]:
     """The ``auto`` pick among usable candidates: ``(candidate, won a tie, the tie margin)``.
 
     Candidates whose score is within the benchmark's resolution of the best (the margin: the
-    largest ``resolution`` among them) tie; the tie goes to the fewest required sensor
+    largest ``resolution`` among them, :func:`transfer_resolution`) tie; the tie goes to the fewest required sensor
     attributes, then to the order of :data:`~towerpipe.model.cards.MODEL_RELEASES`.
     Unmeasured models rank last.
     """
@@ -181,7 +186,10 @@ def choose_model(
         model = f"{best['name']} v{best['version']}"
         if tie:
             why = f"{model} transfers as well as any usable model to real tower shapes and reads the fewest sensor attributes"
-            detail = f"scores within one benchmark tower, {margin:.3f}, tie; benchmark score: {scores}"
+            detail = (
+                f"scores within one benchmark tower or the spread between trainings, {margin:.3f}, tie; "
+                f"benchmark score: {scores}"
+            )
         else:
             why = f"{model} transfers best to real tower shapes among the usable models"
             detail = f"benchmark score: {scores}"

@@ -57,7 +57,11 @@ class SceneParams:
     min_lines: int = 1
     span: tuple[float, float] = (200.0, 400.0)
     deflections: tuple[int, int] = (0, 2)
-    parallel_line_share: float = 0.3  # lines doubled 24-38 m aside (towers < 40 m apart)
+    parallel_line_share: float = 0.3  # lines doubled parallel_gap m aside
+    parallel_gap: tuple[float, float] = (24.0, 38.0)
+    # the share of doubled lines whose towers stand beside the first line's (same stations, 0-2 m
+    # along), as where two lines leave a substation together; the rest place their own
+    twin_beside_share: float = 0.0
     designs: tuple[str, ...] = ("lattice_waist", "double_circuit", "small_lattice", "monopole")
     design_weights: tuple[float, ...] = (0.35, 0.3, 0.2, 0.15)
     edge_tower: bool = False  # force one tower straddling an inner block edge

@@ -191,7 +191,7 @@ def make_power_lines(
     area = (xmax - xmin) * (ymax - ymin) / 1e6
     n_lines = max(params.min_lines, int(rng.poisson(params.lines_per_km2 * area)))
     w = np.asarray(params.design_weights, float)
-    routes = []  # (verts, design, anchor_s, offset_of)
+    routes = []  # (verts, design, anchor: the forced tower's arc length or the line a twin stands beside, rng)
     for li in range(n_lines):
         r = derive(seed, "line", li)
         verts = _route(r, bounds, params)
@@ -199,12 +199,17 @@ def make_power_lines(
         routes.append((verts, design, None, r))
         if r.random() < params.parallel_line_share:
             seg = np.diff(verts, axis=0)
-            off = r.uniform(24.0, 38.0) * r.choice([-1, 1])
+            off = r.uniform(*params.parallel_gap) * r.choice([-1, 1])
             # offset every vertex along the normal of its first segment (routes stay parallel)
             nrm = np.c_[-seg[:, 1], seg[:, 0]] / np.hypot(seg[:, 0], seg[:, 1])[:, None]
             nrm = np.vstack([nrm, nrm[-1:]])
             d2 = str(r.choice(params.designs, p=w / w.sum()))
-            routes.append((verts + off * nrm, d2, None, derive(seed, "line-twin", li)))
+            rt = derive(seed, "line-twin", li)
+            # towers beside the first line's: its stations (an index into routes), moved 0-2 m along
+            beside = (
+                len(routes) - 1 if params.twin_beside_share > 0 and rt.random() < params.twin_beside_share else None
+            )
+            routes.append((verts + off * nrm, d2, beside, rt))
     if params.edge_tower and block_edges:
         r = derive(seed, "edge-line")
         x0, y0, x1, y1 = block_edges[int(r.integers(len(block_edges)))]
@@ -224,10 +229,15 @@ def make_power_lines(
     axes = []
     stringing: dict[int, str] = {}
     next_id = 1
+    placed: list[np.ndarray] = []  # each route's stations
     for li, (verts, design, anchor, r) in enumerate(routes):
         axes.append(verts)
         side, earth = _stringing(seed, li, params)
-        s = _stations(r, verts, params, anchor)
+        if isinstance(anchor, int):  # a twin beside the line ``anchor``: its stations
+            s = placed[anchor] + r.uniform(-2.0, 2.0, len(placed[anchor]))
+        else:
+            s = _stations(r, verts, params, anchor)
+        placed.append(s)
         pts = _along(verts, s)
         head = _heading(verts, s)
         lo, hi = HEIGHTS[design]
