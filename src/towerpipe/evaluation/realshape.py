@@ -360,8 +360,7 @@ def stamp_cards(
                 if r["recipe"] == recipe and r["usable"]
             ],
         }
-        old = card.get("transfer") or {}
-        runs = [*(old.get("runs") or ([_run_of(old)] if old.get("score") is not None else []))] if add else []
+        runs = _earlier_runs(card.get("transfer") or {}) if add else []
         runs.append(run)
         scores = [r["score"] for r in runs]
         card["transfer"] = {
@@ -379,9 +378,13 @@ def stamp_cards(
     return done
 
 
-def _run_of(transfer: Mapping[str, Any]) -> dict[str, Any]:
-    """A card's transfer record stamped before runs were kept, as one run."""
-    return {k: transfer.get(k) for k in ("score", "point_iou", "per_family")}
+def _earlier_runs(transfer: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The runs of a card's transfer record; one stamped before runs were kept is one run."""
+    if transfer.get("runs"):
+        return list(transfer["runs"])
+    if transfer.get("score") is None:
+        return []
+    return [{k: transfer.get(k) for k in ("score", "point_iou", "per_family")}]
 
 
 def _stamp(args: argparse.Namespace) -> int:

@@ -191,12 +191,12 @@ def make_power_lines(
     area = (xmax - xmin) * (ymax - ymin) / 1e6
     n_lines = max(params.min_lines, int(rng.poisson(params.lines_per_km2 * area)))
     w = np.asarray(params.design_weights, float)
-    routes = []  # (verts, design, anchor: the forced tower's arc length or the line a twin stands beside, rng)
+    routes = []  # (verts, design, anchor_s: the forced tower's arc length, rng, beside: the line a twin stands beside)
     for li in range(n_lines):
         r = derive(seed, "line", li)
         verts = _route(r, bounds, params)
         design = str(r.choice(params.designs, p=w / w.sum()))
-        routes.append((verts, design, None, r))
+        routes.append((verts, design, None, r, None))
         if r.random() < params.parallel_line_share:
             seg = np.diff(verts, axis=0)
             off = r.uniform(*params.parallel_gap) * r.choice([-1, 1])
@@ -209,7 +209,7 @@ def make_power_lines(
             beside = (
                 len(routes) - 1 if params.twin_beside_share > 0 and rt.random() < params.twin_beside_share else None
             )
-            routes.append((verts + off * nrm, d2, beside, rt))
+            routes.append((verts + off * nrm, d2, None, rt, beside))
     if params.edge_tower and block_edges:
         r = derive(seed, "edge-line")
         x0, y0, x1, y1 = block_edges[int(r.integers(len(block_edges)))]
@@ -221,7 +221,7 @@ def make_power_lines(
         verts = _route(r, bounds, pr, through=p, angle=ang)
         design = str(r.choice(["lattice_waist", "double_circuit"]))
         s_anchor = float(np.hypot(*(p - verts[0])))
-        routes.append((verts, design, s_anchor, r))
+        routes.append((verts, design, s_anchor, r, None))
 
     towers: list[Tower] = []
     wires = []
@@ -230,11 +230,11 @@ def make_power_lines(
     stringing: dict[int, str] = {}
     next_id = 1
     placed: list[np.ndarray] = []  # each route's stations
-    for li, (verts, design, anchor, r) in enumerate(routes):
+    for li, (verts, design, anchor, r, beside) in enumerate(routes):
         axes.append(verts)
         side, earth = _stringing(seed, li, params)
-        if isinstance(anchor, int):  # a twin beside the line ``anchor``: its stations
-            s = placed[anchor] + r.uniform(-2.0, 2.0, len(placed[anchor]))
+        if beside is not None:  # a twin beside the line ``beside``: its stations
+            s = placed[beside] + r.uniform(-2.0, 2.0, len(placed[beside]))
         else:
             s = _stations(r, verts, params, anchor)
         placed.append(s)
