@@ -233,6 +233,38 @@ def test_a_dry_run_of_the_training_plans_a_zone_not_generated_yet(tmp_path):
     assert not (REPO / "data" / zone).exists()
 
 
+def test_a_split_cut_short_is_finished_before_the_plan(tmp_path):
+    """A synthetic verifier zone whose split was cut short (a block's cache missing, no plan yet),
+    asked for through the verifier's input (the tiles of every zone it trains on): the missing
+    split comes before the plan. Snakemake 9.27 ran the plan first, its input unresolved while it
+    waited on the zone's input checkpoint, and the plan failed (a dry run planned no split)."""
+    uid = uuid.uuid4().hex[:6]
+    zones = {
+        f"pytest_cut_{k}_{uid}": {"input": f"data/pytest_cut_{k}_{uid}", "synth": {"seed": 5, "blocks": 2, "size": 150}}
+        for k in "ab"
+    }
+    a, b = zones
+    work = tmp_path / "work"
+    cfg = write_zone_config(tmp_path / "c.yaml", zones, work, training={"zones": [a], "verifier_zones": [b]})
+    try:
+        snakemake("--cores", "1", *(str(work / z / "prepared.done") for z in zones), f"--configfile={cfg}")
+        caches = sorted((work / b / "cache").iterdir())
+        assert len(caches) == 2
+        # as a run killed in the split leaves it: one block split, the other not, no plan
+        shutil.rmtree(caches[0])
+        for p in (work / b / "tiles", work / b / "dtm"):
+            shutil.rmtree(p)
+        for p in (work / b / "plan.json", work / b / "prepared.done"):
+            p.unlink()
+        proc = snakemake(
+            "-n", str(work / "verifiers" / f"towerpipe-verifier-v{VERIFIER_RELEASE}"), f"--configfile={cfg}"
+        )
+        assert ("split_block", caches[0].name) in planned(proc), proc.stdout[-2000:]
+    finally:
+        for z in zones:
+            shutil.rmtree(REPO / "data" / z, ignore_errors=True)
+
+
 def test_a_verifier_zone_retrains_the_verifier(ci_scene, tmp_path):
     """``training.verifier_zones``: the verifier's own manifest lists them, so a zone added
     there reruns the verifier and leaves the networks' manifest as it is."""

@@ -227,6 +227,10 @@ def plan(zone):
 def _plan_doc(zone):
     path = _COMPLETE["plan"].get(zone)
     if path is None:
+        # the zone's input first: Snakemake 9.27 runs a checkpoint that another rule's input asks
+        # for with its own input unresolved when that waits on a checkpoint too (a synthetic zone's
+        # input): the plan of a zone whose split was cut short then ran before the missing splits
+        zone_input(zone)
         path = _COMPLETE["plan"][zone] = checkpoints.plan_zone.get(zone=zone).output[0]
     return _read_plan(path, os.stat(path).st_mtime_ns)
 
