@@ -220,16 +220,20 @@ def test_a_new_training_zone_reruns_the_training(ci_scene, tmp_path):
 
 def test_a_dry_run_of_the_training_plans_a_zone_not_generated_yet(tmp_path):
     """``make train -n`` on a fresh clone: the training zones are synthetic and not generated
-    yet, so their plans wait on a checkpoint; the plan's resources must not (Snakemake 9.27
-    failed the dry run with "'int' object has no attribute 'constrain'")."""
+    yet, so the training waits on their generation (the plan asks for the zone's input first), and
+    a plan asked for before it waits on that checkpoint; the plan's resources must not (Snakemake
+    9.27 failed the dry run with "'int' object has no attribute 'constrain'")."""
     zone = f"pytest_drysynth_{uuid.uuid4().hex[:6]}"
     zones = {zone: {"input": f"data/{zone}", "synth": {"seed": 5, "blocks": 1, "size": 200}}}
     work = tmp_path / "work"
     cfg = write_zone_config(tmp_path / "c.yaml", zones, work, training={"zones": [zone]})
     proc = snakemake("-n", str(work / "models" / "windows.npz"), f"--configfile={cfg}")
+    synth_job = re.compile(r"^checkpoint synth_zone:\n(?:.*\n)*?\s+wildcards: zone=" + zone, re.M)
+    assert synth_job.search(proc.stdout), proc.stdout[-2000:]
+    assert "training_manifest" in {r for r, _ in planned(proc)}
+    proc = snakemake("-n", str(work / zone / "plan.json"), f"--configfile={cfg}")
     plan_job = re.compile(r"^checkpoint plan_zone:\n(?:.*\n)*?\s+wildcards: zone=" + zone, re.M)
     assert plan_job.search(proc.stdout), proc.stdout[-2000:]
-    assert "training_manifest" in {r for r, _ in planned(proc)}
     assert not (REPO / "data" / zone).exists()
 
 
