@@ -306,11 +306,12 @@ def bench_e2e(args: argparse.Namespace) -> int:
     print(
         f"e2e: {n / 1e6:.2f} Mpts  pdal translate {res['translate_s']:.1f} s  raw block -> zone products "
         f"(--cores 2) {res['e2e_s']:.1f} s  ratio {res['ratio']:.2f}  {n / res['e2e_s'] / 1e6:.2f} Mpts/s"
+        f"  (runs {' / '.join(f'{t:.1f}' for t in wf)} s against {' / '.join(f'{t:.1f}' for t in tr)} s)"
     )
     print(
         f"gate: {g['windows_total']} windows, {g['windows_shape_gated']} left out by the shape gate, "
         f"{g['windows_passed_gate']} passed, {g['windows_segmented']} segmented "
-        f"-> {100 * res['gate_skip_rate']:.1f} % skipped"
+        f"-> {100 * res['gate_skip_rate']:.2f} % skipped"
     )
     speed = [(k, g[f"{k}_windows_per_s_per_thread"]) for k in ("gate", "segment")]
     print("  ".join(f"{k}: {v:.1f} windows/s per thread" for k, v in speed if v is not None))
