@@ -258,6 +258,9 @@ class TowersConfig(Section):
     verifier: str
     #: Towers whose shape score is lower are dropped (0 keeps all).
     min_shape_score: float
+    #: The object of a tile denser than this (points a square metre) is thinned to it before the
+    #: verifier scores it (``None``: never; :func:`towerpipe.towers.shape_check.verifier_view`).
+    verifier_density: float | None
     #: Rule 13: the shape score a cluster at least ``wire_min_height`` high needs instead
     #: (``None``: ``min_shape_score``); the conductor rule judges it next.
     tall_shape_score: float | None

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from towerpipe.towers.coverage import Coverage, TileContext
+from towerpipe.towers.coverage import Coverage, TileContext, tile_density
 
 X0, Y0 = 400_000.0, 4_600_000.0
 
@@ -19,11 +19,13 @@ def test_tile_context_picks_the_tile_holding_the_centre(tmp_path):
         a["y"][:] = Y0 + 5
         a["model_input"][:] = [True, True, False]
         path = tmp_path / f"t{k}.npz"
-        save_tile(path, Tile(a, {"core_bounds": [x0, Y0, x0 + 500, Y0 + 500], "buffer": 40.0}))
+        meta = {"core_bounds": [x0, Y0, x0 + 500, Y0 + 500], "buffer": 40.0, "counts": {"points": 3, "core": 3 * (k + 1)}}
+        save_tile(path, Tile(a, meta))
         paths.append(str(path))
     ctx = TileContext(paths)
     arrays, coverage = ctx(X0 + 600, Y0 + 10)
     np.testing.assert_array_equal(arrays["x"], X0 + 500 + np.array([10.0, 20.0]))
+    assert arrays["density"] == 6 / 500**2  # the tile's own (the shape check thins a dense tile's objects)
     # the data is where the tile's points are (all three, the non-model-input one too)
     assert coverage.contains(np.array([X0 + 535.0, X0 + 600.0]), np.array([Y0 + 5.0, Y0 + 5.0])).tolist() == [
         True,
@@ -91,3 +93,11 @@ def test_lines_seen_inside_at_an_edge_at_a_corner_and_in_a_strip():
     strip = Coverage(one, one, survey=[(X0, Y0 - 20, X0 + 1000, Y0 + 20)])  # a corridor 40 m wide
     assert strip.lines_seen(*ring_bins(X0 + 500, Y0), 4) < 0.2  # only the lines along it
     assert Coverage(one, one).lines_seen(*ring_bins(X0, Y0), 4) == 1.0  # no survey given: everything
+
+
+def test_a_tiles_density_is_its_core_points_over_its_core_box():
+    # as the verifier's training measures it: every core point, ground included
+    meta = {"core_bounds": [X0, Y0, X0 + 500, Y0 + 250], "counts": {"core": 2_500_000, "ground_core": 1_000_000}}
+    assert tile_density(meta) == 20.0
+    assert np.isnan(tile_density({"core_bounds": [X0, Y0, X0 + 1, Y0 + 1]}))
+    assert np.isnan(tile_density({"counts": {"core": 5}}))

@@ -95,3 +95,43 @@ def test_rule_18_a_cluster_that_scores_as_a_tower_only_with_its_conductors_fails
     v, asked = judge(_ByCount(0.99), min_shape_score=0.95, min_bare_score=min_bare_score, parts=["part"])
     assert v.failed == failed
     assert asked == (1 if failed else 0)
+
+
+def test_position_share_is_uniform_and_a_property_of_each_point_alone():
+    rng = np.random.default_rng(0)
+    x, y, z = 400_000 + rng.uniform(0, 500, 20_000), 4_600_000 + rng.uniform(0, 500, 20_000), rng.uniform(0, 60, 20_000)
+    u = sc.position_share(x, y, z)
+    assert u.min() >= 0.0 and u.max() < 1.0
+    assert np.histogram(u, bins=10, range=(0, 1))[0].min() > 1_800  # 2,000 expected in each tenth
+    order = rng.permutation(len(x))[:5_000]  # another subset, in another order: the same numbers
+    np.testing.assert_array_equal(sc.position_share(x[order], y[order], z[order]), u[order])
+    # a millimetre apart is another point
+    assert not np.array_equal(sc.position_share(x + 0.001, y, z), u)
+
+
+def test_the_verifier_reads_a_dense_tiles_object_thinned_to_the_density_it_learned():
+    rng = np.random.default_rng(1)
+    n = 4_000
+    arr = {"x": rng.uniform(0, 2, n), "y": rng.uniform(0, 2, n), "z": rng.uniform(100, 130, n), "density": 28.0}
+    obj = np.arange(0, n, 2)
+    # no density set, or a tile no denser than it: the whole object
+    np.testing.assert_array_equal(sc.verifier_view(arr, obj, None), obj)
+    np.testing.assert_array_equal(sc.verifier_view({**arr, "density": 14.0}, obj, 14.0), obj)
+    np.testing.assert_array_equal(sc.verifier_view({k: v for k, v in arr.items() if k != "density"}, obj, 14.0), obj)
+    seen = sc.verifier_view(arr, obj, 14.0)
+    assert set(seen) <= set(obj) and abs(len(seen) / len(obj) - 0.5) < 0.05
+    # the points a tile keeps of an object are those another tile (or run) keeps of it
+    np.testing.assert_array_equal(sc.verifier_view(arr, obj[::-1], 14.0), seen[::-1])
+
+
+def test_the_shape_check_scores_the_thinned_object_and_reports_it_whole():
+    dense = {**ARR, "density": 40.0}
+    seen = sc.verifier_view(dense, np.arange(60), 10.0)
+    assert 0 < len(seen) < 60
+    # the verifier sees fewer than the 60 points (scored 1.0), the verdict holds the whole object
+    v, _ = judge(_ByCount(0.1), arr=dense, verifier_density=10.0)
+    assert v.failed is None and v.shape == 1.0 and len(v.obj) == 60
+    v, _ = judge(_ByCount(0.1), arr=dense)  # the shipped setting, 14 pts/m²
+    assert v.failed is None
+    v, _ = judge(_ByCount(0.1), arr=dense, verifier_density=None)  # null reads every object whole
+    assert v.failed == "shape" and v.shape == 0.1

@@ -12,12 +12,12 @@ reads them).
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-__all__ = ["Coverage", "TileContext"]
+__all__ = ["Coverage", "TileContext", "tile_density"]
 
 
 class Coverage:
@@ -101,6 +101,17 @@ class Coverage:
         return float((seen[:half] | seen[half : 2 * half]).mean()) if half else 1.0
 
 
+def tile_density(meta: Mapping[str, Any]) -> float:
+    """A tile's flight density: all its core points (ground included) a square metre of its core box,
+    as the shape verifier's training measures it (:mod:`towerpipe.training.verifier`); NaN unknown."""
+    core = (meta.get("counts") or {}).get("core")
+    bounds = meta.get("core_bounds")
+    if core is None or not bounds:
+        return float("nan")
+    xmin, ymin, xmax, ymax = (float(v) for v in bounds)
+    return float(core) / max((xmax - xmin) * (ymax - ymin), 1.0)
+
+
 class TileContext:
     """``context(cx, cy)`` for :func:`towerpipe.towers.extract.extract_towers`: the model-input
     points of the tile whose core holds ``(cx, cy)``, and where the tile has points
@@ -114,7 +125,8 @@ class TileContext:
     keeping only the last tile read one tile again for nearly every cluster (240 reads of 4
     tiles on the 1 km² benchmark block, 35 of its 58 s).
 
-    The arrays also hold ``"conductors"``: the wire points within the tile's extent (core and
+    The arrays also hold ``"density"``, the tile's flight density (:func:`tile_density`), and
+    ``"conductors"``: the wire points within the tile's extent (core and
     buffer), each judged in the tile whose core holds it
     (:func:`towerpipe.towers.wires.tile_conductor_points`, with the points around it on every
     side), with ``"direction"`` the plan direction of its wire. They are read from the
@@ -150,11 +162,13 @@ class TileContext:
         self._keep = max(int(keep_tiles), 1)
         self.reads = 0  # tile files read so far
         self._tiles = []
+        self._density: dict[str, float] = {}  # path -> the tile's points a square metre of its core
         for p in tile_paths:
             meta = read_meta(p)
             core = meta.get("core_bounds")
             if core and meta.get("failed") is None and (meta.get("counts") or {}).get("points", 1) > 0:
                 self._tiles.append((str(p), core))
+                self._density[str(p)] = tile_density(meta)
         # path -> (model-input arrays and the conductors over the tile, coverage), least recently used first
         self._cached: OrderedDict[str, tuple[dict[str, Any], Coverage]] = OrderedDict()
         self._conductors: dict[str, dict[str, np.ndarray]] = {}  # path -> the conductor points of its core
@@ -179,6 +193,7 @@ class TileContext:
                         float(arrays["y"].max()),
                     )
                     points["conductors"] = self._conductors_within(box)
+                    points["density"] = self._density[path]
                     self._cached[path] = (points, cover)
                     while len(self._cached) > self._keep:
                         self._cached.popitem(last=False)

@@ -24,7 +24,40 @@ from towerpipe.config import TowersConfig
 from towerpipe.towers.conductor_rules import bare_score, vouching_support
 from towerpipe.towers.shape import object_points
 
-__all__ = ["ShapeVerdict", "shape_check"]
+__all__ = ["ShapeVerdict", "position_share", "shape_check", "verifier_view"]
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
+def _mix(h: np.ndarray) -> np.ndarray:
+    """SplitMix64's finaliser: uint64 to uint64, every bit of the input stirred into every bit."""
+    h = (h ^ (h >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    h = (h ^ (h >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return h ^ (h >> np.uint64(31))
+
+
+def position_share(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """A number in [0, 1) drawn from each point's position (to the millimetre), uniform over
+    points: the same point gets the same number whatever the tile, the block or the run."""
+    h = np.zeros(len(np.atleast_1d(x)), np.uint64)
+    for v in (x, y, z):
+        q = np.round(np.asarray(v, np.float64) * 1000.0).astype(np.int64).view(np.uint64)
+        h = _mix(h + _GOLDEN + q)
+    return (h >> np.uint64(11)).astype(np.float64) * 2.0**-53
+
+
+def verifier_view(arr: Mapping[str, Any], obj: np.ndarray, max_density: float | None) -> np.ndarray:
+    """The points of an object the verifier reads: all of them, or on a tile denser than
+    ``max_density`` (``arr["density"]``, :func:`towerpipe.towers.coverage.tile_density`) the share
+    ``max_density / density`` of them that :func:`position_share` picks, so that the object is
+    seen at a density the verifier learned (it scores a dense lattice lower than the same lattice
+    sparser: docs/model.md).
+    """
+    density = float(arr.get("density", float("nan")))
+    if max_density is None or not density > max_density or len(obj) == 0:
+        return obj
+    x, y, z = (np.asarray(arr[k])[obj] for k in ("x", "y", "z"))
+    return obj[position_share(x, y, z) < max_density / density]
 
 
 @dataclass(frozen=True)
@@ -66,11 +99,12 @@ def shape_check(
         The shape verifier (:func:`towerpipe.towers.shape.load_verifier`).
     rules
         The tower rules: ``min_shape_score``, ``tall_shape_score``, ``vouch_height``,
-        ``min_wire_support``, ``min_bare_score``.
+        ``min_wire_support``, ``min_bare_score``, ``verifier_density``.
     footprint
         The cluster's xy footprint.
     arr, extent
-        The points around the cluster (``x``, ``y``, ``z``, ``hag``, optionally ``conductors``) and
+        The points around the cluster (``x``, ``y``, ``z``, ``hag``, optionally ``conductors`` and
+        the tile's ``density``) and
         the extent they cover (:class:`towerpipe.towers.coverage.TileContext`).
     hag
         Heights above ground of the cluster's points.
@@ -84,7 +118,8 @@ def shape_check(
         Gives the cluster's more confident parts; called only when it fails.
     """
     obj = object_points(footprint, arr["x"], arr["y"])
-    shape = float(verifier.score(arr["x"][obj], arr["y"][obj], arr["hag"][obj])) if len(obj) else float("nan")
+    seen = verifier_view(arr, obj, rules.verifier_density)
+    shape = float(verifier.score(arr["x"][seen], arr["y"][seen], arr["hag"][seen])) if len(seen) else float("nan")
     # rule 13: a cluster as high as the conductor rule judges passes at a lower score, the
     # conductors pointing at it being the second opinion
     needed = rules.tall_shape_score if tall and rules.tall_shape_score is not None else rules.min_shape_score
@@ -99,7 +134,7 @@ def shape_check(
             return ShapeVerdict(shape, failed="shape", value=shape, parts=parts)
     elif rules.min_bare_score > 0 and shape >= needed:
         # rule 18: judged again without the conductors through its object (NaN: too few points left)
-        bare = bare_score(verifier, arr, obj)
+        bare = bare_score(verifier, arr, seen)
         if bare < rules.min_bare_score:
             return ShapeVerdict(shape, failed="bare", value=bare, parts=split())
     return ShapeVerdict(shape, vouch=vouch, obj=obj)

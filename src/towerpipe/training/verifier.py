@@ -115,6 +115,7 @@ def _tile_objects(path: str, truth: Any, cfg: Mapping[str, Any], seed: Sequence[
     from towerpipe import classes
     from towerpipe.inference.candidates import height_peaks
     from towerpipe.io.tiles import load_tile
+    from towerpipe.towers.coverage import tile_density
     from towerpipe.training.dataset import nearest_families, tower_instances
 
     rng = np.random.default_rng(list(seed))
@@ -124,7 +125,7 @@ def _tile_objects(path: str, truth: Any, cfg: Mapping[str, Any], seed: Sequence[
     x, y = a["x"][keep], a["y"][keep]
     hag, cls = a["hag"][keep].astype(np.float64), a["classification"][keep]
     xmin, ymin, xmax, ymax = (float(v) for v in tile.meta["core_bounds"])
-    density = float(np.asarray(a["core"]).sum()) / max((xmax - xmin) * (ymax - ymin), 1.0)
+    density = tile_density(tile.meta)
     block = f"{tile.meta.get('zone', '')}/{tile.meta.get('block', Path(path).parent.name)}"
     out: list[dict[str, Any]] = []
     if len(x) == 0:
