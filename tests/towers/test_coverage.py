@@ -19,7 +19,11 @@ def test_tile_context_picks_the_tile_holding_the_centre(tmp_path):
         a["y"][:] = Y0 + 5
         a["model_input"][:] = [True, True, False]
         path = tmp_path / f"t{k}.npz"
-        meta = {"core_bounds": [x0, Y0, x0 + 500, Y0 + 500], "buffer": 40.0, "counts": {"points": 3, "core": 3 * (k + 1)}}
+        meta = {
+            "core_bounds": [x0, Y0, x0 + 500, Y0 + 500],
+            "buffer": 40.0,
+            "counts": {"points": 3, "core": 3 * (k + 1)},
+        }
         save_tile(path, Tile(a, meta))
         paths.append(str(path))
     ctx = TileContext(paths)
