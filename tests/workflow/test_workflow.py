@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 import subprocess
@@ -145,12 +146,23 @@ def test_zone_runs_and_adding_a_block_reruns_only_it(zone, random_model):
     assert sorted(r for r, _ in executed(proc)) == ["assemble_zone", "zone_results"], executed(proc)
     assert (tmp / "work" / name / "plan.json").is_file()
     assert sorted(p.name for p in (out / "blocks").iterdir()) == ["b0.laz", "b1.laz", "b2.laz"]
-    # a changed model reprocesses every tile of every block
+    # a changed model reprocesses every tile of every block, with the model the zone chose
     (random_model / "segmenter.pt").touch()
     proc = snakemake("-n", "--cores", "2", f"results/{name}/", f"--configfile={cfg}")
     n_tiles = len(list((tmp / "work" / name / "tiles").rglob("*.npz")))
     assert job_count(proc, "infer_tile") >= n_tiles, proc.stdout[-3000:]
     assert job_count(proc, "merge_block") == 3
+    assert job_count(proc, "choose_model") == 0
+    # a card stamped anew (its real-shape scores decide `auto`) makes the zone's choice again (a
+    # touch alone is not a change: Snakemake compares the checksums of small inputs)
+    card_file = random_model / "model_card.json"
+    card = json.loads(card_file.read_text())
+    card_file.write_text(json.dumps({**card, "transfer": {"score": 0.5, "resolution": 0.014}}))
+    try:
+        proc = snakemake("-n", "--cores", "2", f"results/{name}/", f"--configfile={cfg}")
+        assert job_count(proc, "choose_model") == 1, proc.stdout[-3000:]
+    finally:
+        card_file.write_text(json.dumps(card))  # the module's other tests share the model
 
 
 @pytest.mark.shared

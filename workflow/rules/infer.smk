@@ -10,6 +10,7 @@
 checkpoint choose_model:
     input:
         caches=lambda wc: cache_inputs(wc.zone, blocks(wc.zone)),
+        cards=lambda wc: model_cards(wc.zone),
     output:
         choice=MODEL_CHOICE,
     log:
