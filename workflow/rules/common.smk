@@ -520,7 +520,7 @@ def model_files(zone):
 def model_cards(zone):
     """The cards of the models the zone may run: inputs of its choice, which reads their real-shape
     scores, so a card stamped anew (``towerpipe realshape-stamp``) makes the choice again."""
-    return [f for f in _model_files(zone) if f.endswith("/model_card.json")]
+    return [f for f in _model_files(zone) if os.path.basename(f) == "model_card.json"]
 
 
 @functools.cache
