@@ -146,3 +146,39 @@ def test_infer_bench_runs_the_tile_jobs_inference_on_a_zones_tiles(tmp_path, cap
     assert res["tiles"] == len(meta["tiles"]) and len(res["infer_runs"]) == 2
     assert res["ratio"] == pytest.approx(res["infer_s"] / res["read_s"])
     assert "infer: " in capsys.readouterr().out
+
+
+def test_gate_stats_count_a_window_two_tiles_see_once(tmp_path):
+    """The e2e benchmark's gate figures: summed over the tiles, and each window of the block once
+    (a window near a tile edge is in both tiles' prediction files)."""
+    import numpy as np
+
+    from towerpipe.bench import gate_stats
+    from towerpipe.io.predictions import PRED_ARRAYS, save_pred
+
+    def tile(name, xs, segmented, shape_gated):
+        gates = {
+            "x": xs,
+            "y": [5.0] * len(xs),
+            "shape": [0.5] * len(xs),
+            "prob": [0.5] * len(xs),
+            "segmented": segmented,
+        }
+        meta = {
+            **dict.fromkeys(("zone", "block", "tile", "blocks", "crs_wkt", "core_bounds", "model", "combine")),
+            **dict.fromkeys(("gate_threshold", "points_core", "points_model_input_core", "peak_rss_mb"), 0),
+            "timings": {},
+            "windows_total": len(xs),
+            "windows_shape_gated": shape_gated,
+            "windows_passed_gate": sum(segmented),
+            "windows_segmented": sum(segmented),
+            "window_gates": gates,
+        }
+        save_pred(tmp_path / "pred" / "b" / f"{name}.npz", {k: np.zeros(0, d) for k, d in PRED_ARRAYS.items()}, meta)
+
+    # the window at x = 50 straddles the two tiles' edge: segmented by both
+    tile("0_0", [10.0, 30.0, 50.0], [False, False, True], 2)
+    tile("1_0", [50.0, 70.0, 90.0, 110.0], [True, True, False, False], 2)
+    g = gate_stats(tmp_path)
+    assert (g["windows_total"], g["windows_segmented"], g["windows_shape_gated"]) == (7, 3, 4)
+    assert (g["windows_distinct"], g["windows_segmented_distinct"]) == (6, 2)

@@ -520,17 +520,19 @@ def model_files(zone):
 def model_cards(zone):
     """The cards of the models the zone may run: inputs of its choice, which reads their real-shape
     scores, so a card stamped anew (``towerpipe realshape-stamp``) makes the choice again."""
-    return [f for f in _model_files(zone) if os.path.basename(f) == "model_card.json"]
+    from towerpipe.model.cards import CARD_FILE
+
+    return [f for f in _model_files(zone) if os.path.basename(f) == CARD_FILE]
 
 
 @functools.cache
 def _model_files(zone):
     from towerpipe.model.choice import AUTO, resolve_model
-    from towerpipe.model.cards import MODEL_RELEASES, default_model_path
+    from towerpipe.model.cards import BUNDLE_FILES, MODEL_RELEASES, default_model_path
 
     spec = model_spec_of(zone)[0]
     dirs = [default_model_path(fs) for fs in MODEL_RELEASES] if spec == AUTO else [resolve_model(spec)]
-    return [f"{d}/{f}" for d in dirs for f in ("classifier.pt", "segmenter.pt", "model_card.json")]
+    return [f"{d}/{f}" for d in dirs for f in BUNDLE_FILES]
 
 
 def verifier_files():
@@ -753,8 +755,10 @@ def model_spec(name):
 
 def init_bundle_files(name):
     """Files of the bundle a model is warm-started from (``train: {init_from: DIR}``), as inputs."""
+    from towerpipe.model.cards import BUNDLE_FILES
+
     d = model_train_config(name).get("init_from")
-    return [os.path.join(d, f) for f in ("classifier.pt", "segmenter.pt", "model_card.json")] if d else []
+    return [os.path.join(d, f) for f in BUNDLE_FILES] if d else []
 
 
 def model_train_config(name, ablation=False):

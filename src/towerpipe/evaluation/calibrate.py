@@ -4,7 +4,8 @@ The thresholds of ``inference`` and ``towers`` (views, point threshold, clusteri
 threshold, ``min_core_prob``) are set on calibration zones, never on held-out ones. A
 full pipeline run per candidate costs a minute per zone; most candidates share their
 predictions. :func:`sweep` therefore predicts each tile of a zone once per number of
-views (cached under ``<workdir>/<zone>/calibrate/``), then, per candidate, finds the
+views (:func:`towerpipe.evaluation.predcache.zone_predictions`, cached under
+``<workdir>/<zone>/calibrate/``), then, per candidate, finds the
 towers of the whole zone at once (:func:`towerpipe.towers.extract.extract_towers` with the
 zone's tiles as conductor context, the other tower rules from the config) and scores
 them against the input labels: tower precision / recall (as ``towerpipe evaluate``) and
@@ -33,17 +34,14 @@ import numpy as np
 from towerpipe import classes
 from towerpipe.config import InferenceConfig
 from towerpipe.errors import InputError
-from towerpipe.io import workdir
+from towerpipe.evaluation.predcache import zone_predictions, zone_tiles
 
 __all__ = [
     "Candidate",
-    "INFERENCE_PACKAGES",
     "score_zone",
     "sweep",
     "tower_labels",
-    "zone_predictions",
     "zone_survey",
-    "zone_tiles",
     "zone_towers",
 ]
 
@@ -55,13 +53,6 @@ _UNBOUNDED = (-1e18, -1e18, 1e18, 1e18)
 #: A true tower's neighbourhood (m around its footprint) where its segmented points are looked for.
 NEAR_TOWER_M = 1.0
 
-#: The subpackages and modules whose code makes a tile's predictions: all of their modules
-#: are part of the key of the cached predictions (:func:`zone_predictions`). Of the tower
-#: code the wire detector (the peaks leave overhead wires out) and the shape module (the
-#: shape gate cuts and scores the object at each peak): the tower rules run after the
-#: predictions and never invalidate them.
-INFERENCE_PACKAGES = ("towerpipe.inference", "towerpipe.model", "towerpipe.towers.wires", "towerpipe.towers.shape")
-
 
 def zone_survey(work: str | os.PathLike[str], zone: str) -> list[list[float]]:
     """The measured bounds of the zone's blocks (its plan, written by the pipeline's split): where
@@ -71,94 +62,6 @@ def zone_survey(work: str | os.PathLike[str], zone: str) -> list[list[float]]:
         raise InputError(plan, f"zone {zone!r} has no plan yet; run `snakemake --cores 2 results/{zone}/` first")
     blocks = json.loads(plan.read_text())["blocks"]
     return [list(map(float, b["bounds"])) for b in blocks.values() if b.get("bounds")]
-
-
-def zone_tiles(work: str | os.PathLike[str], zone: str) -> list[Path]:
-    if tiles := workdir.zone_files(work, zone, workdir.TILE):
-        return tiles
-    raise InputError(Path(work, zone), f"no tiles of zone {zone!r}; run `snakemake --cores 2 results/{zone}/` first")
-
-
-def zone_predictions(
-    work: str | os.PathLike[str],
-    zone: str,
-    model: str | os.PathLike[str],
-    settings: InferenceConfig,
-    verifier: str | os.PathLike[str] = "none",
-) -> list[str]:
-    """Prediction files of every tile of a zone with ``settings.tta`` views, computed once and cached.
-
-    Parameters
-    ----------
-    work
-        The workdir (``work``); tiles are read from the zone's last run (:func:`towerpipe.io.workdir.zone_files`).
-    zone
-        Zone name.
-    model
-        Model bundle directory.
-    settings
-        The inference settings (the config's ``inference`` section, with the candidate's
-        views and gate).
-    verifier
-        The shape gate's verifier (``towers.verifier``; see :func:`towerpipe.inference.infer.infer_tile`).
-
-    Returns
-    -------
-    list of str
-        ``<work>/<zone>/calibrate/<model>_tta<k>_<hash>/<block>_<tile>.npz``, one per tile;
-        the hash covers the inference settings, the model's weights and the shape gate's verifier.
-    """
-    from towerpipe.inference.infer import infer_tile
-    from towerpipe.model.bundle import load_bundle
-    from towerpipe.model.cards import config_hash, read_card, sha256
-    from towerpipe.towers.shape import VERIFIER_FILE, resolve_verifier
-
-    tiles = zone_tiles(work, zone)
-    # every inference setting (the views name the directory): a new one can never reuse old predictions
-    kw = {f.name: getattr(settings, f.name) for f in dataclasses.fields(settings) if f.name != "tta"}
-    gate_by = resolve_verifier(str(verifier)) if settings.shape_gate > 0 else None
-    # the weights' hashes (the shape gate's too) and the inference code are part of the key: a
-    # retrained model or another way of placing windows never reuses old predictions
-    key = config_hash(
-        {
-            "inference": kw,
-            "weights": read_card(model).get("files"),
-            "verifier": sha256(gate_by / VERIFIER_FILE) if gate_by else None,
-            "code": _inference_code(),
-        }
-    )
-    out_dir = Path(work, zone, "calibrate", f"{Path(model).name}_tta{settings.tta}_{key}")
-    bundle = None
-    paths = []
-    for t in tiles:
-        out = out_dir / f"{t.parent.name}_{t.stem}.npz"
-        if not out.exists() or out.stat().st_mtime < t.stat().st_mtime:
-            bundle = bundle or load_bundle(model)
-            infer_tile(t, bundle, out, settings, verifier=str(verifier))
-        paths.append(str(out))
-    return paths
-
-
-def _inference_code() -> str:
-    """SHA-256 of the code that turns a tile into predictions.
-
-    Every module of :data:`INFERENCE_PACKAGES` (path and content, in sorted order): the
-    windows, the networks, their features and sampling, the wire detector (the peaks
-    leave overhead wires out) and the shape gate's cut and score of a peak's object,
-    wherever in those subpackages it lives.
-    """
-    import hashlib
-    from importlib.util import find_spec
-
-    h = hashlib.sha256()
-    package = Path(find_spec("towerpipe").origin).parent
-    for name in INFERENCE_PACKAGES:
-        spec = find_spec(name)
-        origin = Path(spec.origin)
-        for path in sorted(origin.parent.rglob("*.py")) if spec.submodule_search_locations else [origin]:
-            h.update(path.relative_to(package).as_posix().encode())
-            h.update(path.read_bytes())
-    return h.hexdigest()[:16]
 
 
 def tower_labels(input_dir: Path) -> dict[str, np.ndarray]:

@@ -62,7 +62,7 @@ def zone_name(family: str, variant: str) -> str:
 
 def zone_valid_attributes(work: str | os.PathLike[str], zone: str) -> set[str]:
     """The sensor attributes valid on every tile of a preprocessed zone."""
-    from towerpipe.evaluation.calibrate import zone_tiles
+    from towerpipe.evaluation.predcache import zone_tiles
     from towerpipe.io.columns import read_meta
     from towerpipe.model.features import valid_attributes
 
@@ -82,12 +82,13 @@ def evaluate_model(
     """A model's figures on one preprocessed labelled zone (:func:`towerpipe.evaluation.calibrate.score_zone`).
 
     Predictions are cached per model weights, inference settings and shape-gate verifier
-    (``towers["verifier"]``: :func:`towerpipe.evaluation.calibrate.zone_predictions`).
+    (``towers["verifier"]``: :func:`towerpipe.evaluation.predcache.zone_predictions`).
     """
     import geopandas as gpd
 
     from towerpipe.config import InferenceConfig
-    from towerpipe.evaluation.calibrate import score_zone, tower_labels, zone_predictions, zone_survey, zone_tiles
+    from towerpipe.evaluation.calibrate import score_zone, tower_labels, zone_survey
+    from towerpipe.evaluation.predcache import zone_predictions, zone_tiles
     from towerpipe.io.predictions import load_pred
 
     settings = InferenceConfig.from_config({"inference": inference})
@@ -388,11 +389,11 @@ def _earlier_runs(transfer: Mapping[str, Any]) -> list[dict[str, Any]]:
 
 
 def _stamp(args: argparse.Namespace) -> int:
-    from towerpipe.model.cards import MODEL_RELEASES, default_model_path
+    from towerpipe.model.cards import CARD_FILE, MODEL_RELEASES, default_model_path
 
     models = {fs: default_model_path(fs) for fs in MODEL_RELEASES}
     for p in stamp_cards(args.scores, models, add=args.add):
-        print(f"stamped {p / 'model_card.json'}")
+        print(f"stamped {p / CARD_FILE}")
     return 0
 
 

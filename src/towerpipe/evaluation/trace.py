@@ -90,7 +90,7 @@ def trace_zone(
         True tower footprints (layer ``towers``).
     predictions
         The prediction files to trace (default: the zone's last run, ``<work>/<zone>/pred/*/*.npz``;
-        e.g. :func:`towerpipe.evaluation.calibrate.zone_predictions` for another model or setting).
+        e.g. :func:`towerpipe.evaluation.predcache.zone_predictions` for another model or setting).
 
     Returns
     -------
@@ -109,7 +109,8 @@ def trace_zone(
     import shapely
 
     from towerpipe.config import TowersConfig
-    from towerpipe.evaluation.calibrate import NEAR_TOWER_M, tower_labels, zone_survey, zone_tiles, zone_towers
+    from towerpipe.evaluation.calibrate import NEAR_TOWER_M, tower_labels, zone_survey, zone_towers
+    from towerpipe.evaluation.predcache import zone_tiles
     from towerpipe.io import workdir
     from towerpipe.io.predictions import load_pred
     from towerpipe.towers.matching import match_towers

@@ -27,7 +27,9 @@ def model_results_step(bundle_dir: str, ablation_dirs: Sequence[str], out_dir: s
         files.update({p.name: str(p) for p in sorted(Path(d).iterdir()) if p.is_file()})
 
     def build(tmp: Path) -> None:
-        card = json.loads((Path(bundle_dir) / "model_card.json").read_text())
+        from towerpipe.model.cards import CARD_FILE
+
+        card = json.loads((Path(bundle_dir) / CARD_FILE).read_text())
         (tmp / "metrics.json").write_text(json.dumps(card.get("metrics", {}), indent=1))
 
     return assemble_directory(out_dir, files, build)

@@ -109,12 +109,12 @@ def save_bundle(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     card = dict(card)
-    modelcard.validate_card(card, out / "model_card.json")
-    for name, model in (("classifier.pt", classifier), ("segmenter.pt", segmenter)):
+    modelcard.validate_card(card, out / modelcard.CARD_FILE)
+    for name, model in zip(modelcard.WEIGHT_FILES, (classifier, segmenter), strict=True):
         tmp = out / (name + ".part")
         torch.save(_state(model), tmp)
         os.replace(tmp, out / name)
-    card["files"] = {n: modelcard.sha256(out / n) for n in ("classifier.pt", "segmenter.pt")}
+    card["files"] = {n: modelcard.sha256(out / n) for n in modelcard.WEIGHT_FILES}
     card["files"].update(_save_folded(out, classifier, segmenter))
     modelcard.write_card(out, card)
     return out
@@ -200,6 +200,5 @@ def load_bundle(path: str | os.PathLike[str], card: Mapping[str, Any] | None = N
         )
     card = dict(card) if card is not None else modelcard.read_card(p)
     n_feat = len(card["features"])
-    clf = _load_net(p / "classifier.pt", n_feat, "classifier")
-    seg = _load_net(p / "segmenter.pt", n_feat, "segmenter")
+    clf, seg = (_load_net(p / f, n_feat, kind) for f, kind in zip(modelcard.WEIGHT_FILES, ("classifier", "segmenter")))
     return ModelBundle(**modelcard.bundle_identity(card), card=card, classifier=clf, segmenter=seg, path=p)

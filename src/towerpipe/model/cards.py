@@ -37,6 +37,11 @@ REQUIRED_KEYS: tuple[str, ...] = (
 
 #: Bundle format version (checkpoint layout and card schema).
 BUNDLE_VERSION = 1
+#: A bundle's card, and its two networks' checkpoints: the files that make a model directory
+#: (the folded copies beside the checkpoints are listed in the card).
+CARD_FILE = "model_card.json"
+WEIGHT_FILES = ("classifier.pt", "segmenter.pt")
+BUNDLE_FILES = (*WEIGHT_FILES, CARD_FILE)
 #: Release of the shipped model of each feature set (``models/towerpipe-<set>-v<release>/``):
 #: bumped when it is retrained on other data or with another recipe (its card says how).
 #: Only models that keep their towers when the tower points take the attributes of their
@@ -149,7 +154,7 @@ def validate_card(card: Mapping[str, Any], path: str | os.PathLike[str] = "model
 
 def read_card(directory: str | os.PathLike[str]) -> dict[str, Any]:
     """Read and validate ``<directory>/model_card.json`` (and the weight checksums)."""
-    path = Path(directory) / "model_card.json"
+    path = Path(directory) / CARD_FILE
     if not path.is_file():
         raise ModelError(f"{path}: missing; not a towerpipe model directory (train one with `towerpipe train`)")
     try:
@@ -226,4 +231,4 @@ def write_card(directory: str | os.PathLike[str], card: Mapping[str, Any]) -> No
 
 def write_card_json(directory: str | os.PathLike[str], card: Mapping[str, Any]) -> None:
     """Write ``model_card.json`` alone (the Markdown card does not list the files)."""
-    (Path(directory) / "model_card.json").write_text(json.dumps(card, indent=2, sort_keys=True, default=str) + "\n")
+    (Path(directory) / CARD_FILE).write_text(json.dumps(card, indent=2, sort_keys=True, default=str) + "\n")
