@@ -83,3 +83,32 @@ def test_a_found_tower_counts_the_points_it_reports_that_are_no_tower():
     lines = trace_table([found, _row("10", "core", 0.24, 105)]).splitlines()
     assert lines[0].endswith("| reported points | of them not tower |")
     assert lines[3].endswith("| 5 | 2 |") and lines[2].endswith("| 105 |  |  |")
+
+
+@pytest.mark.parametrize("model", [None, "models/towerpipe-geometry-v3"])
+def test_cached_traces_the_predictions_calibrate_scores(tmp_path, monkeypatch, model):
+    """``towerpipe trace --cached`` traces the calibration cache's predictions of the zone (today's
+    inference, the config's settings; the zone's own model choice unless ``--model``), not its last run."""
+    import towerpipe.evaluation.calibrate as calibrate
+    import towerpipe.evaluation.predcache as predcache
+    import towerpipe.evaluation.trace as trace
+    from towerpipe.cli import main
+
+    cfg = tmp_path / "zone.yaml"
+    cfg.write_text(f"workdir: {tmp_path / 'work'}\nzones:\n  z1: {{input: {tmp_path / 'in'}}}\n")
+    asked = {}
+    monkeypatch.setattr(calibrate, "zone_model", lambda work, zone, spec: f"chosen-for-{zone}-{spec}")
+
+    def cache(work, zone, model, settings, verifier):
+        asked.update(zone=zone, model=model, tta=settings.tta, verifier=verifier)
+        return ["cached.npz"]
+
+    monkeypatch.setattr(predcache, "zone_predictions", cache)
+    monkeypatch.setattr(trace, "trace_zone", lambda *a, predictions=None, **kw: asked.update(preds=predictions) or [])
+    argv = ["trace", "--zone", "z1", "--config", str(cfg), "--cached"] + (["--model", model] if model else [])
+    assert main(argv) == 0
+    assert asked["preds"] == ["cached.npz"] and asked["zone"] == "z1" and asked["verifier"] == "shipped"
+    assert asked["model"] == (model or "chosen-for-z1-auto")
+    asked.clear()
+    assert main(["trace", "--zone", "z1", "--config", str(cfg)]) == 0
+    assert asked == {"preds": None}  # the zone's last run

@@ -41,6 +41,7 @@ __all__ = [
     "score_zone",
     "sweep",
     "tower_labels",
+    "zone_model",
     "zone_survey",
     "zone_towers",
 ]
@@ -311,7 +312,7 @@ def _floats(text: str) -> list[float]:
     return [float(v) for v in text.split(",") if v.strip()]
 
 
-def _zone_model(work: str, zone: str, spec: str) -> str:
+def zone_model(work: str | os.PathLike[str], zone: str, spec: str) -> str:
     """The model a zone's pipeline run used: its choice file for ``auto``, else the named model."""
     from towerpipe.model.choice import AUTO, read_choice, resolve_model
 
@@ -341,7 +342,7 @@ def _cli(args: argparse.Namespace) -> int:
         if spec is None:
             raise InputError(args.config[-1], f"zone {z!r} is not defined in {', '.join(args.config)}")
         zones[z] = spec["input"]
-        models[z] = args.model or _zone_model(work, z, str(spec.get("model") or inference["model"]))
+        models[z] = args.model or zone_model(work, z, str(spec.get("model") or inference["model"]))
     tta = [int(v) for v in args.tta.split(",")] if args.tta else [int(inference["tta"])]
     thr = _floats(args.threshold) if args.threshold else [float(towers["threshold"])]
     pthr = _floats(args.point_threshold) if args.point_threshold else [float(inference["threshold"])]

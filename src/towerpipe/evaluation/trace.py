@@ -2,8 +2,9 @@
 stage that lost it (``towerpipe trace``).
 
 The tower rules are run again on the zone's own predictions and tiles (those of its last
-run under ``<workdir>/<zone>/``), as the towers jobs and :func:`towerpipe.evaluation.calibrate.score_zone`
-run them, with a ``trace`` (:func:`towerpipe.towers.extract.extract_towers`) that records
+run under ``<workdir>/<zone>/``, or with ``--cached`` those of today's inference that
+:mod:`towerpipe.evaluation.predcache` keeps for the calibration), as the towers jobs and
+:func:`towerpipe.evaluation.calibrate.score_zone` run them, with a ``trace`` (:func:`towerpipe.towers.extract.extract_towers`) that records
 what decided every cluster. A true tower is then:
 
 - ``found``: a reported tower matches it (within 5 m, :func:`towerpipe.towers.matching.match_towers`);
@@ -271,13 +272,24 @@ def _cli(args: argparse.Namespace) -> int:
     spec = (cfg.get("zones") or {}).get(args.zone)
     if spec is None:
         raise InputError(args.config[-1] if args.config else "config", f"zone {args.zone!r} is not defined")
+    work = args.workdir or cfg["workdir"]
+    preds = None
+    if args.cached:  # the current inference's predictions, as `towerpipe calibrate` scores them
+        from towerpipe.config import InferenceConfig
+        from towerpipe.evaluation.calibrate import zone_model
+        from towerpipe.evaluation.predcache import zone_predictions
+
+        model = args.model or zone_model(work, args.zone, str(spec.get("model") or cfg["inference"]["model"]))
+        settings = InferenceConfig.from_config(cfg)
+        preds = zone_predictions(work, args.zone, model, settings, cfg["towers"]["verifier"])
     rows = trace_zone(
-        args.workdir or cfg["workdir"],
+        work,
         args.zone,
         spec["input"],
         inference=cfg["inference"],
         towers=cfg["towers"],
         truth_file=args.truth,
+        predictions=preds,
     )
     print(trace_table(rows))
     if args.json:
@@ -298,4 +310,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workdir", help="the workdir (default: the config's)")
     p.add_argument("--truth", help="true tower footprints (default: <input>/towers_truth.gpkg)")
     p.add_argument("--json", help="write the rows here")
+    p.add_argument(
+        "--cached",
+        action="store_true",
+        help="trace the predictions of today's inference code and the config's inference settings, "
+        "as `towerpipe calibrate` scores them (cached under <workdir>/<zone>/calibrate/, made if "
+        "missing), instead of the zone's last run",
+    )
+    p.add_argument("--model", help="with --cached: the model bundle (default: the zone's choice, as it was run)")
     p.set_defaults(func=_cli)
