@@ -344,6 +344,9 @@ class InferenceConfig(Section):
     #: With candidate windows, windows whose peak object the shape verifier
     #: (``towers.verifier``) scores below this are background without a classifier pass (0: none).
     shape_gate: float
+    #: With candidate windows, a window whose peak object ``towers.verifier`` scores at least this passes
+    #: the classifier's gate whatever the classifier says (``None``: never).
+    shape_pass: float | None
     #: With candidate windows, the peaks within this radius (m) that are not peaks within
     #: :data:`~towerpipe.inference.candidates.PEAK_RADIUS` also get a window (0: none).
     secondary_radius: float

@@ -416,6 +416,23 @@ def test_shape_gate_skips_windows_whose_peak_object_it_rejects():
     assert st_grid["windows_shape_gated"] == 0 and st_grid["windows_classified"] > 0
 
 
+def test_a_peak_object_the_verifier_is_sure_of_passes_the_classifier_gate():
+    """``inference.shape_pass``: with the classifier's gate over every window (1.0), no window is
+    segmented, but those whose peak object scores ``shape_pass`` or more are, as with no gate."""
+    tile = make_tile()
+    base = grid_inference(windows="candidates", min_height=10.0, shape_gate=0.05)
+    open_gate, _ = predict_tile(tile, FakeBundle(), replace(base, gate=0.0), verifier=ConstVerifier(0.9))
+    shut, st_shut = predict_tile(tile, FakeBundle(), replace(base, gate=1.0), verifier=ConstVerifier(0.9))
+    assert st_shut["windows_segmented"] == 0 and len(shut["x"]) == 0
+    sure, st_sure = predict_tile(
+        tile, FakeBundle(), replace(base, gate=1.0, shape_pass=0.9), verifier=ConstVerifier(0.9)
+    )
+    assert st_sure["windows_segmented"] == st_sure["windows_classified"] > 0
+    assert_same(sure, open_gate)
+    unsure = replace(base, gate=1.0, shape_pass=0.95)
+    assert predict_tile(tile, FakeBundle(), unsure, verifier=ConstVerifier(0.9))[1]["windows_segmented"] == 0
+
+
 def test_the_gates_record_of_each_window_what_they_made_of_it():
     """``window_gates`` (for ``towerpipe trace``): one entry per window that reached the gates,
     its shape score where the shape gate judged it, its probability where the classifier did."""

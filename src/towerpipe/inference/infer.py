@@ -282,6 +282,8 @@ def predict_tile(
 
     # --- segmenter on all points of the windows that passed the gate ----------------
     passed = todo[win_prob[todo] >= gate]
+    if by_shape and settings.shape_pass is not None:  # the verifier sure of the peak's object: segmented anyway
+        passed = todo[(win_prob[todo] >= gate) | (win_shape[todo] >= settings.shape_pass)]
     sec = np.isfinite(reach[passed])
     if sec.any() and not sec.all():
         # a secondary peak within PEAK_RADIUS of a segmented primary peak is mostly another top of
