@@ -4,8 +4,8 @@ stage that lost it (``towerpipe trace``).
 The tower rules are run again on the zone's own predictions and tiles (those of its last
 run under ``<workdir>/<zone>/``, or with ``--cached`` those of today's inference that
 :mod:`towerpipe.evaluation.predcache` keeps for the calibration), as the towers jobs and
-:func:`towerpipe.evaluation.calibrate.score_zone` run them, with a ``trace`` (:func:`towerpipe.towers.extract.extract_towers`) that records
-what decided every cluster. A true tower is then:
+:func:`towerpipe.evaluation.calibrate.score_zone` run them, with a ``trace``
+(:func:`towerpipe.towers.extract.extract_towers`) that records what decided every cluster. A true tower is then:
 
 - ``found``: a reported tower matches it (within 5 m, :func:`towerpipe.towers.matching.match_towers`);
   the points that tower reports are counted, and those of them the input does not label as
