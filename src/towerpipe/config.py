@@ -309,6 +309,10 @@ class TowersConfig(Section):
     #: The faint points of a tower's body that are reported (``threshold``, ``outside``,
     #: ``min_height``; :func:`towerpipe.towers.column.column_mask`).
     column: Mapping[str, float]
+    #: The lower points of a tower that stand out from the tower above them, crowns beside it, are
+    #: not reported (``beyond``, ``height``, ``below``, ``outline_points``;
+    #: :func:`towerpipe.towers.crown.crown_mask`).
+    crowns: Mapping[str, float | int]
 
 
 @dataclass(frozen=True)

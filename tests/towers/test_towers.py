@@ -520,19 +520,24 @@ def test_the_shrubs_at_a_towers_foot_are_not_its_points():
     row = found.towers.iloc[0]
     assert len(found.towers) == 1 and row["n_points"] == n
     assert set(found.members[row["tower_id"]][1].tolist()) == set(range(n))
-    bare = extract([pair], "b1", BOUNDS, zone="z1", foot={"height": 0}).towers.iloc[0]
+    bare = extract([pair], "b1", BOUNDS, zone="z1", foot={"height": 0}, crowns={"beyond": 0}).towers.iloc[0]
     assert bare["n_points"] == len(xyz)
     assert bare["footprint_area_m2"] == row["footprint_area_m2"]
     alone = extract([pred_pair(xyz[:n], hag[:n], 0.9, ["b1"])], "b1", BOUNDS, zone="z1").towers.iloc[0]
     assert row["footprint_area_m2"] > alone["footprint_area_m2"] + 1.0
 
 
-def test_the_foot_rule_never_drops_a_tower():
+def test_the_foot_and_crown_rules_never_drop_a_tower():
     """A tower that the trimming would leave with fewer than towers.min_points points keeps
-    them all: the rule picks points, not towers."""
+    them all: the rules pick points, not towers."""
     xyz, hag, n = tower_with_shrubs(X0 + 50, Y0 + 50)
     pair = pred_pair(xyz, hag, 0.9, ["b1"])
-    found = extract([pair], "b1", BOUNDS, zone="z1", min_points=n + 10)
+    found = extract([pair], "b1", BOUNDS, zone="z1", min_points=n + 10, crowns={"beyond": 0})
+    assert len(found.towers) == 1 and found.towers.iloc[0]["n_points"] == len(xyz)
+    # the crown rule alone leaves the bush beside a leg out (towers.crowns), unless too few remain
+    crowns = int(extract([pair], "b1", BOUNDS, zone="z1", foot={"height": 0}).towers.iloc[0]["n_points"])
+    assert n < crowns < len(xyz)
+    found = extract([pair], "b1", BOUNDS, zone="z1", min_points=crowns + 1, foot={"height": 0})
     assert len(found.towers) == 1 and found.towers.iloc[0]["n_points"] == len(xyz)
 
 

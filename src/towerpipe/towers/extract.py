@@ -8,7 +8,8 @@ block *and its neighbours* with ``prob_single >= threshold`` into towers (a towe
 segmenter is unsure of in some views is still found), and a tower's points are those of
 its cluster with ``prob >= point_threshold`` (a crown painted in one view is left out), of
 its foot those that ``rules.foot`` keeps (:mod:`towerpipe.towers.foot`), and the faint points
-of its body that ``rules.column`` adds (rule 11, :mod:`towerpipe.towers.column`):
+of its body that ``rules.column`` adds (rule 11, :mod:`towerpipe.towers.column`), less the
+crowns beside it that ``rules.crowns`` leaves out (:mod:`towerpipe.towers.crown`):
 
 1. connected components of a 3-D ``cKDTree`` graph (points closer than ``linkage``);
 2. a component wider than ``max_extent`` (a chain of falsely predicted wire points
@@ -100,6 +101,7 @@ from towerpipe.towers.cluster import _as_pred, _footprint, cluster_towers, gathe
 from towerpipe.towers.column import column_mask
 from towerpipe.towers.conductor_rules import conductor_balance, line_share, near_balance, under_line
 from towerpipe.towers.conductor_rules import support as conductor_support
+from towerpipe.towers.crown import crown_mask
 from towerpipe.towers.foot import foot_mask
 from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach, tallest_stand
 from towerpipe.towers.records import empty_towers, tower_record, towers_frame
@@ -223,8 +225,9 @@ def extract_towers(
         - ``vouch_height``: rule 12 (module docstring; 0 never vouches);
         - ``min_conductor_balance``, ``max_arm_reach``, ``min_stand``, ``max_line_share``, ``min_bare_score``,
           ``min_near_balance``: rules 14-19 (module docstring; 0, or 1 for ``max_line_share``: off);
-        - ``foot``, ``column``: which of a tower's points are reported (:mod:`towerpipe.towers.foot`,
-          :mod:`towerpipe.towers.column`: rule 11); never whether the tower is.
+        - ``foot``, ``column``, ``crowns``: which of a tower's points are reported
+          (:mod:`towerpipe.towers.foot`, :mod:`towerpipe.towers.column`: rule 11,
+          :mod:`towerpipe.towers.crown`); never whether the tower is.
     zone
         Zone name (recorded in ``zone``; not part of the id).
     point_threshold
@@ -233,8 +236,11 @@ def extract_towers(
         them. A tower with fewer than ``rules.min_points`` such points is dropped; of the
         others, below ``rules.foot["height"]``, only those near the outline of the tower above
         are reported (:func:`towerpipe.towers.foot.foot_mask`; all of them where fewer than
-        ``rules.min_points`` would remain); rule 11 adds faint points of its body. This trims the
-        uncertain edge (crowns beside it) without splitting off conductor pieces or losing an unsure tower.
+        ``rules.min_points`` would remain); rule 11 adds faint points of its body; then its lower
+        points beyond the outline of the tower above them are left out (``rules.crowns``,
+        :func:`towerpipe.towers.crown.crown_mask`; all kept where fewer than ``rules.min_points``
+        would remain). This trims the uncertain edge (shrubs and crowns beside it) without
+        splitting off conductor pieces or losing an unsure tower.
     merge_gap, max_extent
         Clustering parameters, see :func:`towerpipe.towers.cluster.cluster_towers`.
     min_width
@@ -446,7 +452,9 @@ def extract_towers(
         f = np.flatnonzero(~held & np.isin(pts["block"], touched))
         take = f[column_mask(*xyz[g_pts, :2].T, *xyz[f, :2].T, pts["hag"][f], pts["prob"][f], rules.column)]
         held[take] = True
-        accepted[i] = (g, np.concatenate([g_pts, take]), footprint, touched, *rest)
+        g_pts = np.concatenate([g_pts, take])
+        kept = g_pts[crown_mask(xyz[g_pts, 0], xyz[g_pts, 1], pts["hag"][g_pts], rules.crowns)]
+        accepted[i] = (g, kept if len(kept) >= rules.min_points else g_pts, footprint, touched, *rest)
     if not accepted:
         return ExtractedTowers(empty_towers(crs), members, neighbours)
     ids, first_seen, review = assign_ids([a[2] for a in accepted], registry)
