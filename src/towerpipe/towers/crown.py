@@ -2,7 +2,7 @@
 
 In woodland the segmenter paints the crowns that stand beside a tower with it (a window
 centred on a tower reads much of what is near its centre as the tower), and they come out as
-part of the tower's cluster: 12-22 m up, a few metres from its legs and faces. A tower
+part of the tower's cluster: 6-18 m up, a few metres from its legs and faces. A tower
 narrows upward or stands straight, and what is wider than its body is high up (the crossarms,
 the conductors' insulators); the crowns beside it are lower than its upper half and stand
 beyond the outline of the tower above them. So a point lower than ``below`` of the tower's
