@@ -444,17 +444,20 @@ def extract_towers(
         decided("accepted", shape)
         accepted.append((g, g_pts, footprint, touched, owned, support, shape, hag, prob))
     # the points each accepted tower reports (never whether it is one): its foot trimmed, then its column
-    # (rule 11) from the blocks its cluster touches, whose jobs judge it and whose merges classify them
+    # (rule 11) from the blocks its cluster touches, whose jobs judge it and whose merges classify them,
+    # then the crowns beside it left out
     held = held_by_clusters()
+
+    def trim(idx: np.ndarray, mask: Callable[..., np.ndarray], rule: Mapping[str, Any]) -> np.ndarray:
+        kept = idx[mask(xyz[idx, 0], xyz[idx, 1], pts["hag"][idx], rule)]
+        return kept if len(kept) >= rules.min_points else idx  # too few left: the tower keeps them all
+
     for i, (g, g_pts, footprint, touched, *rest) in enumerate(accepted):
-        trimmed = g_pts[foot_mask(xyz[g_pts, 0], xyz[g_pts, 1], pts["hag"][g_pts], rules.foot)]
-        g_pts = trimmed if len(trimmed) >= rules.min_points else g_pts
+        g_pts = trim(g_pts, foot_mask, rules.foot)
         f = np.flatnonzero(~held & np.isin(pts["block"], touched))
         take = f[column_mask(*xyz[g_pts, :2].T, *xyz[f, :2].T, pts["hag"][f], pts["prob"][f], rules.column)]
         held[take] = True
-        g_pts = np.concatenate([g_pts, take])
-        kept = g_pts[crown_mask(xyz[g_pts, 0], xyz[g_pts, 1], pts["hag"][g_pts], rules.crowns)]
-        accepted[i] = (g, kept if len(kept) >= rules.min_points else g_pts, footprint, touched, *rest)
+        accepted[i] = (g, trim(np.concatenate([g_pts, take]), crown_mask, rules.crowns), footprint, touched, *rest)
     if not accepted:
         return ExtractedTowers(empty_towers(crs), members, neighbours)
     ids, first_seen, review = assign_ids([a[2] for a in accepted], registry)
