@@ -373,8 +373,8 @@ def _cli(args: argparse.Namespace) -> int:
     for r in rows:
         cells = " | ".join(f"{f(r[z]['precision'])} / {f(r[z]['recall'])} / {r[z]['point_iou']:.4f}" for z in zones)
         print(
-            f"{r['tta']:5d}  {r['gate']:4.2f}  {r['threshold']:9.2f}  {r['point_threshold']:6.2f}  "
-            f"{r['min_core_prob']:8.2f}  {r['min_wire_support']:4.2f}  {r['rescue_threshold']:6.2f} | {cells} | "
+            f"{r['tta']:5d}  {r['gate']:4g}  {r['threshold']:9g}  {r['point_threshold']:6g}  "
+            f"{r['min_core_prob']:8g}  {r['min_wire_support']:4g}  {r['rescue_threshold']:6g} | {cells} | "
             f"{r['mean_f1']:.4f} | {r['mean_point_iou']:.4f}"
         )
     return 0
