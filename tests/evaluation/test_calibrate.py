@@ -7,7 +7,7 @@ import pytest
 
 from towerpipe.cli import main
 from towerpipe.errors import InputError
-from towerpipe.evaluation.calibrate import sweep
+from towerpipe.evaluation.calibrate import sweep, sweep_table
 
 
 def test_a_zone_without_truth_cannot_be_calibrated(tmp_path):
@@ -20,3 +20,17 @@ def test_cli_rejects_an_undefined_zone(tmp_path, capsys):
     cfg.write_text("zones: {a: {input: data/a}}\n")
     assert main(["calibrate", "--config", str(cfg), "--zones", "nope"]) != 0
     assert "nope" in capsys.readouterr().err
+
+
+def test_the_table_prints_each_setting_with_the_decimals_it_has():
+    """A gate of 0.005 and one of 0.01 are two rows that must not read alike."""
+    zone = {"precision": 1.0, "recall": None, "point_iou": 0.7718}
+    common = {"tta": 2, "threshold": 0.3, "point_threshold": 0.3, "min_core_prob": 0.3, "min_wire_support": 0.5}
+    rows = [
+        {**common, "gate": g, "rescue_threshold": 0.1, "z": zone, "mean_f1": 0.9014, "mean_point_iou": 0.7718}
+        for g in (0.005, 0.01)
+    ]
+    header, a, b = sweep_table(rows, ["z"])
+    assert header.startswith("views  gate") and "z: P / R / IoU" in header
+    assert " 0.005 " in a and " 0.01 " in b and " 0.005 " not in b
+    assert "1.000 /   -   / 0.7718" in a and a.endswith("| 0.9014 | 0.7718")

@@ -40,6 +40,7 @@ __all__ = [
     "Candidate",
     "score_zone",
     "sweep",
+    "sweep_table",
     "tower_labels",
     "zone_model",
     "zone_survey",
@@ -361,23 +362,30 @@ def _cli(args: argparse.Namespace) -> int:
     print("models: " + ", ".join(f"{z}: {Path(m).name}" for z, m in models.items()))
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
+    print("\n".join(sweep_table(rows, list(zones))))
+    return 0
+
+
+def sweep_table(rows: Sequence[Mapping[str, Any]], zones: Sequence[str]) -> list[str]:
+    """The lines ``towerpipe calibrate`` prints for :func:`sweep`'s rows: a header, then one line per
+    candidate, each setting with the decimals it has (a gate of 0.005 is not 0.01)."""
 
     def f(v: Any) -> str:
         return "  -  " if v is None else f"{v:.3f}"
 
-    print(
+    lines = [
         "views  gate  threshold  points  min_core  wire  rescue | "
         + " | ".join(f"{z}: P / R / IoU" for z in zones)
         + " | mean F1 | mean IoU"
-    )
+    ]
     for r in rows:
         cells = " | ".join(f"{f(r[z]['precision'])} / {f(r[z]['recall'])} / {r[z]['point_iou']:.4f}" for z in zones)
-        print(
+        lines.append(
             f"{r['tta']:5d}  {r['gate']:4g}  {r['threshold']:9g}  {r['point_threshold']:6g}  "
             f"{r['min_core_prob']:8g}  {r['min_wire_support']:4g}  {r['rescue_threshold']:6g} | {cells} | "
             f"{r['mean_f1']:.4f} | {r['mean_point_iou']:.4f}"
         )
-    return 0
+    return lines
 
 
 def register(sub: argparse._SubParsersAction) -> None:
