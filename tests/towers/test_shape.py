@@ -4,6 +4,7 @@ the tower extraction, with rule 12 (the conductors vouch for a tower the shape r
 from __future__ import annotations
 
 import json
+from functools import partial
 
 import numpy as np
 import pytest
@@ -15,8 +16,10 @@ from conftest import UAV_TOWERS, extract
 from towerpipe.errors import ModelError
 from towerpipe.towers.shape import (
     DESCRIPTOR_NAMES,
+    PEAK_CORE_RADIUS,
     VERIFIER_FILE,
     ShapeVerifier,
+    core_object,
     load_verifier,
     object_points,
     peak_objects,
@@ -160,16 +163,18 @@ def test_shape_rule_drops_what_the_verifier_rejects(tmp_path, monkeypatch):
 
 
 class _NarrowVerifier:
-    """Tower-like when the object is at most 9 m across in y (a stand-in for the network)."""
+    """Tower-like when the object is at most 9 m across in y and at most half as wide as it is
+    high (a stand-in for the network: a crown, or the core of one, is wider)."""
 
     def score(self, x, y, hag):
-        return float(np.ptp(y) <= 9.0)
+        return float(np.ptp(y) <= 9.0 and max(np.ptp(x), np.ptp(y)) <= 0.5 * np.ptp(hag))
 
 
 def test_a_tower_among_painted_crowns_is_split_from_them(monkeypatch):
     """A crown touching a tower, painted at 0.6 by the segmenter, makes one cluster with it and the
     object under that cluster is rejected; clustered again from its points at or above 0.7, the
-    tower stands alone and passes. Without split thresholds the tower is lost."""
+    tower stands alone and passes. Without split thresholds (no part to judge) the core of the
+    object around the cluster's top passes the whole cluster."""
     import towerpipe.towers.extract as ex
 
     monkeypatch.setattr(ex, "load_verifier", lambda spec: _NarrowVerifier())
@@ -184,8 +189,9 @@ def test_a_tower_among_painted_crowns_is_split_from_them(monkeypatch):
     def context(cx, cy):
         return ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)
 
-    lost = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_shape_score=0.5, split_thresholds=[])
-    assert len(lost.towers) == 0
+    whole = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_shape_score=0.5, split_thresholds=[])
+    ((_, idx),) = whole.members.values()
+    assert len(whole.towers) == 1 and set(range(len(t_xyz))) <= set(idx.tolist())
     found = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_shape_score=0.5, split_thresholds=[0.7])
     assert len(found.towers) == 1
     ((blocks, idx),) = found.members.values()
@@ -359,6 +365,56 @@ def test_shape_gate_keeps_the_peak_of_a_real_tower_among_trees():
     assert at_tower.sum() >= 1 and (~at_tower).sum() >= 4, centres
     assert scores[at_tower].max() >= gate, (name, scores)
     assert (scores[~at_tower] < gate).all(), scores
+
+
+def _judged(verifier, rules, arr, cluster, top):
+    """What the shape check says of a cluster (its points' indices in ``arr``) topped at ``top``."""
+    from towerpipe.towers.shape_check import shape_check
+
+    fp = shapely.convex_hull(shapely.multipoints(np.c_[arr["x"][cluster], arr["y"][cluster]]))
+    kw = {"tall": False, "is_rescue": False, "split": list, "top": top}
+    return shape_check(verifier, rules, fp, arr, None, arr["hag"][cluster], (0.0, 0.0), **kw).failed
+
+
+@pytest.mark.shared
+def test_the_shape_check_finds_a_real_tower_painted_with_crowns_by_its_core():
+    """A real UAV lattice (scaled to 14-15 m, 6 pts/m²) ringed by six crowns that reach within
+    4.5 m of its axis, the segmenter having painted the lattice and the crowns' inner halves: the
+    object under that cluster is a canopy to the shipped verifier, the core around the cluster's
+    top (:data:`PEAK_CORE_RADIUS`) passes the check for most towers. A crown's own cluster fails in
+    both views."""
+    from conftest import tower_rules
+    from towerpipe.synth.real import airborne_resample, load_real_towers
+
+    v, rules = load_verifier("shipped"), tower_rules()
+    ring = 8.0 * np.c_[np.cos(np.arange(6) * np.pi / 3), np.sin(np.arange(6) * np.pi / 3)]
+    whole, core, crowns = [], [], []
+    for xyz in [p for n, p in load_real_towers(UAV_TOWERS.parent) if n.startswith("uav:")][:10]:
+        p = airborne_resample(xyz * (16.0 / np.ptp(xyz[:, 2])), 6.0, np.random.default_rng(1))
+        xs, ys, hs = [p[:, 0] - p[:, 0].mean()], [p[:, 1] - p[:, 1].mean()], [p[:, 2] - p[:, 2].min()]
+        for k, (cx, cy) in enumerate(ring):
+            tx, ty, th = tree(cx, cy, height=float(hs[0].max()) - 5 + k % 2, seed=k)
+            xs.append(tx), ys.append(ty), hs.append(th)
+        x, y, hag = np.concatenate(xs), np.concatenate(ys), np.concatenate(hs)
+        arr, n = {"x": x, "y": y, "z": hag + 100.0, "hag": hag}, len(xs[0])
+        judge = partial(_judged, v, rules, arr)
+        painted = np.flatnonzero(np.r_[np.ones(n, bool), np.hypot(x[n:], y[n:]) < 6.0])
+        top = (float(x[np.argmax(hs[0])]), float(y[np.argmax(hs[0])]))
+        whole.append(judge(painted, None)), core.append(judge(painted, top))
+        for k in range(len(ring)):
+            own = n + sum(len(a) for a in xs[1 : k + 1]) + np.arange(len(xs[k + 1]))
+            crowns.append(judge(own, (float(x[own][np.argmax(hag[own])]), float(y[own][np.argmax(hag[own])]))))
+    assert whole == ["shape"] * 10, whole
+    assert core.count(None) >= 6, core
+    assert crowns == ["shape"] * len(crowns), crowns
+
+
+def test_the_core_of_an_object_is_its_peak_object_within_the_core_radius():
+    x, y, hag = (np.r_[a, b] for a, b in zip(tree(0.0, 0.0, seed=1), tree(9.0, 0.0, seed=2), strict=True))
+    for top in [(0.2, -0.1), (9.0, 0.5), (4.5, 0.0)]:
+        want = peak_objects(np.array([top]), x, y, hag, radius=PEAK_CORE_RADIUS)[0]
+        np.testing.assert_array_equal(core_object(top, x, y, hag), want)
+    assert core_object((100.0, 100.0), x, y, hag) is None  # nothing around it
 
 
 def test_peak_scores_of_a_peak_without_an_object_are_zero():

@@ -97,6 +97,34 @@ def test_rule_18_a_cluster_that_scores_as_a_tower_only_with_its_conductors_fails
     assert asked == (1 if failed else 0)
 
 
+def test_a_tower_among_painted_crowns_is_judged_in_its_core_around_its_top():
+    """The footprint takes in a crown 10 m from the tower: the whole object scores as a canopy,
+    the core around the cluster's top (the tower's 60 points) as a tower, and the higher counts;
+    rule 18 then reads the view that scored."""
+    crown = np.random.default_rng(0).uniform([8.0, 8.0, 6.0], [12.0, 12.0, 14.0], (200, 3))
+    arr = {k: np.r_[ARR[k], v] for k, v in zip(("x", "y", "hag"), crown.T, strict=True)}
+    arr["z"] = arr["hag"] + 100.0
+    wide = shapely.box(0.0, 0.0, 12.0, 12.0)
+    seen = []
+
+    class _TowerAlone:
+        def score(self, x, y, hag):
+            seen.append(len(x))
+            return 0.99 if len(x) == 60 else 0.05
+
+    def check(top, **rules):
+        rules = tower_rules(**{"min_shape_score": 0.95, "min_bare_score": 0.0, **rules})
+        return shape_check(
+            _TowerAlone(), rules, wide, arr, None, HAG, (1.0, 1.0), tall=False, is_rescue=False, split=list, top=top
+        )
+
+    assert (check(None).failed, check(None).shape) == ("shape", 0.05)  # the whole object only
+    v = check((1.0, 1.0))
+    assert (v.failed, v.shape, len(v.obj)) == (None, 0.99, 260)  # the core decides; the object stays whole
+    seen.clear()
+    assert check((1.0, 1.0), min_bare_score=0.2).failed is None and seen == [260, 60, 60]  # rule 18 on the core
+
+
 def test_position_share_is_uniform_and_a_property_of_each_point_alone():
     rng = np.random.default_rng(0)
     x, y, z = 400_000 + rng.uniform(0, 500, 20_000), 4_600_000 + rng.uniform(0, 500, 20_000), rng.uniform(0, 60, 20_000)

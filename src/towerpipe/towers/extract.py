@@ -406,9 +406,8 @@ def extract_towers(
             # the shape check first (rules 9, 12, 13 and 18): it is cheap, and it drops most clusters (crowns)
             if verifier is not None:
                 split = partial(_split_by_confidence, g, pts["prob_single"], cluster_part, splits)
-                verdict = shape_check(
-                    verifier, rules, footprint, arr, extent, hag, (bx, by), tall=tall, is_rescue=is_rescue, split=split
-                )
+                top, kw = xy[int(np.argmax(hag))], {"tall": tall, "is_rescue": is_rescue, "split": split}
+                verdict = shape_check(verifier, rules, footprint, arr, extent, hag, (bx, by), top=tuple(top), **kw)
                 shape, vouch, obj = verdict.shape, verdict.vouch, verdict.obj
                 if verdict.failed:
                     decided(verdict.failed, verdict.value)

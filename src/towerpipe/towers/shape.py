@@ -34,11 +34,13 @@ import shapely
 __all__ = [
     "DESCRIPTOR_NAMES",
     "OBJECT_BUFFER_M",
+    "PEAK_CORE_RADIUS",
     "PEAK_OBJECT_MIN_HAG",
     "PEAK_OBJECT_RADIUS",
     "VERIFIER_FILE",
     "VERIFIER_RELEASE",
     "ShapeVerifier",
+    "core_object",
     "load_verifier",
     "object_points",
     "peak_objects",
@@ -62,6 +64,13 @@ OBJECT_BUFFER_M = 1.0
 #: within 6 m of a true tower, none scores below 0.05 that a tower found today stands on
 #: (4 m cut the body of two generated towers, 6 m and 8 m took in crowns beside real ones).
 PEAK_OBJECT_RADIUS, PEAK_OBJECT_MIN_HAG = 5.0, 2.0
+#: The *core* of an object (:func:`core_object`), cut as :func:`peak_objects` cuts it but within
+#: this radius (m) of its top: a tower standing among crowns. Around a sparse lattice the crowns
+#: can hold 10-50 times its points and its object scores as a canopy; within 3 m the lattice
+#: still holds its share. The shape check judges a cluster that fails with no part to judge by
+#: it (:func:`towerpipe.towers.shape_check.shape_check`); 3 m was set on the calibration zones
+#: against 2.5 and 4 m (docs/model.md, "The core of an object").
+PEAK_CORE_RADIUS = 3.0
 #: Height bands (shares of the object's height) of the descriptor.
 N_BANDS = 5
 
@@ -249,6 +258,22 @@ def peak_objects(
         hull = shapely.convex_hull(shapely.multipoints(np.c_[x[near], y[near]]))
         out[i] = local[object_points(hull, x[local], y[local])]
     return out
+
+
+def core_object(top: Sequence[float], x: np.ndarray, y: np.ndarray, hag: np.ndarray) -> np.ndarray | None:
+    """The core of the object topped at ``top``: :func:`peak_objects` within
+    :data:`PEAK_CORE_RADIUS` of it, from the points near it only (no tree of all of them).
+
+    Returns
+    -------
+    numpy.ndarray or None
+        Indices of the core's points, or ``None`` with fewer than 5 points around the top.
+    """
+    reach = PEAK_CORE_RADIUS + OBJECT_BUFFER_M
+    tx, ty = (float(v) for v in top)
+    near = np.flatnonzero((np.abs(np.asarray(x) - tx) <= reach) & (np.abs(np.asarray(y) - ty) <= reach))
+    obj = peak_objects(np.array([[tx, ty]]), x[near], y[near], hag[near], radius=PEAK_CORE_RADIUS)[0]
+    return None if obj is None else near[obj]
 
 
 def peak_scores(

@@ -4,7 +4,9 @@
 The verifier (:mod:`towerpipe.towers.shape`) scores the object under the cluster's footprint. A
 cluster scoring below ``towers.min_shape_score`` (``towers.tall_shape_score`` for one at least
 ``towers.wire_min_height`` high: rule 13) fails, and its more confident parts are judged instead;
-with no part to judge, conductors pointing at it and well below its top keep it (rule 12,
+with no part to judge, the core of its object around the cluster's top is (a tower the segmenter
+painted with the crowns around it: :func:`towerpipe.towers.shape.core_object`), and then
+conductors pointing at it and well below its top keep it (rule 12,
 :func:`towerpipe.towers.conductor_rules.vouching_support`). A cluster that passes is scored again
 without the points of its object on the detected conductors' lines, and fails below
 ``towers.min_bare_score`` (rule 18, :func:`towerpipe.towers.conductor_rules.bare_score`).
@@ -22,7 +24,7 @@ import shapely
 
 from towerpipe.config import TowersConfig
 from towerpipe.towers.conductor_rules import bare_score, vouching_support
-from towerpipe.towers.shape import object_points
+from towerpipe.towers.shape import core_object, object_points
 
 __all__ = ["ShapeVerdict", "position_share", "shape_check", "verifier_view"]
 
@@ -64,7 +66,7 @@ def verifier_view(arr: Mapping[str, Any], obj: np.ndarray, max_density: float | 
 class ShapeVerdict:
     """What :func:`shape_check` made of a cluster."""
 
-    #: The verifier's score of the object under the footprint (NaN: no object).
+    #: The verifier's score of the object under the footprint, or of its core when that passed it (NaN: no object).
     shape: float
     #: Rule 12's conductor support, when the vouch keeps a cluster that fails the score; else ``None``.
     vouch: float | None = None
@@ -90,6 +92,7 @@ def shape_check(
     tall: bool,
     is_rescue: bool,
     split: Callable[[], Sequence[Any]],
+    top: tuple[float, float] | None = None,
 ) -> ShapeVerdict:
     """Judge a cluster by the shape of the object under it (see the module docstring).
 
@@ -116,6 +119,10 @@ def shape_check(
         The rescue (rule 10) found it: an object with no score fails, and no vouch keeps it.
     split
         Gives the cluster's more confident parts; called only when it fails.
+    top
+        The cluster's highest point (x, y): a cluster that fails with no part to judge is judged
+        again by the core of its object there (:func:`towerpipe.towers.shape.core_object`);
+        ``None``: by the whole object only.
     """
     obj = object_points(footprint, arr["x"], arr["y"])
     seen = verifier_view(arr, obj, rules.verifier_density)
@@ -123,11 +130,21 @@ def shape_check(
     # rule 13: a cluster as high as the conductor rule judges passes at a lower score, the
     # conductors pointing at it being the second opinion
     needed = rules.tall_shape_score if tall and rules.tall_shape_score is not None else rules.min_shape_score
-    vouch = None
-    if shape < needed or (is_rescue and np.isnan(shape)):
+    vouch, parts = None, ()
+    fails = shape < needed or (is_rescue and np.isnan(shape))
+    if fails:
         # the object under it is shaped like a tree, a roof or a crane; or it is a tower standing
         # in crowns the segmenter painted with it: its more confident parts are judged instead
         parts = split()
+        if not parts and top is not None:
+            # no part to judge: the core of its object around its top, where the crowns do not
+            # swamp a lattice (rule 18 then reads that view)
+            core = core_object(top, arr["x"], arr["y"], arr["hag"])
+            core = np.empty(0, np.int64) if core is None else verifier_view(arr, core, rules.verifier_density)
+            score = float(verifier.score(arr["x"][core], arr["y"][core], arr["hag"][core])) if len(core) else np.nan
+            if score >= needed:
+                shape, seen, fails = score, core, False
+    if fails:
         if not parts and not is_rescue:
             vouch = vouching_support(rules, arr, extent, hag, *base)
         if vouch is None:
