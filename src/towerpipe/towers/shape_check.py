@@ -124,9 +124,13 @@ def shape_check(
         again by the core of its object there (:func:`towerpipe.towers.shape.core_object`);
         ``None``: by the whole object only.
     """
+
+    def scored(view: np.ndarray) -> float:  # the verifier's score of the points ``view`` of ``arr``
+        return float(verifier.score(arr["x"][view], arr["y"][view], arr["hag"][view])) if len(view) else float("nan")
+
     obj = object_points(footprint, arr["x"], arr["y"])
     seen = verifier_view(arr, obj, rules.verifier_density)
-    shape = float(verifier.score(arr["x"][seen], arr["y"][seen], arr["hag"][seen])) if len(seen) else float("nan")
+    shape = scored(seen)
     # rule 13: a cluster as high as the conductor rule judges passes at a lower score, the
     # conductors pointing at it being the second opinion
     needed = rules.tall_shape_score if tall and rules.tall_shape_score is not None else rules.min_shape_score
@@ -141,7 +145,7 @@ def shape_check(
             # swamp a lattice (rule 18 then reads that view)
             core = core_object(top, arr["x"], arr["y"], arr["hag"])
             core = np.empty(0, np.int64) if core is None else verifier_view(arr, core, rules.verifier_density)
-            score = float(verifier.score(arr["x"][core], arr["y"][core], arr["hag"][core])) if len(core) else np.nan
+            score = scored(core)
             if score >= needed:
                 shape, seen, fails = score, core, False
     if fails:
