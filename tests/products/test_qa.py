@@ -207,6 +207,25 @@ def test_tower_whose_lines_may_leave_the_data_is_flagged(tmp_path):
     )
 
 
+def test_a_tower_passed_by_the_core_of_its_object_is_flagged(tmp_path):
+    """Rule 9 judged it within 3 m of its top (its object, whole, looked like crowns): the page asks
+    for a look; one passed whole, or without the shape check, is not flagged for its shape."""
+    pts = make_block()
+    gdf = towers_of(pts)
+    gdf["wire_support"], gdf["shape_score"], gdf["shape_view"] = 1.0, 0.991, "core"
+    doc = report(tmp_path, "b", towers=gdf, classified=pts)
+    flags = [f for t in doc["towers"] for f in t["flags"]]
+    assert len(flags) == len(gdf) and all(
+        "shaped like a tower only near its top (shape score 0.991" in f for f in flags
+    )
+    assert [(t["shape_score"], t["shape_view"]) for t in doc["towers"]] == [(0.991, "core")] * len(gdf)
+    assert "0.991<br>(core)" in (tmp_path / "b.html").read_text()
+    for stem, view in (("whole", "object"), ("none", None)):
+        gdf["shape_view"] = view
+        doc = report(tmp_path, "b", stem=stem, towers=gdf, classified=pts)
+        assert not any("near its top" in f for t in doc["towers"] for f in t["flags"])
+
+
 def test_towers_of_a_delivery_without_a_wire_class_are_flagged(tmp_path):
     """A block whose tiles took their wires from the detector (no point classified 13/14) and that
     reports towers needs a look; a tile without wires in a delivery that classifies them does not."""

@@ -23,6 +23,7 @@ def record(**kw):
         touched=["b", "c"],
         n_points=25,
         shape_score=0.97,
+        shape_view="object",
         wire_support=float("nan"),
         review_status="unreviewed",
         first_seen=None,
@@ -58,3 +59,9 @@ def test_the_frame_is_sorted_by_id_and_empty_with_the_full_schema():
     assert list(f.columns[:-1]) == list(TOWER_COLUMNS)
     empty = towers_frame([], [], "EPSG:2154")
     assert len(empty) == 0 and list(empty.columns[:-1]) == list(TOWER_COLUMNS)
+
+
+def test_the_shape_view_is_kept_and_null_without_the_shape_check():
+    rows = [record(tower_id=1, shape_view="core"), record(tower_id=2, shape_view=None, shape_score=float("nan"))]
+    f = towers_frame(rows, [shapely.box(0, 0, 1, 1)] * 2, "EPSG:2154")
+    assert f["shape_view"].tolist() == ["core", None]

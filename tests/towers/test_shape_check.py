@@ -54,7 +54,7 @@ def judge(verifier, *, tall=False, is_rescue=False, parts=(), arr=ARR, **rules) 
 
 def test_a_cluster_shaped_like_a_tower_passes_and_is_never_split():
     v, asked = judge(_ByCount(0.99), min_shape_score=0.95)
-    assert (v.failed, v.shape, v.vouch, asked) == (None, 0.99, None, 0)
+    assert (v.failed, v.shape, v.vouch, asked, v.view) == (None, 0.99, None, 0, "object")
 
 
 def test_a_cluster_shaped_like_a_tree_fails_and_its_parts_are_judged_instead():
@@ -121,6 +121,7 @@ def test_a_tower_among_painted_crowns_is_judged_in_its_core_around_its_top():
     assert (check(None).failed, check(None).shape) == ("shape", 0.05)  # the whole object only
     v = check((1.0, 1.0))
     assert (v.failed, v.shape, len(v.obj)) == (None, 0.99, 260)  # the core decides; the object stays whole
+    assert v.view == "core"  # and the tower's record says so (its shape_view)
     seen.clear()
     assert check((1.0, 1.0), min_bare_score=0.2).failed is None and seen == [260, 60, 60]  # rule 18 on the core
 

@@ -45,6 +45,7 @@ _TOWER_TIP = (
     '<b>[% "tower_id" %]</b><br>height [% format_number("height_m", 1) %] m, base '
     '[% format_number("base_z", 1) %] m<br>[% "n_points" %] points, mean probability '
     '[% format_number("prob_mean", 2) %], conductor support [% format_number("wire_support", 2) %]'
+    '<br>shape score [% format_number("shape_score", 3) %] ([% "shape_view" %])'
     '<br>line [% "line_id" %] #[% "line_seq" %], review: [% "review_status" %]'
     '<br>block [% "block" %] ([% "blocks" %])'
 )

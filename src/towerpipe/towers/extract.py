@@ -390,7 +390,7 @@ def extract_towers(
                 cranes[g] = True
                 continue  # rule 15: a narrow arm reaching far out on one side, a crane's jib
         prob = pts["prob_single"][g].astype(np.float64)
-        support = shape = float("nan")
+        support, shape, view = float("nan"), float("nan"), None  # view: what the shape score judged
         ctx = context(float(c.x), float(c.y)) if context is not None else None
         if is_rescue and ctx is None:
             decided("context", float("nan"))
@@ -408,7 +408,7 @@ def extract_towers(
                 split = partial(_split_by_confidence, g, pts["prob_single"], cluster_part, splits)
                 top, kw = xy[int(np.argmax(hag))], {"tall": tall, "is_rescue": is_rescue, "split": split}
                 verdict = shape_check(verifier, rules, footprint, arr, extent, hag, (bx, by), top=tuple(top), **kw)
-                shape, vouch, obj = verdict.shape, verdict.vouch, verdict.obj
+                shape, vouch, obj, view = verdict.shape, verdict.vouch, verdict.obj, verdict.view
                 if verdict.failed:
                     decided(verdict.failed, verdict.value)
                     queue.extend((part, rest, is_rescue) for part, rest in verdict.parts)
@@ -441,7 +441,7 @@ def extract_towers(
                     decided("sides", balance)
                     continue  # rule 14: every conductor on one side, a crane or a tree beside a line
         decided("accepted", shape)
-        accepted.append((g, g_pts, footprint, touched, owned, support, shape, hag, prob))
+        accepted.append((g, g_pts, footprint, touched, owned, support, shape, view, hag, prob))
     # the points each accepted tower reports (never whether it is one): its foot trimmed, then its column
     # (rule 11) from the blocks its cluster touches, whose jobs judge it and whose merges classify them,
     # then the crowns beside it left out
@@ -462,7 +462,7 @@ def extract_towers(
     ids, first_seen, review = assign_ids([a[2] for a in accepted], registry)
     stamp = pd.Timestamp(processed_at)
     stamp = stamp.tz_localize("UTC") if stamp.tzinfo is None else stamp.tz_convert("UTC")
-    for (g, g_pts, footprint, touched, owned, support, shape, hag, prob), tid, first, rev in zip(
+    for (g, g_pts, footprint, touched, owned, support, shape, view, hag, prob), tid, first, rev in zip(
         accepted, ids.tolist(), first_seen, review
     ):
         members[tid] = (pts["block"][g_pts], pts["point_index"][g_pts])
@@ -484,6 +484,7 @@ def extract_towers(
                 touched=touched,
                 n_points=len(g_pts),
                 shape_score=shape,
+                shape_view=view,
                 wire_support=support,
                 review_status=rev,
                 first_seen=first,

@@ -14,6 +14,8 @@ import shapely
 
 from towerpipe.io.fields import DATETIME, Field, conform, dtypes, empty_frame, join_values
 from towerpipe.towers.registry import REVIEW_STATUSES
+from towerpipe.towers.shape import OBJECT_BUFFER_M, PEAK_CORE_RADIUS
+from towerpipe.towers.shape_check import SHAPE_VIEWS
 
 __all__ = ["TOWER_COLUMNS", "TOWER_FIELDS", "empty_towers", "tower_record", "towers_frame"]
 
@@ -66,6 +68,15 @@ TOWER_FIELDS: dict[str, Field] = {
         "or rule 13 (towers.tall_shape_score) keeps it, both on by default; NULL without the shape "
         "check",
         3,
+    ),
+    "shape_view": Field(
+        "str",
+        "Shape view",
+        f"What shape_score judged: object (every point within {OBJECT_BUFFER_M:g} m of the footprint) or "
+        f"core (those within {PEAK_CORE_RADIUS:g} m of the top, rule 9: the whole object looked like "
+        "crowns and the segmenter gave no confident part to judge instead; a tower among trees, or a "
+        "crown: worth a look); NULL without the shape check",
+        enum=SHAPE_VIEWS,
     ),
     "wire_support": Field(
         "float64",
@@ -140,6 +151,7 @@ def tower_record(
     touched: Sequence[str],
     n_points: int,
     shape_score: float,
+    shape_view: str | None,
     wire_support: float,
     review_status: str,
     first_seen: Any,
@@ -160,7 +172,7 @@ def tower_record(
         The blocks its points come from; ``source_files`` maps a block to its input file.
     first_seen
         From the registry (``None`` or NaT: first seen now, ``processed_at``).
-    n_points, tower_id, zone, block, block_bounds, shape_score, wire_support, review_status, model_meta
+    n_points, tower_id, zone, block, block_bounds, shape_score, shape_view, wire_support, review_status, model_meta
         As recorded (``block_bounds``: the owning block's, for ``edge_distance_m``).
     """
     xmin, ymin, xmax, ymax = (float(v) for v in block_bounds)
@@ -189,6 +201,7 @@ def tower_record(
         "prob_mean": float(np.mean(prob)),
         "prob_max": float(np.max(prob)),
         "shape_score": shape_score,
+        "shape_view": shape_view,
         "wire_support": wire_support,
         "line_id": None,
         "line_seq": None,

@@ -26,7 +26,11 @@ from towerpipe.config import TowersConfig
 from towerpipe.towers.conductor_rules import bare_score, vouching_support
 from towerpipe.towers.shape import core_object, object_points
 
-__all__ = ["ShapeVerdict", "position_share", "shape_check", "verifier_view"]
+__all__ = ["SHAPE_VIEWS", "ShapeVerdict", "position_share", "shape_check", "verifier_view"]
+
+#: What a tower's ``shape_score`` judged: every point within 1 m of its footprint, or the core of
+#: that object around its top (a cluster that failed whole, with no part to judge).
+SHAPE_VIEWS = ("object", "core")
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
@@ -78,6 +82,8 @@ class ShapeVerdict:
     parts: Sequence[Any] = field(default_factory=tuple)
     #: The object judged: indices of the context's points under the footprint (rule 20 reads it too).
     obj: np.ndarray | None = None
+    #: Which view the reported ``shape`` scores: ``"object"`` or ``"core"`` (:data:`SHAPE_VIEWS`).
+    view: str = "object"
 
 
 def shape_check(
@@ -134,7 +140,7 @@ def shape_check(
     # rule 13: a cluster as high as the conductor rule judges passes at a lower score, the
     # conductors pointing at it being the second opinion
     needed = rules.tall_shape_score if tall and rules.tall_shape_score is not None else rules.min_shape_score
-    vouch, parts = None, ()
+    vouch, parts, view = None, (), SHAPE_VIEWS[0]
     fails = shape < needed or (is_rescue and np.isnan(shape))
     if fails:
         # the object under it is shaped like a tree, a roof or a crane; or it is a tower standing
@@ -147,7 +153,7 @@ def shape_check(
             core = np.empty(0, np.int64) if core is None else verifier_view(arr, core, rules.verifier_density)
             score = scored(core)
             if score >= needed:
-                shape, seen, fails = score, core, False
+                shape, seen, fails, view = score, core, False, SHAPE_VIEWS[1]
     if fails:
         if not parts and not is_rescue:
             vouch = vouching_support(rules, arr, extent, hag, *base)
@@ -158,4 +164,4 @@ def shape_check(
         bare = bare_score(verifier, arr, seen)
         if bare < rules.min_bare_score:
             return ShapeVerdict(shape, failed="bare", value=bare, parts=split())
-    return ShapeVerdict(shape, vouch=vouch, obj=obj)
+    return ShapeVerdict(shape, vouch=vouch, obj=obj, view=view)

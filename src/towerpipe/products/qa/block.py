@@ -339,33 +339,9 @@ def block_report(
     views: dict[int, str] = {}
     progress = Progress(f"qa {block_name}: side views", len(gdf), "towers", logger=log)
     for i, r in enumerate(gdf.itertuples(index=False), 1):
-        tflags = []
         to_edge = distance_to_data_edge(r.geometry, extent)
-        if math.isfinite(to_edge) and to_edge < limits.edge_margin_m:
-            tflags.append(
-                f"footprint {to_edge:.1f} m from the edge of the data (zone edge, or a neighbour "
-                f"without points): the tower may be cut"
-            )
-        if r.prob_mean < limits.min_tower_prob:
-            tflags.append(f"low mean probability {r.prob_mean:.2f}")
         support = float(getattr(r, "wire_support", float("nan")))
-        tall, near = r.height_m >= limits.wire_min_height, "kept by rule 19: conductors within 80 m hang from it"
-        if math.isfinite(support) and support < limits.min_wire_support:
-            tflags.append(
-                f"few conductors found (support {support:.2f}){', ' + near if tall else ': a pole, or not a tower?'}"
-            )
-        elif not math.isfinite(support) and "wire_support" in gdf.columns and tall:
-            tflags.append(f"conductor support not measured (80-160 m ring outside the data); {near}, or too few")
-        shape = float(getattr(r, "shape_score", float("nan")))
-        if math.isfinite(shape) and shape < limits.min_shape_score:
-            # only rule 12 (the conductors' vouch) or rule 13 (tall clusters) keep such a tower,
-            # and rule 13 keeps one whose support could not be measured; the score is shown
-            # rounded down, so it never reads as the threshold
-            why = f"conductor support {support:.2f}" if math.isfinite(support) else "its conductor support unknown"
-            tflags.append(
-                f"shaped like a tree (shape score {math.floor(shape * 1000) / 1000:.3f}, under {limits.min_shape_score:g}), kept by "
-                f"rule 12 or 13 with {why}: a tower among crowns, or a tall tree beside a line?"
-            )
+        tflags = limits.tower_flags(r, to_edge, support_measured="wire_support" in gdf.columns)
         for t in tflags:
             flag("tower", f"tower {i} ({r.tower_id}): {t}")
         tower_rows.append(
@@ -379,6 +355,8 @@ def block_report(
                 "n_points": int(r.n_points),
                 "prob_mean": r.prob_mean,
                 "prob_max": r.prob_max,
+                "shape_score": float(getattr(r, "shape_score", float("nan"))),
+                "shape_view": getattr(r, "shape_view", None),
                 "wire_support": support,
                 "blocks": r.blocks,
                 "edge_distance_m": r.edge_distance_m,

@@ -60,6 +60,54 @@ class Limits:
         "min_shape_score": "min_shape_score",
     }
 
+    def tower_flags(self, tower: Any, to_edge: float, *, support_measured: bool = True) -> list[str]:
+        """Why a tower needs a look (none: it does not).
+
+        Parameters
+        ----------
+        tower
+            A row of the tower table (:data:`towerpipe.towers.records.TOWER_FIELDS`).
+        to_edge
+            Distance (m) from its footprint to the edge of the data (NaN: unknown).
+        support_measured
+            The table has ``wire_support`` (its NaN then means the ring lay outside the data).
+        """
+        out = []
+        if math.isfinite(to_edge) and to_edge < self.edge_margin_m:
+            out.append(
+                f"footprint {to_edge:.1f} m from the edge of the data (zone edge, or a neighbour "
+                f"without points): the tower may be cut"
+            )
+        if tower.prob_mean < self.min_tower_prob:
+            out.append(f"low mean probability {tower.prob_mean:.2f}")
+        support = float(getattr(tower, "wire_support", float("nan")))
+        tall, near = tower.height_m >= self.wire_min_height, "kept by rule 19: conductors within 80 m hang from it"
+        if math.isfinite(support) and support < self.min_wire_support:
+            out.append(
+                f"few conductors found (support {support:.2f}){', ' + near if tall else ': a pole, or not a tower?'}"
+            )
+        elif not math.isfinite(support) and support_measured and tall:
+            out.append(f"conductor support not measured (80-160 m ring outside the data); {near}, or too few")
+        shape = float(getattr(tower, "shape_score", float("nan")))
+        if math.isfinite(shape) and shape < self.min_shape_score:
+            # only rule 12 (the conductors' vouch) or rule 13 (tall clusters) keep such a tower,
+            # and rule 13 keeps one whose support could not be measured; the score is shown
+            # rounded down, so it never reads as the threshold
+            why = f"conductor support {support:.2f}" if math.isfinite(support) else "its conductor support unknown"
+            out.append(
+                f"shaped like a tree (shape score {math.floor(shape * 1000) / 1000:.3f}, under "
+                f"{self.min_shape_score:g}), kept by rule 12 or 13 with {why}: a tower among crowns, or a "
+                "tall tree beside a line?"
+            )
+        elif getattr(tower, "shape_view", None) == "core":
+            from towerpipe.towers.shape import PEAK_CORE_RADIUS  # rule 9 passed it by its object's core
+
+            out.append(
+                f"shaped like a tower only near its top (shape score {shape:.3f} within {PEAK_CORE_RADIUS:g} m "
+                "of it; the whole object looks like crowns): a tower among trees, or a crown?"
+            )
+        return out
+
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> Limits:
         """The limits of a validated config: its ``qa`` section and :attr:`FROM_TOWERS` of ``towers``."""
