@@ -1,4 +1,4 @@
-"""The numbers of the QA pages: inputs read, limits, density, accuracy, the data edge.
+"""The numbers of the QA pages: inputs read, limits (and the flags they raise on a tower), density, accuracy, the data edge.
 
 Everything here is plain data (numbers, dicts, arrays); :mod:`towerpipe.products.qa.plots` draws
 and :mod:`towerpipe.products.qa.pages` renders.
