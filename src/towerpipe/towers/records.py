@@ -14,8 +14,7 @@ import shapely
 
 from towerpipe.io.fields import DATETIME, Field, conform, dtypes, empty_frame, join_values
 from towerpipe.towers.registry import REVIEW_STATUSES
-from towerpipe.towers.shape import OBJECT_BUFFER_M, PEAK_CORE_RADIUS
-from towerpipe.towers.shape_check import SHAPE_VIEWS
+from towerpipe.towers.shape import OBJECT_BUFFER_M, PEAK_CORE_RADIUS, SHAPE_VIEWS
 
 __all__ = ["TOWER_COLUMNS", "TOWER_FIELDS", "empty_towers", "tower_record", "towers_frame"]
 

@@ -37,6 +37,7 @@ __all__ = [
     "PEAK_CORE_RADIUS",
     "PEAK_OBJECT_MIN_HAG",
     "PEAK_OBJECT_RADIUS",
+    "SHAPE_VIEWS",
     "VERIFIER_FILE",
     "VERIFIER_RELEASE",
     "ShapeVerifier",
@@ -71,6 +72,9 @@ PEAK_OBJECT_RADIUS, PEAK_OBJECT_MIN_HAG = 5.0, 2.0
 #: it (:func:`towerpipe.towers.shape_check.shape_check`); 3 m was set on the calibration zones
 #: against 2.5 and 4 m (docs/model.md, "The core of an object").
 PEAK_CORE_RADIUS = 3.0
+#: What a tower's shape score judged (its record's ``shape_view``): its object
+#: (:func:`object_points`), or the core of that object (:func:`core_object`).
+SHAPE_VIEWS = ("object", "core")
 #: Height bands (shares of the object's height) of the descriptor.
 N_BANDS = 5
 

@@ -24,13 +24,9 @@ import shapely
 
 from towerpipe.config import TowersConfig
 from towerpipe.towers.conductor_rules import bare_score, vouching_support
-from towerpipe.towers.shape import core_object, object_points
+from towerpipe.towers.shape import SHAPE_VIEWS, core_object, object_points
 
-__all__ = ["SHAPE_VIEWS", "ShapeVerdict", "position_share", "shape_check", "verifier_view"]
-
-#: What a tower's ``shape_score`` judged: every point within 1 m of its footprint, or the core of
-#: that object around its top (a cluster that failed whole, with no part to judge).
-SHAPE_VIEWS = ("object", "core")
+__all__ = ["ShapeVerdict", "position_share", "shape_check", "verifier_view"]
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
@@ -82,7 +78,7 @@ class ShapeVerdict:
     parts: Sequence[Any] = field(default_factory=tuple)
     #: The object judged: indices of the context's points under the footprint (rule 20 reads it too).
     obj: np.ndarray | None = None
-    #: Which view the reported ``shape`` scores: ``"object"`` or ``"core"`` (:data:`SHAPE_VIEWS`).
+    #: Which view the reported ``shape`` scores: ``"object"`` or ``"core"`` (:data:`towerpipe.towers.shape.SHAPE_VIEWS`).
     view: str = "object"
 
 

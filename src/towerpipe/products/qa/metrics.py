@@ -72,6 +72,8 @@ class Limits:
         support_measured
             The table has ``wire_support`` (its NaN then means the ring lay outside the data).
         """
+        from towerpipe.towers.shape import PEAK_CORE_RADIUS, SHAPE_VIEWS
+
         out = []
         if math.isfinite(to_edge) and to_edge < self.edge_margin_m:
             out.append(
@@ -99,9 +101,7 @@ class Limits:
                 f"{self.min_shape_score:g}), kept by rule 12 or 13 with {why}: a tower among crowns, or a "
                 "tall tree beside a line?"
             )
-        elif getattr(tower, "shape_view", None) == "core":
-            from towerpipe.towers.shape import PEAK_CORE_RADIUS  # rule 9 passed it by its object's core
-
+        elif getattr(tower, "shape_view", None) == SHAPE_VIEWS[1]:  # rule 9 passed it by its object's core
             out.append(
                 f"shaped like a tower only near its top (shape score {shape:.3f} within {PEAK_CORE_RADIUS:g} m "
                 "of it; the whole object looks like crowns): a tower among trees, or a crown?"
