@@ -159,7 +159,7 @@ def test_shape_rule_drops_what_the_verifier_rejects(tmp_path, monkeypatch):
     scored = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_shape_score=0.0).towers
     assert scored["shape_score"].iloc[0] == pytest.approx(1 / (1 + np.exp(-3.0)), abs=1e-3)  # 3 decimals
     plain = extract([pair], "b1", BOUNDS, zone="z1", min_shape_score=0.5).towers
-    assert len(plain) == 1 and plain["shape_score"].isna().all()
+    assert len(plain) == 1 and plain["shape_score"].isna().all() and plain["shape_view"].isna().all()
 
 
 class _NarrowVerifier:
@@ -192,11 +192,12 @@ def test_a_tower_among_painted_crowns_is_split_from_them(monkeypatch):
     whole = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_shape_score=0.5, split_thresholds=[])
     ((_, idx),) = whole.members.values()
     assert len(whole.towers) == 1 and set(range(len(t_xyz))) <= set(idx.tolist())
+    assert whole.towers["shape_view"].tolist() == ["core"]  # its record says which view passed it
     found = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_shape_score=0.5, split_thresholds=[0.7])
     assert len(found.towers) == 1
     ((blocks, idx),) = found.members.values()
     assert set(idx.tolist()) == set(range(len(t_xyz)))  # the tower's points, none of the crown's
-    assert found.towers["shape_score"].iloc[0] == 1.0
+    assert found.towers["shape_score"].iloc[0] == 1.0 and found.towers["shape_view"].tolist() == ["object"]
 
 
 def _pole(cx: float, cy: float, n: int, seed: int = 5) -> tuple[np.ndarray, np.ndarray]:
