@@ -126,6 +126,34 @@ def test_a_tower_among_painted_crowns_is_judged_in_its_core_around_its_top():
     assert check((1.0, 1.0), min_bare_score=0.2).failed is None and seen == [260, 60, 60]  # rule 18 on the core
 
 
+def test_a_cluster_its_core_passed_is_split_once_when_rule_18_drops_it(monkeypatch):
+    """The split found no part before the core was judged: rule 18 dropping the cluster then reports
+    that answer instead of asking the split again."""
+    monkeypatch.setattr(sc, "core_object", lambda top, x, y, hag: np.arange(30))
+    monkeypatch.setattr(sc, "bare_score", lambda verifier, arr, obj: 0.05)
+    asked = []
+
+    def split():
+        asked.append(1)
+        return []
+
+    rules = tower_rules(min_shape_score=0.95, min_bare_score=0.2)
+    v = shape_check(
+        _ByCount(0.1),
+        rules,
+        FOOTPRINT,
+        ARR,
+        None,
+        HAG,
+        (1.0, 1.0),
+        tall=False,
+        is_rescue=False,
+        split=split,
+        top=(1.0, 1.0),
+    )
+    assert (v.failed, v.shape, list(v.parts), len(asked)) == ("bare", 1.0, [], 1)
+
+
 def test_position_share_is_uniform_and_a_property_of_each_point_alone():
     rng = np.random.default_rng(0)
     x, y, z = 400_000 + rng.uniform(0, 500, 20_000), 4_600_000 + rng.uniform(0, 500, 20_000), rng.uniform(0, 60, 20_000)

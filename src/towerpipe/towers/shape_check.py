@@ -79,7 +79,7 @@ class ShapeVerdict:
     #: The object judged: indices of the context's points under the footprint (rule 20 reads it too).
     obj: np.ndarray | None = None
     #: Which view the reported ``shape`` scores: ``"object"`` or ``"core"`` (:data:`towerpipe.towers.shape.SHAPE_VIEWS`).
-    view: str = "object"
+    view: str = SHAPE_VIEWS[0]
 
 
 def shape_check(
@@ -136,7 +136,7 @@ def shape_check(
     # rule 13: a cluster as high as the conductor rule judges passes at a lower score, the
     # conductors pointing at it being the second opinion
     needed = rules.tall_shape_score if tall and rules.tall_shape_score is not None else rules.min_shape_score
-    vouch, parts, view = None, (), SHAPE_VIEWS[0]
+    vouch, parts, view = None, None, SHAPE_VIEWS[0]  # parts: None until split() is asked
     fails = shape < needed or (is_rescue and np.isnan(shape))
     if fails:
         # the object under it is shaped like a tree, a roof or a crane; or it is a tower standing
@@ -159,5 +159,6 @@ def shape_check(
         # rule 18: judged again without the conductors through its object (NaN: too few points left)
         bare = bare_score(verifier, arr, seen)
         if bare < rules.min_bare_score:
-            return ShapeVerdict(shape, failed="bare", value=bare, parts=split())
+            # a cluster its core passed has been split already (into no part)
+            return ShapeVerdict(shape, failed="bare", value=bare, parts=split() if parts is None else parts)
     return ShapeVerdict(shape, vouch=vouch, obj=obj, view=view)
