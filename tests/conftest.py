@@ -219,6 +219,27 @@ def tower_among_crowns(centre: tuple[float, float] = (50.0, 50.0), seed: int = 2
     return np.concatenate([tower, *crowns])
 
 
+def towers_side_by_side(centre: tuple[float, float] = (50.0, 50.0), seed: int = 4):
+    """``(n, 3)`` x, y, height of two lattices of parallel lines 10.5 m apart: a 56 m one at
+    ``centre`` whose crossarms (48-52 m) reach 9 m towards a 44 m one east of it, so that the
+    lower tower's top lies under them (no height peak, even within 3 m); a conductor 30 m up
+    and a 14 m flat roof 30 m away."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    cx, cy = centre
+    parts = []
+    for dx, top, n in ((0.0, 56.0, 900), (10.5, 44.0, 700)):
+        h = rng.uniform(0.3, top, n)
+        w = 3.5 * (1 - h / (1.2 * top))  # a body tapering to its top
+        parts.append(np.c_[cx + dx + rng.uniform(-w, w), cy + rng.uniform(-w, w), h])
+    arm = np.c_[cx + rng.uniform(-9, 9, 300), cy + rng.uniform(-0.5, 0.5, 300), rng.uniform(48, 52, 300)]
+    s = np.linspace(-60, 60, 480)
+    wire = np.c_[cx + 25 + 0 * s, cy + s, 30 + 0.001 * s**2]
+    roof = np.c_[cx + rng.uniform(-40, -25, 400), cy + rng.uniform(20, 35, 400), np.full(400, 14.0)]
+    return np.concatenate([*parts, arm, wire, roof])
+
+
 def inference_settings(**inference):
     """:class:`towerpipe.config.InferenceConfig` over the schema's defaults."""
     from towerpipe.config import InferenceConfig

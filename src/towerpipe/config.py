@@ -356,6 +356,12 @@ class InferenceConfig(Section):
     secondary_radius: float
     #: A secondary peak's window sets the probabilities of the points within this distance (m) of its centre only.
     secondary_reach: float
+    #: With candidate windows, the columns (:func:`~towerpipe.inference.candidates.stem_columns`) farther
+    #: than this (m) from every peak also get a window, segmented only beside a tower the peak windows
+    #: painted (:func:`~towerpipe.inference.candidates.stems_beside`; 0: none).
+    stem_gap: float
+    #: A stem candidate's window sets the probabilities of the points within this distance (m) of its centre only.
+    stem_reach: float
 
 
 @dataclass(frozen=True)

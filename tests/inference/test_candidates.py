@@ -5,8 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import tower_among_crowns
-from towerpipe.inference.candidates import PEAK_RADIUS, candidate_windows, disk_maximum, height_peaks
+from conftest import tower_among_crowns, towers_side_by_side
+from towerpipe.inference.candidates import (
+    PEAK_RADIUS,
+    STEM_PAINTED,
+    candidate_windows,
+    disk_maximum,
+    height_peaks,
+    segmented_windows,
+    stem_columns,
+    stems_beside,
+)
 
 
 @pytest.mark.parametrize(
@@ -102,6 +111,68 @@ def test_a_tower_hidden_by_crowns_gets_a_secondary_window_of_limited_reach():
     assert {tuple(k) for k in primary.keys} <= {tuple(k) for k in both.keys}
     assert np.isinf(both.reach[~at_tower]).sum() == len(primary)
     assert both.select(at_tower).reach.tolist() == [6.0]
+
+
+def test_columns_are_tower_bodies_not_crossarms_wires_or_roofs():
+    """A lattice's body fills the height from the floor to its top; a crossarm, a conductor and a
+    roof lie in a bin or two. The lower tower of a pair, under its neighbour's crossarms, is a column."""
+    p = towers_side_by_side()
+    centres, tops = stem_columns(p[:, 0], p[:, 1], p[:, 2], min_height=10.0)
+    d = np.hypot(*(centres[:, None, :] - np.array([[50.0, 50.0], [60.5, 50.0]])[None]).transpose(2, 0, 1))
+    assert len(centres) == 2 and (d.min(axis=0) < 1.5).all()  # d[column, tower]
+    # a column's height is its highest point: the lower tower's column holds the crossarm above it
+    lower = int(np.argmin(d[:, 1]))
+    assert tops[1 - lower] == pytest.approx(56.0, abs=0.5) and 44.0 - 0.5 <= tops[lower] <= 52.0
+    # nothing but the bodies: no column at the crossarm's ends, on the conductor or on the roof
+    rest = p[(np.hypot(p[:, 0] - 50, p[:, 1] - 50) > 5) & (np.hypot(p[:, 0] - 60.5, p[:, 1] - 50) > 5)]
+    assert len(stem_columns(rest[:, 0], rest[:, 1], rest[:, 2], min_height=10.0)[0]) == 0
+    # lower than min_height: no column
+    assert len(stem_columns(p[:, 0], p[:, 1], p[:, 2], min_height=60.0)[0]) == 0
+
+
+def test_the_lower_tower_of_a_pair_gets_a_stem_window_of_limited_reach():
+    """Under its neighbour's crossarms the lower tower is no height peak; with a stem gap its column
+    becomes a stem window with the stem reach, and the higher tower's body, at its own peak, gives
+    none. A peak within the gap (here a crossarm's end 3 m away, a secondary peak) takes its place."""
+    p = towers_side_by_side()
+    core = np.ones(len(p), bool)
+    peaks = candidate_windows(p[:, 0], p[:, 1], p[:, 2], core)
+    assert not (np.hypot(*(peaks.centers - [60.5, 50.0]).T) < 5).any()
+    assert not peaks.stem.any()
+    cw = candidate_windows(p[:, 0], p[:, 1], p[:, 2], core, stem_gap=8.0, stem_reach=5.0)
+    at_lower = np.hypot(*(cw.centers - [60.5, 50.0]).T) < 1.5
+    assert at_lower.sum() == 1 and cw.stem[at_lower].all() and cw.reach[at_lower].tolist() == [5.0]
+    assert 44.0 - 0.5 <= cw.heights[at_lower][0] <= 52.0
+    assert cw.stem.sum() == 1 and {tuple(k) for k in peaks.keys} <= {tuple(k) for k in cw.keys}
+    assert cw.select(at_lower).stem.tolist() == [True]
+    kw = {"secondary_radius": 3.0, "secondary_reach": 4.0}
+    sec = candidate_windows(p[:, 0], p[:, 1], p[:, 2], core, **kw)
+    assert (np.hypot(*(sec.centers - [60.5, 50.0]).T) < 5).any()  # the crossarm's end
+    assert not candidate_windows(p[:, 0], p[:, 1], p[:, 2], core, stem_gap=8.0, stem_reach=5.0, **kw).stem.any()
+    with pytest.raises(ValueError, match="stem_reach"):
+        candidate_windows(p[:, 0], p[:, 1], p[:, 2], core, stem_gap=6.0)
+
+
+def test_a_stem_is_segmented_beside_a_painted_tower_only():
+    """A stem window needs STEM_PAINTED[0] painted points within PEAK_RADIUS of its centre: the
+    neighbour of a pair is painted; a window that painted a few points (a crown's tip) is not enough."""
+    rng = np.random.default_rng(0)
+    tower = np.c_[rng.uniform(-2, 2, 200), rng.uniform(-2, 2, 200)]  # painted, around (0, 0)
+    few = np.c_[60 + rng.uniform(-1, 1, STEM_PAINTED[0] - 1), rng.uniform(-1, 1, STEM_PAINTED[0] - 1)]
+    stems = np.array([[10.5, 0.0], [PEAK_RADIUS + 2.5, 0.0], [61.0, 0.0], [200.0, 0.0]])
+    assert stems_beside(stems, np.concatenate([tower, few])).tolist() == [True, False, False, False]
+    assert stems_beside(stems, np.empty((0, 2))).tolist() == [False] * 4
+    assert stems_beside(np.empty((0, 2)), tower).tolist() == []
+
+
+def test_secondary_windows_near_a_segmented_primary_are_not_segmented():
+    """A secondary peak within PEAK_RADIUS of a segmented primary peak is not read; farther, it is;
+    where no primary passed, every secondary is read."""
+    centers = np.array([[0.0, 0.0], [8.0, 0.0], [30.0, 0.0], [100.0, 0.0]])
+    reach = np.array([np.inf, 4.0, 4.0, 4.0])
+    assert segmented_windows(centers, reach, np.array([0, 1, 2])).tolist() == [0, 2]
+    assert segmented_windows(centers, reach, np.array([1, 3])).tolist() == [1, 3]
+    assert segmented_windows(centers, reach, np.array([], np.int64)).tolist() == []
 
 
 def test_the_schema_bounds_secondary_peaks_by_the_peak_radius():

@@ -13,11 +13,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from conftest import grid_inference, inference_settings, tower_among_crowns
+from conftest import grid_inference, inference_settings, tower_among_crowns, towers_side_by_side
 from towerpipe.errors import ConfigError, ModelError
 from towerpipe.inference.compat import check_model_compatibility
-from towerpipe.inference.infer import infer_tile, overhead_wires, predict_tile
+from towerpipe.inference.infer import infer_tile, predict_tile
 from towerpipe.inference.views import TTA_CHOICES, segment_views
+from towerpipe.inference.wire_mask import overhead_wires
 from towerpipe.io.predictions import PRED_META_KEYS, load_pred
 from towerpipe.io.tiles import Tile, empty_arrays, save_tile
 from towerpipe.model import features
@@ -580,13 +581,19 @@ def tile_with_hidden_tower(seed: int = 3, two_tops: bool = False) -> Tile:
     ``two_tops``: also a 30 m tower 60 m east with a 27 m crossarm end 8.5 m from its top (a peak
     within 7 m, not within 10 m)."""
     tile = make_tile(seed, tower=None, density=0.2)
-    a, rng = tile.arrays, np.random.default_rng(seed)
+    rng = np.random.default_rng(seed)
     obj = tower_among_crowns(TOWER, seed)
     if two_tops:
         tx, ty = TOWER[0] + 60.0, TOWER[1]
         body = np.c_[tx + rng.uniform(-1, 1, 300), ty + rng.uniform(-1, 1, 300), rng.uniform(0.5, 30.0, 300)]
         arm = np.c_[tx + 8.5 + rng.uniform(-0.3, 0.3, 40), ty + rng.uniform(-0.3, 0.3, 40), rng.uniform(25.0, 27.0, 40)]
         obj = np.concatenate([obj, body, arm])
+    return tile_with_points(tile, obj)
+
+
+def tile_with_points(tile: Tile, obj: np.ndarray) -> Tile:
+    """``tile`` with the points ``obj`` (x, y, height) added: core, model input, class 1."""
+    a = tile.arrays
     n0, k = len(a["x"]), len(obj)
     new = empty_arrays(k)
     new["x"], new["y"], new["hag"] = obj[:, 0], obj[:, 1], obj[:, 2].astype(np.float32)
@@ -619,6 +626,43 @@ def test_secondary_peaks_reach_a_hidden_tower_and_paint_only_near_it():
     _, st_prim = predict_tile(both, FakeBundle(), replace(base, gate=0.0))
     assert st_all["windows_total"] == st_prim["windows_total"] + 2
     assert st_all["windows_segmented"] == st_prim["windows_segmented"] + 1
+
+
+class CentreFirst(FakeBundle):
+    """Paints a window's tall points the more surely the nearer they are to its centre (what the
+    networks do: they read a window's centre as the tower's place)."""
+
+    def segment(self, feats: np.ndarray) -> np.ndarray:
+        d = np.hypot(feats[:, 0], feats[:, 1]) * R
+        return np.where(feats[:, 2] * R > 5.0, np.clip(0.9 - d / 40.0, 0.0, 1.0), 0.0).astype(np.float32)
+
+
+def test_the_lower_tower_of_a_pair_is_segmented_beside_its_neighbour_only():
+    """A stem window (the lower tower of a pair, under its neighbour's crossarms) skips the
+    classifier, is segmented when a segmented peak window lies within half a window, and sets the
+    probabilities within stem_reach of its centre only; with no peak window segmented, neither is it."""
+    lower = (TOWER[0] + 10.5, TOWER[1])
+    tile = tile_with_points(make_tile(5, tower=None, density=0.2), towers_side_by_side(TOWER))
+    base = grid_inference(windows="candidates", min_height=10.0, gate=0.0, secondary_radius=0.0)
+    off, st_off = predict_tile(tile, CentreFirst(), base)
+    on, st_on = predict_tile(tile, CentreFirst(), replace(base, stem_gap=8.0, stem_reach=5.0))
+    assert st_on["windows_total"] == st_off["windows_total"] + 1
+    assert st_on["windows_classified"] == st_off["windows_classified"]  # the stem is not classified
+    assert st_on["windows_shape_gated"] == st_off["windows_shape_gated"] == 0
+    assert st_on["windows_segmented"] == st_off["windows_segmented"] + 1
+    # the neighbour's window covers the lower tower; the stem window changes only what is near its centre
+    assert np.array_equal(on["point_index"], off["point_index"])
+    changed = on["prob_single"] != off["prob_single"]
+    assert changed.sum() > 100 and (on["prob_single"] >= off["prob_single"]).all()
+    assert np.hypot(on["x"][changed] - lower[0], on["y"][changed] - lower[1]).max() <= 5.0 + 1.5
+
+    # a classifier that passes no window: no peak window is segmented, and no stem window either
+    class NoTower(CentreFirst):
+        def classify(self, feats: np.ndarray) -> np.ndarray:
+            return np.zeros(feats.shape[0], np.float32)
+
+    _, st_none = predict_tile(tile, NoTower(), replace(base, gate=0.5, stem_gap=8.0, stem_reach=5.0))
+    assert st_none["windows_segmented"] == 0
 
 
 def tile_with_wire(classified: bool) -> Tile:

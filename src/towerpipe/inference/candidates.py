@@ -5,7 +5,7 @@ the conductors sag away from it. The local maxima of the tile's height raster (t
 highest height above ground per :data:`PEAK_RES` cell, each the maximum within
 :data:`PEAK_RADIUS`) at or above ``min_height`` are therefore the candidates, and each gets a
 window centred on it. Overhead wires make no peak (``exclude``; the inference passes
-:func:`towerpipe.inference.infer.overhead_wires`): a conductor of another line passing over a lower
+:func:`towerpipe.inference.wire_mask.overhead_wires`): a conductor of another line passing over a lower
 tower, or rising with the terrain beside it, is higher than that tower's top. Towers then
 sit at a window's centre, as in training, and the classifier sees fewer windows than the
 grid sends it (a forest gives one candidate per crown cluster, open land none). The raster
@@ -20,6 +20,16 @@ segments such a window only farther than :data:`PEAK_RADIUS` from every segmente
 peak (nearer, it is mostly another top of that tower), and takes its
 probabilities for the points within ``reach`` of its centre only (the segmenter reads a
 window's centre as the tower's place, and would paint a crown there).
+
+The lower tower of two side by side (parallel lines 10-15 m apart) is no peak at all: its
+neighbour's crossarms pass over its top. It is a *column* (:func:`stem_columns`): a place
+whose points fill most of the height from :data:`STEM_FLOOR` to its top, as a lattice's body
+does and a crossarm, a conductor or a roof does not. With a ``stem_gap``, the columns farther
+than that from every peak (primary or secondary) become *stem* candidates
+(:attr:`CandidateWindows.stem`), with a ``reach`` of ``stem_reach``; the inference segments one
+only beside a tower its peak windows painted (:func:`stems_beside`). Off by default: they paint
+more of the towers but also crowns and cranes beside what the segmenter painted (docs/model.md,
+"The lower tower of a pair: stem windows").
 """
 
 from __future__ import annotations
@@ -29,7 +39,21 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["PEAK_RADIUS", "PEAK_RES", "CandidateWindows", "candidate_windows", "disk_maximum", "height_peaks"]
+__all__ = [
+    "PEAK_RADIUS",
+    "PEAK_RES",
+    "STEM_CELL",
+    "STEM_FLOOR",
+    "STEM_OCCUPANCY",
+    "CandidateWindows",
+    "candidate_windows",
+    "disk_maximum",
+    "height_peaks",
+    "STEM_PAINTED",
+    "segmented_windows",
+    "stem_columns",
+    "stems_beside",
+]
 
 #: Candidate windows: cell (m) of the height raster, and the radius (m) within which a
 #: candidate is the highest point (a tower's crossarm reach). With the overhead wires left
@@ -41,6 +65,18 @@ __all__ = ["PEAK_RADIUS", "PEAK_RES", "CandidateWindows", "candidate_windows", "
 #: :func:`candidate_windows` (``inference.secondary_radius``) add such towers' windows without
 #: letting them paint around the towers the 10 m peaks find.
 PEAK_RES, PEAK_RADIUS = 1.0, 10.0
+
+#: Columns (:func:`stem_columns`): the cell (m) of their raster, the height (m above ground) from
+#: which a cell's heights are counted, the step (m) of the height bins, and the share of the bins
+#: between the floor and the cell's top that must hold a point. On `calib_pairs` the three lower
+#: towers of its pairs that have no height peak each hold a column within 1.7 m of their centre.
+STEM_CELL, STEM_FLOOR, STEM_BIN, STEM_OCCUPANCY = 1.5, 4.0, 2.0, 0.6
+
+#: A stem window is segmented where the peak windows painted at least this many points at or above
+#: this probability (the window as it is) within :data:`PEAK_RADIUS` of its centre: beside a tower.
+#: Beside any segmented peak window (the classifier's gate passes crowns and cranes), stems put three
+#: false objects more on the calibration zones, each 70-100 m from every tower (docs/model.md).
+STEM_PAINTED = (20, 0.5)
 
 
 @dataclass(frozen=True)
@@ -59,6 +95,11 @@ class CandidateWindows:
         ``(W,)`` the candidate's height above ground (m).
     counts, core_counts
         ``(W,)`` points and core points in each window.
+    reach
+        ``(W,)`` distance (m, in plan) from the centre within which the window sets its points'
+        probabilities (``inf``: all; a secondary or a stem candidate: its centre's points).
+    stem
+        ``(W,)`` bool: a stem candidate (a column, not a height peak).
     """
 
     window: float
@@ -70,6 +111,7 @@ class CandidateWindows:
     _ptr: np.ndarray
     _idx: np.ndarray
     reach: np.ndarray
+    stem: np.ndarray
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -98,6 +140,7 @@ class CandidateWindows:
             ptr,
             idx,
             self.reach[sel],
+            self.stem[sel],
         )
 
 
@@ -169,6 +212,58 @@ def height_peaks(
     return keys, (keys + 0.5) * res, r[cells[:, 0], cells[:, 1]].astype(np.float64)
 
 
+def stem_columns(
+    x: np.ndarray,
+    y: np.ndarray,
+    hag: np.ndarray,
+    *,
+    min_height: float,
+    cell: float = STEM_CELL,
+    floor: float = STEM_FLOOR,
+    step: float = STEM_BIN,
+    occupancy: float = STEM_OCCUPANCY,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Centres and heights of the columns: connected groups of cells whose points fill the height.
+
+    A cell (``cell`` m, global grid) is a column cell when its highest point is at least
+    ``min_height`` and its points above ``floor`` fall in at least ``occupancy`` of the
+    ``step`` m height bins from ``floor`` to that point: a lattice's body, a pole, a trunk under
+    its crown; not a crossarm, a conductor or a roof, whose points lie in a bin or two.
+
+    Returns
+    -------
+    centers, heights
+        ``(C, 2)`` float64 centres (the mean of each 8-connected group's cell centres) and ``(C,)``
+        the highest point of each group (m above ground).
+    """
+    from scipy import ndimage
+
+    hag = np.asarray(hag, np.float64)
+    up = hag >= floor
+    empty = (np.empty((0, 2)), np.empty(0))
+    if not (hag >= min_height).any():
+        return empty
+    ix = np.floor(np.asarray(x)[up] / cell).astype(np.int64)
+    iy = np.floor(np.asarray(y)[up] / cell).astype(np.int64)
+    hb = np.floor((hag[up] - floor) / step).astype(np.int64)
+    ox, oy = int(ix.min()), int(iy.min())
+    nx, ny = int(ix.max()) - ox + 1, int(iy.max()) - oy + 1
+    flat = (ix - ox) * ny + (iy - oy)
+    top = np.full(nx * ny, -np.inf)
+    np.maximum.at(top, flat, hag[up])
+    bins = np.unique(flat * (int(hb.max()) + 1) + hb) // (int(hb.max()) + 1)  # one per occupied (cell, bin)
+    filled = np.bincount(bins, minlength=nx * ny)
+    spans = np.floor((np.maximum(top, floor) - floor) / step) + 1
+    col = ((filled / spans >= occupancy) & (top >= min_height)).reshape(nx, ny)
+    lab, n = ndimage.label(col, structure=np.ones((3, 3), bool))
+    if n == 0:
+        return empty
+    groups = np.arange(1, n + 1)
+    centres = np.asarray(ndimage.center_of_mass(col, lab, groups), np.float64).reshape(-1, 2)
+    tops = np.asarray(ndimage.maximum(top.reshape(nx, ny), lab, groups), np.float64).reshape(-1)
+    return (centres + [ox, oy] + 0.5) * cell, tops
+
+
 def candidate_windows(
     x: np.ndarray,
     y: np.ndarray,
@@ -184,6 +279,8 @@ def candidate_windows(
     tree: Any = None,
     secondary_radius: float = 0.0,
     secondary_reach: float = 0.0,
+    stem_gap: float = 0.0,
+    stem_reach: float = 0.0,
 ) -> CandidateWindows:
     """Windows centred on the height peaks of a tile that hold a core point (see the module docstring).
 
@@ -213,6 +310,10 @@ def candidate_windows(
         With ``0 < secondary_radius < radius``, the peaks within ``secondary_radius`` that are not
         peaks within ``radius`` (a tower among higher crowns) are candidates too, with a
         :attr:`CandidateWindows.reach` of ``secondary_reach``; 0: none.
+    stem_gap, stem_reach
+        With ``stem_gap`` > 0, the columns (:func:`stem_columns`) farther than ``stem_gap`` from
+        every peak are candidates too (:attr:`CandidateWindows.stem`), with a reach of
+        ``stem_reach``; 0: none.
     """
     from scipy.spatial import cKDTree
 
@@ -235,6 +336,19 @@ def candidate_windows(
         centers = np.concatenate([centers, c2[new]])
         heights = np.concatenate([heights, h2[new]])
         reach = np.concatenate([reach, np.full(int(new.sum()), float(secondary_reach))])
+    stem = np.zeros(len(keys), bool)
+    if stem_gap > 0:
+        if not stem_reach > 0:
+            raise ValueError(f"stem_reach must be > 0 with stem candidates, got {stem_reach}")
+        cols, tops = stem_columns(x[peak_pts], y[peak_pts], np.asarray(hag)[peak_pts], min_height=min_height)
+        if len(cols) and len(centers):
+            apart = cKDTree(centers).query(cols)[0] > stem_gap
+            cols, tops = cols[apart], tops[apart]
+        keys = np.concatenate([keys, np.floor(cols / PEAK_RES).astype(np.int64)])
+        centers = np.concatenate([centers, cols])
+        heights = np.concatenate([heights, tops])
+        reach = np.concatenate([reach, np.full(len(cols), float(stem_reach))])
+        stem = np.concatenate([stem, np.ones(len(cols), bool)])
     n = len(x)
     order = np.arange(n) if canonical_order is None else np.asarray(canonical_order)
     # a tile's points are gathered in their canonical order: their indices, sorted, are then in it
@@ -258,5 +372,33 @@ def candidate_windows(
     counts = np.diff(ptr)
     core_counts = np.array([int(core[p].sum()) for p in parts], np.int64)
     return CandidateWindows(
-        float(window), keys[keep], centers[keep], heights[keep], counts, core_counts, ptr, idx, reach[keep]
+        float(window), keys[keep], centers[keep], heights[keep], counts, core_counts, ptr, idx, reach[keep], stem[keep]
     )
+
+
+def segmented_windows(centers: np.ndarray, reach: np.ndarray, passed: np.ndarray) -> np.ndarray:
+    """The peak windows the segmenter reads: those of ``passed`` (indices of the windows that
+    passed the gates) but a secondary peak's within :data:`PEAK_RADIUS` of a segmented primary
+    peak (mostly another top of that tower, a shield-wire peak or a crossarm's end, whose window
+    would paint the crowns around it: the segmenter reads a window's centre as the tower's place).
+    Where every window passed is secondary, all are read. ``centers``, ``reach``: every window's."""
+    passed = np.asarray(passed, np.int64)
+    sec = np.isfinite(reach[passed])
+    if not sec.any() or sec.all():
+        return passed
+    prim = centers[passed[~sec]]
+    d = np.hypot(*(centers[passed[sec]][:, None, :] - prim[None, :, :]).transpose(2, 0, 1)).min(1)
+    return np.sort(np.concatenate([passed[~sec], passed[sec][d > PEAK_RADIUS]]))
+
+
+def stems_beside(stems: np.ndarray, painted: np.ndarray) -> np.ndarray:
+    """Bool mask of the stem windows (centres ``stems``, ``(S, 2)``) beside a painted tower: at least
+    :data:`STEM_PAINTED` points of ``painted`` (``(P, 2)`` x, y of the points the peak windows
+    painted) within :data:`PEAK_RADIUS`."""
+    from scipy.spatial import cKDTree
+
+    stems = np.asarray(stems, np.float64).reshape(-1, 2)
+    if not len(stems) or not len(painted):
+        return np.zeros(len(stems), bool)
+    n = cKDTree(np.asarray(painted, np.float64)).query_ball_point(stems, PEAK_RADIUS, return_length=True)
+    return np.asarray(n) >= STEM_PAINTED[0]

@@ -18,6 +18,13 @@ crowns has no peak of its own): they pass the same gates, are segmented only far
 ``PEAK_RADIUS`` from every segmented primary peak, and set the probabilities of the points
 within ``secondary_reach`` of their centre only.
 
+With ``stem_gap`` > 0 the columns farther than that from every peak get windows too
+(:func:`~towerpipe.inference.candidates.stem_columns`: the lower tower of two side by side, whose
+neighbour's crossarms pass over its top): they pass the shape gate but not the classifier, are
+segmented after the peak windows only where these painted a tower beside them
+(:func:`~towerpipe.inference.candidates.stems_beside`), and set the probabilities within
+``stem_reach`` of their centre only.
+
 Windows overlap (``stride < window``); the probabilities of a point from the
 segmented windows that contain it are combined with ``max`` (default) or ``mean``.
 A point that no segmented window contains has probability 0 and is not written.
@@ -55,13 +62,19 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from towerpipe import classes
 from towerpipe.config import InferenceConfig
 from towerpipe.errors import ConfigError, ModelError
-from towerpipe.inference.candidates import PEAK_RADIUS, CandidateWindows, candidate_windows
+from towerpipe.inference.candidates import (
+    STEM_PAINTED,
+    CandidateWindows,
+    candidate_windows,
+    segmented_windows,
+    stems_beside,
+)
 from towerpipe.inference.compat import BundleLike, check_model_compatibility, model_info
 from towerpipe.inference.views import check_views, segment_views
 from towerpipe.inference.windows import TileWindows, sliding_windows, window_gates
+from towerpipe.inference.wire_mask import classified_wire, overhead_wires, wire_source
 from towerpipe.io.predictions import save_pred
 from towerpipe.io.tiles import Tile, load_tile
 from towerpipe.progress import Progress, peak_rss_mb
@@ -81,38 +94,6 @@ def window_rng(seed: int, kx: int, ky: int) -> np.random.Generator:
     return np.random.default_rng(
         np.random.SeedSequence([int(seed) & 0xFFFFFFFF, int(kx) & 0xFFFFFFFF, int(ky) & 0xFFFFFFFF])
     )
-
-
-def _classified_wire(arrays: Mapping[str, np.ndarray], idx: np.ndarray) -> np.ndarray:
-    """Bool mask over ``idx``: the points the input classifies as wire
-    (:data:`towerpipe.classes.WIRE`); none when the tile has no classification."""
-
-    if "classification" not in arrays:
-        return np.zeros(len(idx), bool)
-    return np.isin(np.asarray(arrays["classification"])[idx], classes.WIRE)
-
-
-def wire_source(arrays: Mapping[str, np.ndarray], idx: np.ndarray) -> str:
-    """Where a tile's wires come from: ``"classified"`` when the delivery classifies any of the points
-    ``idx`` as wire (:data:`towerpipe.classes.WIRE`), else ``"detected"`` (the wire detector's,
-    :func:`overhead_wires`)."""
-    return "classified" if _classified_wire(arrays, idx).any() else "detected"
-
-
-def overhead_wires(arrays: Mapping[str, np.ndarray], idx: np.ndarray, min_height: float) -> np.ndarray:
-    """Bool mask over ``idx``: the points at least ``min_height`` high that look like overhead
-    wire (:func:`towerpipe.towers.wires.wire_points`, or classified as wire:
-    :data:`towerpipe.classes.WIRE`). A conductor is as high as the tower it hangs
-    from, and one passing over a lower tower hides that tower's height peak."""
-    from towerpipe.towers.wires import wire_points
-
-    out = np.zeros(len(idx), bool)
-    tall = np.flatnonzero(np.asarray(arrays["hag"])[idx] >= min_height)
-    if len(tall):
-        sel = idx[tall]
-        out[tall] = wire_points(arrays["x"][sel], arrays["y"][sel], arrays["z"][sel])[0]
-    # the detector misses conductors where they reach the crossarm
-    return out | _classified_wire(arrays, idx)
 
 
 def predict_tile(
@@ -205,9 +186,11 @@ def predict_tile(
             tree=tree,
             secondary_radius=settings.secondary_radius,
             secondary_reach=settings.secondary_reach,
+            stem_gap=settings.stem_gap,
+            stem_reach=settings.stem_reach,
         )
         n_all = len(ws)
-        reach = ws.reach
+        reach, stem = ws.reach, ws.stem
     else:
         all_windows = sliding_windows(
             arrays["x"][mi],
@@ -221,6 +204,7 @@ def predict_tile(
         ws = all_windows.select(all_windows.counts >= max(int(min_points), 1))
         n_all = len(all_windows)
         reach = np.full(len(ws), np.inf)  # every grid window sets all its points
+        stem = np.zeros(len(ws), bool)
     fmeta = features.tile_feature_meta(arrays, tile.meta)
     timings["windows"] = time.perf_counter() - t0
 
@@ -247,6 +231,8 @@ def predict_tile(
         win_shape[todo] = peak_scores(verifier, objects, px, py, ph)
         todo = todo[win_shape[todo] >= settings.shape_gate]
     timings["shape_gate"] = time.perf_counter() - ts
+    # a stem candidate is judged by where it stands (beside a tower the peak windows paint), not by the classifier
+    stems, todo = todo[stem[todo]], todo[~stem[todo]]
 
     # --- classifier gate, one batch at a time ---------------------------------------
     n_pts = int(bundle.n_points)
@@ -284,30 +270,26 @@ def predict_tile(
     passed = todo[win_prob[todo] >= gate]
     if by_shape and settings.shape_pass is not None:  # the verifier sure of the peak's object: segmented anyway
         passed = todo[(win_prob[todo] >= gate) | (win_shape[todo] >= settings.shape_pass)]
-    sec = np.isfinite(reach[passed])
-    if sec.any() and not sec.all():
-        # a secondary peak within PEAK_RADIUS of a segmented primary peak is mostly another top of
-        # that tower (a shield-wire peak, a crossarm's end), whose window would paint the crowns
-        # around it (the segmenter reads a window's centre as the tower's place)
-        prim = ws.centers[passed[~sec]]
-        d = np.hypot(*(ws.centers[passed[sec]][:, None, :] - prim[None, :, :]).transpose(2, 0, 1)).min(1)
-        passed = np.sort(np.concatenate([passed[~sec], passed[sec][d > PEAK_RADIUS]]))
+    if windows == "candidates":
+        passed = segmented_windows(ws.centers, reach, passed)
     acc = np.zeros(len(mi), dtype=np.float32)
     acc1 = acc if tta == 1 else np.zeros(len(mi), dtype=np.float32)  # the single view
     cnt = np.zeros(len(mi), dtype=np.uint16)
     t_seg = t_comb = 0.0
     progress = Progress(f"{what}: segmenter", len(passed), "windows")
-    for i in passed:
+
+    def segment(i: int) -> None:
+        nonlocal t_seg, t_comb
         ta = time.perf_counter()
-        local = ws.indices(int(i))
+        local = ws.indices(i)
         idx = mi[local]
-        f = features.window_features(arrays, idx, ws.center(int(i)), bundle.feature_set, fmeta)
+        f = features.window_features(arrays, idx, ws.center(i), bundle.feature_set, fmeta)
         p1, p = segment_views(bundle, f, tta)
         if p.shape != (len(idx),):
             raise ModelError(f"model {bundle.name!r}: segment returned {p.shape} for {len(idx)} points")
         tb = time.perf_counter()
-        if np.isfinite(reach[i]):  # a secondary candidate's window: its centre's points only
-            cx, cy = ws.center(int(i))
+        if np.isfinite(reach[i]):  # a secondary or stem candidate's window: its centre's points only
+            cx, cy = ws.center(i)
             near = np.hypot(arrays["x"][idx] - cx, arrays["y"][idx] - cy) <= reach[i]
             local, p, p1 = local[near], p[near], p1[near]
         for a, q in ((acc, p), (acc1, p1)) if tta > 1 else ((acc, p),):
@@ -319,6 +301,16 @@ def predict_tile(
         t_comb += time.perf_counter() - tb
         t_seg += tb - ta
         progress.update()
+
+    for i in passed:
+        segment(int(i))
+    if len(stems) and len(passed):  # then the stems beside what the peak windows painted
+        painted = (acc1 / np.maximum(cnt, 1) if combine == "mean" else acc1) >= STEM_PAINTED[1]
+        near = stems_beside(ws.centers[stems], np.c_[arrays["x"][mi[painted]], arrays["y"][mi[painted]]])
+        progress.total += int(near.sum())
+        for i in stems[near]:
+            segment(int(i))
+        passed = np.sort(np.concatenate([passed, stems[near]]))
     progress.close()
     timings["segment"] = t_seg
     timings["combine"] = t_comb
@@ -351,7 +343,7 @@ def predict_tile(
             wires = overhead_wires(arrays, mi, WIRE_MIN_HAG_M)
         wire = wires[sel_local]
     else:
-        wire = _classified_wire(arrays, sel)
+        wire = classified_wire(arrays, sel)
     out["prob"][wire] = 0.0
     out["prob_single"][wire] = 0.0
     timings["total"] = time.perf_counter() - t0
@@ -361,7 +353,7 @@ def predict_tile(
         "windows_mode": windows,
         "wire_source": source,
         "windows_prefiltered": int(n_win - n_tall),
-        "windows_shape_gated": int(n_tall - n_todo),
+        "windows_shape_gated": int(n_tall - n_todo - len(stems)),
         "shape_gate": float(settings.shape_gate) if by_shape else None,
         "windows_classified": int(n_todo),
         "windows_passed_gate": int(len(passed)),

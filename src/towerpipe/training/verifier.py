@@ -12,7 +12,7 @@ within 1 m of a footprint):
   tower), the footprint of the points within 2.5-8 m of the peak: the crowns, roofs, cranes
   and masts where inference puts its windows;
 * **the shape gate's view** (``peak_view``, off by default): at each candidate peak of the tile, found as the
-  inference finds them (overhead wires left out, :func:`towerpipe.inference.infer.overhead_wires`),
+  inference finds them (overhead wires left out, :func:`towerpipe.inference.wire_mask.overhead_wires`),
   the object the shape gate cuts there (:func:`towerpipe.towers.shape.peak_objects`: whatever
   stands within 5 m of the peak, the bushes and crowns at a tower's foot included): a tower
   if the peak is within ``peak_tower_m`` of one, another object if it is more than
@@ -193,7 +193,7 @@ def _peak_view(
     """The objects the shape gate cuts at the tile's candidate peaks (see the module docstring)."""
     from towerpipe import classes
     from towerpipe.inference.candidates import height_peaks
-    from towerpipe.inference.infer import overhead_wires
+    from towerpipe.inference.wire_mask import overhead_wires
     from towerpipe.training.dataset import nearest_families
 
     mi = np.flatnonzero(np.asarray(a["model_input"], bool))
