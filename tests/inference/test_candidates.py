@@ -126,8 +126,10 @@ def test_columns_are_tower_bodies_not_crossarms_wires_or_roofs():
     # nothing but the bodies: no column at the crossarm's ends, on the conductor or on the roof
     rest = p[(np.hypot(p[:, 0] - 50, p[:, 1] - 50) > 5) & (np.hypot(p[:, 0] - 60.5, p[:, 1] - 50) > 5)]
     assert len(stem_columns(rest[:, 0], rest[:, 1], rest[:, 2], min_height=10.0)[0]) == 0
-    # lower than min_height: no column
+    # lower than min_height, or nothing above the floor: no column
     assert len(stem_columns(p[:, 0], p[:, 1], p[:, 2], min_height=60.0)[0]) == 0
+    low = p[p[:, 2] < 3.0]
+    assert len(stem_columns(low[:, 0], low[:, 1], low[:, 2], min_height=2.0)[0]) == 0
 
 
 def test_the_lower_tower_of_a_pair_gets_a_stem_window_of_limited_reach():

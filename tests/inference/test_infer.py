@@ -650,6 +650,7 @@ def test_the_lower_tower_of_a_pair_is_segmented_beside_its_neighbour_only():
     assert st_on["windows_classified"] == st_off["windows_classified"]  # the stem is not classified
     assert st_on["windows_shape_gated"] == st_off["windows_shape_gated"] == 0
     assert st_on["windows_segmented"] == st_off["windows_segmented"] + 1
+    assert st_on["window_probs"] == st_off["window_probs"]  # the classifier's windows only
     # the neighbour's window covers the lower tower; the stem window changes only what is near its centre
     assert np.array_equal(on["point_index"], off["point_index"])
     changed = on["prob_single"] != off["prob_single"]

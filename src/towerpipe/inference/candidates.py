@@ -42,14 +42,15 @@ import numpy as np
 __all__ = [
     "PEAK_RADIUS",
     "PEAK_RES",
+    "STEM_BIN",
     "STEM_CELL",
     "STEM_FLOOR",
     "STEM_OCCUPANCY",
+    "STEM_PAINTED",
     "CandidateWindows",
     "candidate_windows",
     "disk_maximum",
     "height_peaks",
-    "STEM_PAINTED",
     "segmented_windows",
     "stem_columns",
     "stems_beside",
@@ -241,7 +242,7 @@ def stem_columns(
     hag = np.asarray(hag, np.float64)
     up = hag >= floor
     empty = (np.empty((0, 2)), np.empty(0))
-    if not (hag >= min_height).any():
+    if not (up & (hag >= min_height)).any():
         return empty
     ix = np.floor(np.asarray(x)[up] / cell).astype(np.int64)
     iy = np.floor(np.asarray(y)[up] / cell).astype(np.int64)

@@ -371,7 +371,7 @@ def predict_tile(
         "points_predicted": int(len(sel)),
         "timings": timings,
         "windows_per_s_classify": float(n_todo / (t_sample + t_clf)) if n_todo and (t_sample + t_clf) > 0 else None,
-        "window_probs": [[int(ws.keys[i, 0]), int(ws.keys[i, 1]), float(win_prob[i])] for i in passed],
+        "window_probs": [[int(ws.keys[i, 0]), int(ws.keys[i, 1]), float(win_prob[i])] for i in passed if not stem[i]],
         "window_gates": window_gates(
             np.array([ws.center(int(i)) for i in tall_windows]),
             win_shape[tall_windows],
