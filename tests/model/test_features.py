@@ -10,8 +10,10 @@ import pytest
 from towerpipe.errors import ModelError
 from towerpipe.model.features import (
     FEATURE_SETS,
+    LOCAL_STRUCTURE,
     NORM_RADIUS,
     intensity_scale,
+    local_structure,
     missing_attributes,
     required_attributes,
     tile_feature_meta,
@@ -111,3 +113,55 @@ def test_shape_and_rgb_columns():
     r = window_features(a, np.arange(50), (400000.0, 4600000.0), "rgb", meta)
     np.testing.assert_allclose(r[:, 3], 1.0)  # red, 8-bit full scale
     np.testing.assert_array_equal(r[:, :3], s)
+
+
+def _lattice_and_crown(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A vertical member (a leg), a horizontal one (a crossarm) and a crown-like ball of points."""
+    rng = np.random.default_rng(seed)
+    leg = np.c_[rng.normal(0, 0.03, 40), rng.normal(0, 0.03, 40), np.linspace(2, 20, 40)]
+    arm = np.c_[np.linspace(8, 16, 30), rng.normal(0, 0.03, 30), 18 + rng.normal(0, 0.03, 30)]
+    crown = np.c_[-10 + rng.normal(0, 1.5, 80), rng.normal(0, 1.5, 80), 12 + rng.normal(0, 1.5, 80)]
+    pts = np.r_[leg, arm, crown]
+    kind = np.r_[np.zeros(40), np.ones(30), np.full(80, 2)].astype(int)
+    return pts[:, 0], pts[:, 1], pts[:, 2], kind
+
+
+def test_local_structure_tells_members_from_crowns():
+    x, y, h, kind = _lattice_and_crown()
+    f = local_structure(x, y, h)
+    assert f.shape == (len(x), len(LOCAL_STRUCTURE)) and f.dtype == np.float32
+    assert ((f >= 0) & (f <= 1)).all()
+    lin, _, scat, vert = f.T
+    leg, arm, crown = (kind == 0), (kind == 1), (kind == 2)
+    assert np.median(lin[leg]) > 0.9 and np.median(vert[leg]) > 0.9  # a vertical line
+    assert np.median(lin[arm]) > 0.9 and np.median(vert[arm]) < 0.1  # a horizontal line
+    assert np.median(scat[crown]) > 5 * np.median(scat[leg | arm])  # a volume
+    assert np.median(lin[crown]) < 0.6
+
+
+def test_local_structure_ignores_offset_rotation_and_order():
+    x, y, h, _ = _lattice_and_crown(1)
+    f = local_structure(x, y, h)
+    a = 0.7
+    xr, yr = x * np.cos(a) - y * np.sin(a), x * np.sin(a) + y * np.cos(a)
+    np.testing.assert_allclose(local_structure(xr + 400000.0, yr + 4600000.0, h), f, atol=1e-4)
+    perm = np.random.default_rng(2).permutation(len(x))
+    np.testing.assert_allclose(local_structure(x[perm], y[perm], h[perm]), f[perm], atol=1e-5)
+    assert local_structure(x[:2], y[:2], h[:2]).tolist() == [[0.0] * 4] * 2
+
+
+def test_structure_columns_of_a_sample_are_those_of_the_whole_window():
+    """A sampled point keeps the structure it has among all the window's points, in training as
+    at inference: the classifier's sample and the segmenter's whole window agree."""
+    x, y, h, _ = _lattice_and_crown(3)
+    a = {"x": 400000.0 + x, "y": 4600000.0 + y, "hag": h.astype(np.float32)}
+    idx = np.arange(len(x))
+    meta = {"valid_attributes": []}
+    full = window_features(a, idx, (400000.0, 4600000.0), "structure", meta)
+    assert full.shape == (len(x), 7) and FEATURE_SETS["structure"][:3] == ["x", "y", "z"]
+    sample = np.array([5, 5, 60, 149, 0])
+    part = window_features(a, idx, (400000.0, 4600000.0), "structure", meta, sample)
+    np.testing.assert_array_equal(part, full[sample])
+    alone = window_features(a, idx[sample], (400000.0, 4600000.0), "structure", meta)
+    assert not np.allclose(alone[:, 3:], part[:, 3:])  # among the sample alone they would differ
+    np.testing.assert_array_equal(part[:, :3], window_features(a, idx, (400000.0, 4600000.0), "shape", meta, sample))

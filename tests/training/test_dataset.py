@@ -299,3 +299,32 @@ def test_windows_know_their_tower_family(tmp_path):
         + ws.meta["summary"]["test"]["positive_by_family"]["uav"]
         >= 3
     )
+
+
+def test_stored_local_structure_is_that_among_all_the_window_points(tmp_path):
+    """A negative window stores its two samples only; their local structure is still the one
+    they have among all the window's points, as inference computes it."""
+    from scipy.spatial import cKDTree
+
+    from towerpipe.model.features import ALL_FEATURES, LOCAL_STRUCTURE, NORM_RADIUS, local_structure
+
+    paths = make_tiles(tmp_path, 3)
+    ws = build_windows(paths, {"n_points": 128, "seed": 1})
+    cols = [ALL_FEATURES.index(c) for c in LOCAL_STRUCTURE]
+    tile = np.load(paths[0])
+    x, y, h = tile["x"], tile["y"], tile["hag"].astype(np.float64)
+    neg = [i for i in np.flatnonzero(ws.kind == KINDS["random_negative"]) if 0 <= ws.center[i][0] < 1000.0]
+    assert neg
+    for i in neg[:3]:
+        cx, cy = ws.center[i]
+        inside = (np.abs(x - cx) <= 20.0) & (np.abs(y - cy) <= 20.0)
+        whole = local_structure(x[inside] - cx, y[inside] - cy, h[inside])
+        stored = ws.feat[ws.offsets[i] : ws.offsets[i + 1]].astype(np.float64)
+        assert len(stored) < inside.sum()  # the samples, not the window
+        xyz = np.c_[x[inside] - cx, y[inside] - cy, h[inside]] / NORM_RADIUS
+        d, j = cKDTree(xyz).query(stored[:, :3])
+        same = d < 1e-3
+        assert same.mean() > 0.95
+        np.testing.assert_allclose(stored[same][:, cols], whole[j[same]], atol=2e-3)
+        own = local_structure(*(stored[:, :3] * NORM_RADIUS).T)
+        assert np.abs(own - stored[:, cols]).max() > 0.05  # among the samples alone they differ

@@ -125,7 +125,6 @@ def swap_scores(
     a, tower = win["arrays"], win["tower"]
     mi = np.flatnonzero(a["model_input"])
     s = constrained_sample(a["hag"][mi], n=int(bundle.n_points), rng=np.random.default_rng(seed))
-    idx = mi[s]
     variants = {"own": a}
     rng = np.random.default_rng(seed + 1)
     others = np.flatnonzero(~tower)
@@ -142,6 +141,6 @@ def swap_scores(
     out = {}
     for name, arr in variants.items():
         meta = features.tile_feature_meta(arr, win["meta"])
-        f = features.window_features(arr, idx, tuple(win["center"]), bundle.feature_set, meta)
+        f = features.window_features(arr, mi, tuple(win["center"]), bundle.feature_set, meta, s)
         out[name] = float(np.asarray(bundle.classify(f[None]), dtype=np.float32).reshape(-1)[0])
     return out

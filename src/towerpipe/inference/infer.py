@@ -250,7 +250,7 @@ def predict_tile(
             idx = mi[ws.indices(i)]
             kx, ky = ws.keys[i]
             s = sampling.constrained_sample(hag[idx], n=n_pts, rng=window_rng(seed, kx, ky))
-            f = features.window_features(arrays, idx[s], ws.center(i), bundle.feature_set, fmeta)
+            f = features.window_features(arrays, idx, ws.center(i), bundle.feature_set, fmeta, s)
             if buf is None:
                 buf = np.empty((min(batch_size, n_todo), n_pts, f.shape[1]), dtype=np.float32)
             buf[j] = f

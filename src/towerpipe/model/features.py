@@ -2,7 +2,7 @@
 
 Carós et al. (2022, sec. 5.2) represent each point by a 7-vector: x, y, z normalised
 to the unit sphere, intensity, green, blue and NDVI = (NIR - red) / (NIR + red).
-Four feature sets exist, from the richest to the barest; each needs the sensor attributes
+Five feature sets exist (the first four from the richest to the barest); each needs the sensor attributes
 (:mod:`towerpipe.preprocess.attributes`) of :data:`REQUIRED_ATTRIBUTES` to be valid on the data:
 
 ``full``
@@ -12,7 +12,24 @@ Four feature sets exist, from the richest to the barest; each needs the sensor a
 ``geometry``
     for data without colour: ``x y z intensity return_ratio n_returns`` (intensity, returns);
 ``shape``
-    coordinates and height above ground only: ``x y z`` (nothing).
+    coordinates and height above ground only: ``x y z`` (nothing);
+``structure``
+    ``shape`` and the local structure of each point: ``x y z linearity planarity scattering
+    verticality`` (nothing: read from the coordinates alone, :func:`local_structure`).
+
+Local structure
+---------------
+A PointNet labels a point from its own coordinates and the window's pooled feature: a
+lattice member and the crown beside it, at the same place in the window, read alike. The
+``structure`` set adds what a point's neighbourhood looks like: the eigenvalues
+``l1 >= l2 >= l3`` of the covariance of its :data:`LOCAL_NEIGHBOURS` nearest points (3-D,
+itself included) give ``linearity (l1 - l2) / l1``, ``planarity (l2 - l3) / l1`` and
+``scattering l3 / l1`` (a lattice member is a line, a roof a plane, a crown a volume), and
+``verticality`` is the vertical component of the principal axis (a leg 1, a crossarm or a
+conductor 0). The neighbours are searched among *all* the window's points, in training as
+at inference (``sample`` of :func:`compute_columns`): a sample's points keep the structure
+they have in the flight. The columns are ratios, so they do not move with the window's
+scale, rotation or offset.
 
 Normalisation (fixed, never data-dependent within a window)
 -----------------------------------------------------------
@@ -60,6 +77,10 @@ INTENSITY_PERCENTILE = 95.0
 INTENSITY_CLIP = 3.0
 #: Number of returns is divided by this and clipped to 1.
 MAX_RETURNS = 5.0
+#: Neighbours (the point included) whose covariance gives a point's local structure.
+LOCAL_NEIGHBOURS = 10
+#: The local-structure columns (:func:`local_structure`), in order.
+LOCAL_STRUCTURE: list[str] = ["linearity", "planarity", "scattering", "verticality"]
 
 #: Feature sets: the columns of the model input, in order.
 FEATURE_SETS: dict[str, list[str]] = {
@@ -67,10 +88,23 @@ FEATURE_SETS: dict[str, list[str]] = {
     "rgb": ["x", "y", "z", "red", "green", "blue"],
     "geometry": ["x", "y", "z", "intensity", "return_ratio", "n_returns"],
     "shape": ["x", "y", "z"],
+    "structure": ["x", "y", "z", *LOCAL_STRUCTURE],
 }
 
 #: Every feature column known, in a fixed order (the union of the feature sets).
-ALL_FEATURES: list[str] = ["x", "y", "z", "intensity", "green", "blue", "ndvi", "return_ratio", "n_returns", "red"]
+ALL_FEATURES: list[str] = [
+    "x",
+    "y",
+    "z",
+    "intensity",
+    "green",
+    "blue",
+    "ndvi",
+    "return_ratio",
+    "n_returns",
+    "red",
+    *LOCAL_STRUCTURE,
+]
 
 #: The sensor attributes (:data:`towerpipe.preprocess.attributes.ATTRIBUTES`) each feature column reads.
 COLUMN_ATTRIBUTES: dict[str, str] = {
@@ -164,7 +198,47 @@ def normalisation_spec() -> dict[str, Any]:
         "ndvi": "(nir - red) / (nir + red), 0 where nir + red = 0",
         "return_ratio": "return_number / number_of_returns",
         "n_returns": f"min(number_of_returns / {MAX_RETURNS:g}, 1)",
+        "local_structure": (
+            f"eigenvalues l1 >= l2 >= l3 of the covariance of the {LOCAL_NEIGHBOURS} nearest points (3-D, "
+            "among all the window's points): (l1 - l2) / l1, (l2 - l3) / l1, l3 / l1, |z of the principal axis|"
+        ),
     }
+
+
+def local_structure(x: np.ndarray, y: np.ndarray, hag: np.ndarray, k: int = LOCAL_NEIGHBOURS) -> np.ndarray:
+    """The local structure of each point among the given points (:data:`LOCAL_STRUCTURE`).
+
+    Parameters
+    ----------
+    x, y
+        Plan coordinates (m), any offset (only differences are used; pass them relative to a
+        nearby origin, not as absolute float32).
+    hag
+        Heights above ground (m).
+    k
+        Neighbours, the point itself included (fewer where there are fewer points).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, 4)`` float32: linearity, planarity, scattering, verticality, each in [0, 1];
+        zeros where there are fewer than 3 points.
+    """
+    from scipy.spatial import cKDTree
+
+    pts = np.c_[np.asarray(x, np.float64), np.asarray(y, np.float64), np.asarray(hag, np.float64)]
+    n = len(pts)
+    if n < 3:
+        return np.zeros((n, len(LOCAL_STRUCTURE)), np.float32)
+    pts -= pts.mean(axis=0)
+    k = min(int(k), n)
+    _, nb = cKDTree(pts).query(pts, k=k)
+    q = pts[nb]
+    q -= q.mean(axis=1, keepdims=True)
+    ev, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", q, q) / k)  # ascending eigenvalues
+    l3, l2, l1 = (np.clip(ev[:, j], 1e-12, None) for j in range(3))
+    out = np.c_[(l1 - l2) / l1, (l2 - l3) / l1, l3 / l1, np.abs(vec[:, 2, 2])]
+    return np.clip(out, 0.0, 1.0).astype(np.float32)
 
 
 def compute_columns(
@@ -173,8 +247,9 @@ def compute_columns(
     center_xy: tuple[float, float],
     names: list[str],
     meta: Mapping[str, Any],
+    sample: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Feature columns ``names`` (any of :data:`ALL_FEATURES`) for points ``idx``.
+    """Feature columns ``names`` (any of :data:`ALL_FEATURES`) for points ``idx`` (or ``idx[sample]``).
 
     Parameters
     ----------
@@ -188,13 +263,17 @@ def compute_columns(
         Feature columns to compute.
     meta
         Tile metadata: ``color_bits``, and ``intensity_scale`` (else computed).
+    sample
+        Positions into ``idx`` of the points to describe (a window's sample; repeats allowed);
+        ``None``: every point of ``idx``. The local structure is that among all of ``idx``.
 
     Returns
     -------
     numpy.ndarray
-        ``(len(idx), len(names))`` float32.
+        ``(len(idx), len(names))`` float32 (``len(sample)`` rows with a sample).
     """
-    idx = np.asarray(idx)
+    window = np.asarray(idx)
+    idx = window if sample is None else window[np.asarray(sample)]
     out = np.empty((idx.size, len(names)), dtype=np.float32)
     cache: dict[str, np.ndarray] = {}
 
@@ -202,6 +281,14 @@ def compute_columns(
         if name not in cache:
             cache[name] = np.asarray(arrays[name])[idx]
         return cache[name]
+
+    local: np.ndarray | None = None
+    if any(n in LOCAL_STRUCTURE for n in names):
+        xw = np.asarray(arrays["x"])[window] - float(center_xy[0])
+        yw = np.asarray(arrays["y"])[window] - float(center_xy[1])
+        local = local_structure(xw, yw, np.asarray(arrays["hag"])[window])
+        if sample is not None:
+            local = local[np.asarray(sample)]
 
     bits = int(meta.get("color_bits", 16) or 16)
     cmax = float(2**bits - 1)
@@ -229,6 +316,8 @@ def compute_columns(
             v = np.clip(col("return_number").astype(np.float64) / np.maximum(nr, 1.0), 0.0, 1.0)
         elif name == "n_returns":
             v = np.minimum(col("number_of_returns").astype(np.float64) / MAX_RETURNS, 1.0)
+        elif local is not None and name in LOCAL_STRUCTURE:
+            v = local[:, LOCAL_STRUCTURE.index(name)]
         else:
             raise ModelError(f"unknown feature column {name!r}; known: {ALL_FEATURES}")
         out[:, j] = v
@@ -269,27 +358,32 @@ def window_features(
     center_xy: tuple[float, float],
     feature_set: str,
     meta: Mapping[str, Any],
+    sample: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Model input for the points ``idx`` of one window.
+    """Model input for the points ``idx`` of one window (or its sample ``idx[sample]``).
 
     Parameters
     ----------
     arrays
         Tile arrays (see :mod:`towerpipe.io.tiles`).
     idx
-        Indices of the window's (sampled or all) points.
+        Indices of the window's points (all of them where the feature set reads the local
+        structure, which is that among ``idx``).
     center_xy
         Window centre in absolute coordinates.
     feature_set
         ``"full"`` or ``"geometry"``.
     meta
         Tile metadata, ideally from :func:`tile_feature_meta` (holds ``intensity_scale``).
+    sample
+        Positions into ``idx`` of the points to describe (the sampled window); ``None``: all.
 
     Returns
     -------
     numpy.ndarray
-        ``(len(idx), C)`` float32 with the columns of ``FEATURE_SETS[feature_set]``.
+        ``(len(idx), C)`` (or ``(len(sample), C)``) float32 with the columns of
+        ``FEATURE_SETS[feature_set]``.
     """
     names = _check_set(feature_set)
     check_meta(feature_set, meta)
-    return compute_columns(arrays, idx, center_xy, names, meta)
+    return compute_columns(arrays, idx, center_xy, names, meta, sample)

@@ -39,10 +39,10 @@ when it holds at least ``min_tower_points`` tower points. The split is *by block
 the tile whose core holds the window centre), so no block contributes to two splits; blocks with
 towers are split separately from the others.
 
-Each window stores its point pool as float16 features (:data:`towerpipe.model.features.ALL_FEATURES`)
-with per-point labels, plus the indices of its constrained and of its random 2048-point
-sample into the pool. Positive windows keep *all* their points (segmentation is
-evaluated on every point, as at inference); other windows keep the union of both samples.
+Each window stores its point pool as float16 features (:data:`towerpipe.model.features.ALL_FEATURES`;
+the local structure taken among all its points) with per-point labels, plus the indices of its
+constrained and random 2048-point samples into the pool. Positive windows keep *all* their points
+(segmentation is evaluated on every point, as at inference); other windows keep both samples.
 """
 
 from __future__ import annotations
@@ -307,7 +307,7 @@ def _tile_windows(path: str, cfg: Mapping[str, Any], rng: np.random.Generator, t
             rs = np.searchsorted(pool, rs)
         sel = pts[pool]
         out["center"].append(center.copy())
-        out["feat"].append(compute_columns(arr, sel, (center[0], center[1]), ALL_FEATURES, fmeta).astype(np.float16))
+        out["feat"].append(compute_columns(arr, pts, tuple(center[:2]), ALL_FEATURES, fmeta, pool).astype(np.float16))
         out["plabel"].append(is_tower[sel].astype(np.uint8))
         out["cs"].append(cs.astype(np.int32))
         out["rs"].append(rs.astype(np.int32))
