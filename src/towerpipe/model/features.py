@@ -372,7 +372,7 @@ def window_features(
     center_xy
         Window centre in absolute coordinates.
     feature_set
-        ``"full"`` or ``"geometry"``.
+        A key of :data:`FEATURE_SETS`.
     meta
         Tile metadata, ideally from :func:`tile_feature_meta` (holds ``intensity_scale``).
     sample
