@@ -334,6 +334,12 @@ class InferenceConfig(Section):
     windows: str
     #: Windows whose classifier probability is below this are background.
     gate: float
+    #: With the shape gate's scores, a window the classifier scores at least ``gate`` but under
+    #: this is segmented only if its peak object scores at least ``unsure_shape``
+    #: (:func:`towerpipe.inference.windows.classifier_pass`).
+    gate_sure: float
+    #: The shape score a window under ``gate_sure`` needs to be segmented (0: no condition).
+    unsure_shape: float
     #: ``"max"`` or ``"mean"`` over the segmented windows holding a point.
     combine: str
     #: Windows per classifier call.

@@ -55,6 +55,11 @@ def test_a_tower_never_segmented_is_told_which_gate_refused_it():
     assert _gate_stage(near, gates) == ("classifier gate", 0.02)
     gates["prob"][1] = 0.4  # passed both gates, not segmented all the same: no gate lost it
     assert _gate_stage(near, gates) == ("not segmented", 0.4)
+    # passed the classifier's gate unsure (under gate_sure) with a peak object under unsure_shape
+    gates.update(gate_sure=0.5, unsure_shape=0.6)
+    assert _gate_stage(near, gates) == ("unsure gate", 0.4)
+    gates["shape"][1] = 0.7
+    assert _gate_stage(near, gates) == ("not segmented", 0.4)
     assert _gate_stage(shapely.box(100, 100, 104, 104), gates) == (
         "no window",
         pytest.approx(float("nan"), nan_ok=True),

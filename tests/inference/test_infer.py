@@ -434,6 +434,32 @@ def test_a_peak_object_the_verifier_is_sure_of_passes_the_classifier_gate():
     assert predict_tile(tile, FakeBundle(), unsure, verifier=ConstVerifier(0.9))[1]["windows_segmented"] == 0
 
 
+def test_windows_neither_gate_sees_a_tower_in_are_not_segmented():
+    """``inference.gate_sure`` / ``unsure_shape``: a window the classifier passes but is unsure of
+    (under ``gate_sure``) is segmented only if the shape gate scored its peak object
+    ``unsure_shape`` or more; one it is sure of, whatever its shape score."""
+    tile = make_tile()
+    base = grid_inference(windows="candidates", min_height=10.0, shape_gate=0.05, gate=0.05)
+    off, st_off = predict_tile(tile, FakeBundle(), replace(base, unsure_shape=0.0), verifier=ConstVerifier(0.3))
+    assert st_off["windows_segmented"] > 0 and st_off["unsure_shape"] == 0.0
+    best = max(p for p in st_off["window_gates"]["prob"] if p is not None)
+    # every window unsure (gate_sure over the best probability) and scored 0.3: none segmented
+    unsure = replace(base, gate_sure=min(1.0, best + 0.01), unsure_shape=0.5)
+    cut, st_cut = predict_tile(tile, FakeBundle(), unsure, verifier=ConstVerifier(0.3))
+    assert st_cut["windows_classified"] == st_off["windows_classified"]
+    assert st_cut["windows_segmented"] == 0 and len(cut["x"]) == 0 and not any(st_cut["window_gates"]["segmented"])
+    # scored at least unsure_shape: segmented, as with the condition off
+    seen, _ = predict_tile(tile, FakeBundle(), unsure, verifier=ConstVerifier(0.5))
+    same, _ = predict_tile(tile, FakeBundle(), replace(base, unsure_shape=0.0), verifier=ConstVerifier(0.5))
+    assert_same(seen, same)
+    # sure (gate_sure under the windows' probabilities): segmented whatever the shape score
+    sure, st_sure = predict_tile(
+        tile, FakeBundle(), replace(base, gate_sure=0.06, unsure_shape=0.5), verifier=ConstVerifier(0.3)
+    )
+    assert st_sure["windows_segmented"] == st_off["windows_segmented"]
+    assert_same(sure, off)
+
+
 def test_the_gates_record_of_each_window_what_they_made_of_it():
     """``window_gates`` (for ``towerpipe trace``): one entry per window that reached the gates,
     its shape score where the shape gate judged it, its probability where the classifier did."""

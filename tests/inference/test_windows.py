@@ -84,3 +84,17 @@ def test_negative_coordinates_and_bad_arguments():
         sliding_windows(x, y, core, window=20, stride=40)
     with pytest.raises(ValueError):
         sliding_windows(x, y[:-1], core)
+
+
+def test_classifier_pass_refuses_only_unsure_windows_the_shape_gate_scored_low():
+    from towerpipe.inference.windows import classifier_pass
+
+    prob = np.array([0.005, 0.02, 0.02, 0.02, 0.5, 0.5])
+    shape = np.array([0.9, 0.005, 0.02, np.nan, 0.005, 0.9])
+    # under the gate: never; unsure (0.01 <= p < 0.03) with a low shape score: refused; not scored: passed
+    assert classifier_pass(prob, shape, 0.01, 0.03, 0.01).tolist() == [False, False, True, True, True, True]
+    # the condition off: the plain gate
+    plain = [False, True, True, True, True, True]
+    assert classifier_pass(prob, shape, 0.01, 0.03, 0.0).tolist() == plain
+    assert classifier_pass(prob, shape, 0.01, 0.01, 0.01).tolist() == plain
+    assert classifier_pass(prob, None, 0.01, 0.03, 0.01).tolist() == plain

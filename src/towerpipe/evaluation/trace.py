@@ -15,7 +15,9 @@ run under ``<workdir>/<zone>/``, or with ``--cached`` those of today's inference
   ``no window`` (no window centred within 1 m of its footprint: no height peak on it),
   ``shape gate`` (every such window's peak object scored under ``inference.shape_gate``; the
   value is the best score), ``classifier gate`` (every one the shape gate let through scored
-  under ``inference.gate``; the value is the best probability); it stays ``not segmented``
+  under ``inference.gate``; the value is the best probability), ``unsure gate`` (every one the
+  classifier passed it was unsure of, under ``inference.gate_sure``, and its peak object scored
+  under ``inference.unsure_shape``; the value is the best probability); it stays ``not segmented``
   when a window over it passed both gates (a secondary peak near a segmented one) or its
   predictions hold no such record (written before 0.8.13);
 - ``faint``: segmented, but no point reaches the probability that clusters
@@ -37,6 +39,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from towerpipe.inference.windows import classifier_pass
 
 __all__ = ["GATE_STAGES", "RULE_NAMES", "trace_zone", "trace_table"]
 
@@ -62,6 +66,7 @@ GATE_STAGES = {
     "no window": "not segmented: no window on it (no height peak)",
     "shape gate": "not segmented: shape gate (inference.shape_gate)",
     "classifier gate": "not segmented: classifier gate (inference.gate)",
+    "unsure gate": "not segmented: classifier unsure and shape low (inference.gate_sure, inference.unsure_shape)",
 }
 
 
@@ -215,6 +220,9 @@ def _window_gates(preds: Sequence[Any], inference: Mapping[str, Any]) -> dict[st
         "shape": cat("shape"),
         "prob": cat("prob"),
         "gate": float(preds[0].meta.get("gate_threshold", inference["gate"])),
+        # the unsure windows' condition as the tiles ran it (none before it was recorded)
+        "gate_sure": float(preds[0].meta.get("gate_sure") or 0.0),
+        "unsure_shape": float(preds[0].meta.get("unsure_shape") or 0.0),
     }
 
 
@@ -231,9 +239,18 @@ def _gate_stage(near: Any, gates: Mapping[str, Any] | None) -> tuple[str, float]
     shape, prob = gates["shape"][on], gates["prob"][on]
     if np.isfinite(prob).any():
         best = float(np.nanmax(prob))
-        # a window over it passed both gates and was still not segmented (a secondary peak near a
+        if best < gates["gate"]:
+            return "classifier gate", best
+        passed = classifier_pass(
+            np.nan_to_num(prob, nan=-1.0),
+            shape,
+            gates["gate"],
+            gates.get("gate_sure", 0.0),
+            gates.get("unsure_shape", 0.0),
+        )
+        # a window over it passed every gate and was still not segmented (a secondary peak near a
         # segmented one): the gates did not lose it
-        return ("not segmented" if best >= gates["gate"] else "classifier gate"), best
+        return ("not segmented" if passed.any() else "unsure gate"), best
     return "shape gate", float(np.nanmax(shape)) if np.isfinite(shape).any() else float("nan")
 
 

@@ -73,7 +73,7 @@ from towerpipe.inference.candidates import (
 )
 from towerpipe.inference.compat import BundleLike, check_model_compatibility, model_info
 from towerpipe.inference.views import check_views, segment_views
-from towerpipe.inference.windows import TileWindows, sliding_windows, window_gates
+from towerpipe.inference.windows import TileWindows, classifier_pass, sliding_windows, window_gates
 from towerpipe.inference.wire_mask import classified_wire, overhead_wires, wire_source
 from towerpipe.io.predictions import save_pred
 from towerpipe.io.tiles import Tile, load_tile
@@ -267,9 +267,11 @@ def predict_tile(
     timings["classify"] = t_clf
 
     # --- segmenter on all points of the windows that passed the gate ----------------
-    passed = todo[win_prob[todo] >= gate]
+    shape_of = win_shape[todo] if by_shape else None
+    ok = classifier_pass(win_prob[todo], shape_of, gate, settings.gate_sure, settings.unsure_shape)
     if by_shape and settings.shape_pass is not None:  # the verifier sure of the peak's object: segmented anyway
-        passed = todo[(win_prob[todo] >= gate) | (win_shape[todo] >= settings.shape_pass)]
+        ok |= win_shape[todo] >= settings.shape_pass
+    passed = todo[ok]
     if windows == "candidates":
         passed = segmented_windows(ws.centers, reach, passed)
     acc = np.zeros(len(mi), dtype=np.float32)
@@ -359,6 +361,8 @@ def predict_tile(
         "windows_passed_gate": int(len(passed)),
         "windows_segmented": int(len(passed)),
         "gate_threshold": float(gate),
+        "gate_sure": float(settings.gate_sure),
+        "unsure_shape": float(settings.unsure_shape) if by_shape else None,
         "combine": combine,
         "tta": int(tta),
         "window": float(window),

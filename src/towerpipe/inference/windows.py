@@ -19,8 +19,8 @@ see :func:`sliding_windows`), and a window's points are the concatenation of the
 slices of its ``ceil(window / stride)²`` cells, filtered on the far edge when
 ``window`` is not a multiple of ``stride``. Memory is O(points + cells).
 
-What the gates made of each window (:func:`window_gates`) is recorded in the prediction
-file's ``meta``, for ``towerpipe trace``.
+Which classified windows go on to the segmenter is :func:`classifier_pass`; what the gates made of
+each window (:func:`window_gates`) is recorded in the prediction file's ``meta``, for ``towerpipe trace``.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["TileWindows", "sliding_windows", "window_gates"]
+__all__ = ["TileWindows", "classifier_pass", "sliding_windows", "window_gates"]
 
 
 @dataclass(frozen=True)
@@ -372,3 +372,38 @@ def window_gates(centers: np.ndarray, shape: np.ndarray, prob: np.ndarray, segme
         "prob": col(prob, 4),
         "segmented": np.asarray(segmented, dtype=bool).tolist(),
     }
+
+
+def classifier_pass(
+    prob: np.ndarray, shape: np.ndarray | None, gate: float, gate_sure: float, unsure_shape: float
+) -> np.ndarray:
+    """Which classified windows the classifier's gate passes to the segmenter.
+
+    A window passes when its probability is at least ``gate``. One the classifier is unsure of
+    (at least ``gate``, under ``gate_sure``) passes only if its peak object's shape score is at
+    least ``unsure_shape``: where neither the classifier nor the shape verifier sees a tower, the
+    segmenter is not run (``inference.gate_sure``, ``inference.unsure_shape``).
+
+    Parameters
+    ----------
+    prob
+        ``(W,)`` the classifier's probabilities.
+    shape
+        ``(W,)`` the shape gate's scores (NaN, or ``None`` for all: not scored, the shape
+        condition not applied).
+    gate, gate_sure, unsure_shape
+        The thresholds; ``unsure_shape`` 0 or ``gate_sure <= gate`` turn the shape condition off.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(W,)`` bool.
+    """
+    prob = np.asarray(prob, dtype=np.float64)
+    ok = prob >= gate
+    if shape is None or unsure_shape <= 0 or gate_sure <= gate:
+        return ok
+    shape = np.asarray(shape, dtype=np.float64)
+    with np.errstate(invalid="ignore"):  # NaN: not scored, never refused here
+        refused = (prob < gate_sure) & (shape < unsure_shape)
+    return ok & ~refused
