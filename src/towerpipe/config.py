@@ -248,6 +248,9 @@ class TowersConfig(Section):
     min_height: float
     #: Towers whose 90th percentile of point probabilities is lower are dropped.
     min_core_prob: float
+    #: Rule 21: the core probability a cluster at least ``wire_min_height`` high needs instead
+    #: (``None``: ``min_core_prob``); the conductor rule and the shape check judge it next.
+    tall_core_prob: float | None
     #: Towers at least ``wire_min_height`` high with a lower conductor support are dropped.
     min_wire_support: float
     #: The conductor rule applies to towers at least this high (m).
@@ -313,6 +316,13 @@ class TowersConfig(Section):
     #: not reported (``beyond``, ``height``, ``below``, ``outline_points``;
     #: :func:`towerpipe.towers.crown.crown_mask`).
     crowns: Mapping[str, float | int]
+
+    def core_needed(self, height: float) -> float:
+        """The core probability a cluster whose highest point stands ``height`` m above the ground
+        needs (rule 4, and rule 21 for a tall one)."""
+        if self.tall_core_prob is not None and height >= self.wire_min_height:
+            return min(self.min_core_prob, self.tall_core_prob)
+        return self.min_core_prob
 
 
 @dataclass(frozen=True)

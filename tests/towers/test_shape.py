@@ -281,6 +281,10 @@ def test_rescue_finds_a_faint_tower_and_outlines_it(monkeypatch):
     assert faint["prob_max"] < 0.3 and faint["shape_score"] == 1.0
     # its highest probability must reach min_core_prob: a cluster painted only faintly stays out
     assert len(extract([pair], "b1", BOUNDS, zone="z1", rescue_threshold=0.1, min_core_prob=0.3, **rules).towers) == 1
+    # rule 21: the faint tower is 30 m high, so towers.tall_core_prob is its bar; the 14 m crown's stays 0.3
+    tall = {"rescue_threshold": 0.1, "min_core_prob": 0.3, "tall_core_prob": 0.2, **rules}
+    assert len(extract([pair], "b1", BOUNDS, zone="z1", **tall).towers) == 2
+    assert len(extract([pair], "b1", BOUNDS, zone="z1", **{**tall, "wire_min_height": 35.0}).towers) == 1
     arrays, meta = pair
     arrays = {**arrays, "prob": arrays["prob"].copy()}
     arrays["prob"][halo] = 0.5  # one confident point on the faint tower

@@ -237,6 +237,26 @@ def test_towers_without_a_confident_core_are_dropped():
     assert len(extract([pair], "b1", BOUNDS, zone="z1").towers) == 2
 
 
+def test_a_tall_cluster_needs_the_tall_core_probability():
+    """Rule 21: a cluster at least ``wire_min_height`` high needs ``tall_core_prob``, a lower one
+    ``min_core_prob`` (the 30 m tower's probabilities hover at 0.5-0.85, its 90th percentile ~0.82)."""
+    xyz, hag = scene()
+    first = xyz[:, 0] < X0 + 120
+    prob = np.random.default_rng(3).uniform(0.5, 0.85, len(xyz))
+    prob[~first] = 0.99
+    pair = pred_pair(xyz, hag, prob, ["b1"])
+
+    def found(**rules):
+        return len(extract([pair], "b1", BOUNDS, zone="z1", min_core_prob=0.9, **rules).towers)
+
+    assert found() == 1  # the 30 m tower's core is under 0.9
+    assert found(tall_core_prob=0.8) == 2  # 30 m is tall (wire_min_height 20 m): 0.8 is its bar
+    assert found(tall_core_prob=0.8, wire_min_height=35.0) == 1  # not tall: min_core_prob holds
+    assert found(tall_core_prob=0.95) == 1  # never more than min_core_prob asks
+    assert tower_rules(tall_core_prob=0.2).core_needed(25.0) == 0.2
+    assert tower_rules(tall_core_prob=0.2).core_needed(15.0) == tower_rules().core_needed(25.0) == 0.3
+
+
 def test_wire_chain_is_split_into_towers():
     a, ha = synthetic_tower(X0 + 50, Y0 + 50, seed=1)
     b, hb = synthetic_tower(X0 + 110, Y0 + 50, seed=2)

@@ -46,7 +46,7 @@ __all__ = ["GATE_STAGES", "RULE_NAMES", "trace_zone", "trace_table"]
 
 #: What each rule of a trace means to a reader (:data:`towerpipe.towers.extract.TRACE_RULES`).
 RULE_NAMES = {
-    "core": "no confident core (towers.min_core_prob)",
+    "core": "no confident core (towers.min_core_prob, towers.tall_core_prob)",
     "floating": "floating above the ground (towers.max_base_ratio)",
     "stands": "nothing in it stands, a piece of conductor (towers.min_stand)",
     "line": "it lies along the conductors found around it (towers.max_line_share)",

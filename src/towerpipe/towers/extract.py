@@ -47,7 +47,7 @@ holds are clustered and each cluster is judged by rules 4-8 (its highest probabi
 ``rescue_threshold``: a thin pole or a sparse real lattice that the segmenter paints mostly
 at 0.1-0.3 is found and outlined when its object is shaped like a tower.
 
-Rules 12-20 (docs/products.md tells each with its measurements; 0 turns each off):
+Rules 12-21 (docs/products.md tells each with its measurements; 0 turns each off):
 
 12. the conductors' vouch (``vouch_height``): a cluster the shape check drops, with no split part to
     judge instead, is kept when conductors point at it and its top stands ``vouch_height`` m above them
@@ -72,7 +72,9 @@ Rules 12-20 (docs/products.md tells each with its measurements; 0 turns each off
     (:func:`towerpipe.towers.conductor_rules.near_balance`);
 20. a line over it (``under_line``): a cluster with at least this many conductor points within 25 m
     pointing at it more than 2 m over its top, and fewer at or below, is dropped: a crown under a line
-    (:func:`towerpipe.towers.conductor_rules.under_line`).
+    (:func:`towerpipe.towers.conductor_rules.under_line`);
+21. a tall cluster's core (``tall_core_prob``, ``None``: off): one at least ``wire_min_height`` high needs
+    this core probability (rule 4, the rescue's too) instead of ``min_core_prob``.
 
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
@@ -355,11 +357,10 @@ def extract_towers(
         g, splits, is_rescue = queue.popleft()
         decided = partial(_decided, trace, xyz[g], is_rescue) if trace is not None else _not_traced
         core_q, g_threshold = (1.0, rescue) if is_rescue else (0.9, point_threshold)
-        core = float(np.quantile(pts["prob_single"][g], core_q))
-        if rules.min_core_prob > 0 and core < rules.min_core_prob:
+        core, hag = float(np.quantile(pts["prob_single"][g], core_q)), pts["hag"][g].astype(np.float64)
+        if rules.min_core_prob > 0 and core < rules.core_needed(hag.max()):
             decided("core", core)
             continue
-        hag = pts["hag"][g].astype(np.float64)
         if hag.min() > rules.max_base_ratio * hag.max():
             decided("floating", hag.min() / max(hag.max(), 1e-9))
             continue  # floating: a piece of conductor or crossarm, not a tower standing on the ground
