@@ -38,13 +38,18 @@ WORKFLOW_CONFIG_FILES = (CONFIG_FILE, "config/models.yaml")
 MAX_PROBLEM_CHARS = 240
 
 
+#: PyYAML's safe loader, libyaml's where PyYAML has it: the same documents in a tenth of the time
+#: (the schema, read at every Snakemake start and every command: 0.030 → 0.003 s).
+_SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
 def load_yaml(path: str | os.PathLike[str], what: str = "config file") -> dict[str, Any]:
     """A YAML mapping from a file; a missing or malformed file is a one-line :class:`ConfigError`."""
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"{what} {p}: no such file")
     try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
+        data = yaml.load(p.read_text(encoding="utf-8"), Loader=_SAFE_LOADER)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
