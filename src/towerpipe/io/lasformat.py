@@ -8,7 +8,8 @@ compute) and the merge (:mod:`towerpipe.products.merge`, which writes them):
 * :data:`PROB_DIMENSION`, :data:`TOWER_ID_DIMENSION` and :data:`OWN_DIMENSIONS`: the
   extra-bytes dimensions towerpipe appends, and :func:`own_dimensions`, which of them a
   block already carries (it is towerpipe output) or refuses a foreign one of that name;
-* :class:`VerbatimExtraBytesVlr`: an Extra Bytes VLR laspy writes byte for byte.
+* :class:`VerbatimExtraBytesVlr`: an Extra Bytes VLR laspy writes byte for byte;
+* :class:`KnownStatsWriter`: a writer of points whose header statistics are known.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ __all__ = [
     "check_format",
     "own_dimensions",
     "VerbatimExtraBytesVlr",
+    "KnownStatsWriter",
 ]
 
 #: Name of the extra dimension holding the tower probability.
@@ -84,6 +86,25 @@ class VerbatimExtraBytesVlr(ExtraBytesVlr):
 
     def grow(self, points: PackedPointRecord) -> None:  # noqa: D102 - deliberately a no-op
         pass
+
+
+class KnownStatsWriter(laspy.LasWriter):
+    """A :class:`laspy.LasWriter` that counts the points it writes without measuring them.
+
+    laspy's writer grows the header's bounds, counts by return and extra-bytes statistics over
+    every chunk it writes (0.3 s of a single-threaded merge of 9.87 M points). The merge writes a
+    block's own points: their statistics are the input header's, set on this writer's ``header``
+    before it closes, and the extra-bytes statistics are set before writing.
+    """
+
+    def write_points(self, points: PackedPointRecord) -> None:
+        """Write ``points`` (in this writer's point format, scales and offsets) and count them."""
+        if self.done:
+            raise laspy.errors.LaspyException("Cannot write points anymore")
+        if points.point_format != self.header.point_format:
+            raise laspy.errors.LaspyException("Incompatible point formats")
+        self.header.point_count += len(points)
+        self.point_writer.write_points(points)
 
 
 def own_dimensions(

@@ -9,6 +9,7 @@ Every script in ``workflow/scripts/`` is::
 
 from __future__ import annotations
 
+import ctypes
 import json
 import logging
 import os
@@ -20,6 +21,32 @@ from typing import Any
 
 from towerpipe.errors import TowerpipeError
 from towerpipe.io.diskspace import full_disk_error
+
+#: glibc's ``mallopt`` parameters (``malloc.h``) and what a job sets them to (:func:`keep_freed_memory`).
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
+#: An allocation this large or larger gets a mapping of its own (glibc's highest value: 32 MiB).
+MMAP_THRESHOLD = 32 * 1024**2
+#: Free memory at the top of the heap that is kept for the next allocations rather than handed back.
+TRIM_THRESHOLD = 1024**3
+
+
+def keep_freed_memory() -> bool:
+    """Have glibc's allocator keep what a job frees for its next arrays; ``False`` where the C
+    library has no ``mallopt`` (not glibc) or refuses a value.
+
+    A job's arrays of a tile's points are 1-30 MB, and the job makes and drops hundreds of them.
+    By default glibc maps each such array afresh (or hands the top of the heap back once more than
+    twice the largest freed mapping is free), so the kernel zeroes and maps every page of every
+    new array again: 1.23 M page faults and 7-8 s of system time over a run of the bench block
+    (``python -m towerpipe.bench e2e``). Arrays up to :data:`MMAP_THRESHOLD` now come from the heap,
+    and up to :data:`TRIM_THRESHOLD` of freed heap is kept for reuse (docs/scale.md).
+    """
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    return bool(mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD)) and bool(mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD))
 
 
 def run_step(smk: Any, step: Callable[[], Any]) -> Any:
@@ -38,6 +65,7 @@ def run_step(smk: Any, step: Callable[[], Any]) -> Any:
     logging.basicConfig(
         level=logging.INFO, handlers=handlers, force=True, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
+    keep_freed_memory()
     threads = int(getattr(smk, "threads", 1) or 1)
     # the LAZ codec's thread pool (lazrs, Rayon) would take every core of the machine: it gets
     # the job's threads, as NumPy's and PyTorch's pools do (its pool starts on first use)

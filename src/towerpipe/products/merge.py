@@ -61,6 +61,7 @@ from towerpipe.io.lasformat import (
     OWN_DIMENSIONS,
     PROB_DIMENSION,
     TOWER_ID_DIMENSION,
+    KnownStatsWriter,
     VerbatimExtraBytesVlr,
     check_format,
     own_dimensions,
@@ -391,9 +392,9 @@ def merge_block(
         raise TowerpipeError(f"merge threshold must be in (0, 1], got {threshold}")
     block_path, out_path = Path(block_path), Path(out_path)
     t0 = time.perf_counter()
-    backends = _laz_backends()
+    backends = _laz_backends() or None
     try:
-        reader = laspy.open(block_path, laz_backend=backends or None)
+        reader = laspy.open(block_path, laz_backend=backends)
     except (OSError, laspy.errors.LaspyException) as exc:
         raise InputError(block_path, f"cannot read the block ({exc})") from exc
     timings: dict[str, float] = {}
@@ -424,7 +425,7 @@ def merge_block(
             n_tower = n_relab = n_in15 = n_above = 0
             out_path.parent.mkdir(parents=True, exist_ok=True)
             t_read = t_write = t_proc = 0.0
-            with laspy.open(tmp, mode="w", header=out_header, do_compress=True, laz_backend=backends or None) as writer:
+            with KnownStatsWriter(open(tmp, "wb+"), out_header, do_compress=True, laz_backend=backends) as writer:
                 start = 0
                 progress = Progress(f"merge {block or block_path.stem}, written", n, "points", logger=log)
                 it = _raw_chunks(reader, records, n, in_size, int(chunk_size))
