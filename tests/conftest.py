@@ -30,6 +30,22 @@ GDAL36_PYTHON = GDAL36 / "usr" / "lib" / "python3" / "dist-packages"
 GDAL36_VALIDATOR = GDAL36_PYTHON / "osgeo_utils" / "samples" / "validate_gpkg.py"
 
 
+def one_family_on_a_real_tile(seed: int, family: str, density: tuple[float, float], **over) -> dict:
+    """The arguments of a zone of one real tower family on lines across the real IGN RGB+NIR tile."""
+    return dict(
+        seed=seed,
+        real_backgrounds=BACKGROUNDS,
+        background_files=["ign_rgbnir_block.laz"],
+        copies=1,
+        lines=True,
+        tower_source="real",
+        real_towers=TOWERS,
+        tower_families=[family],
+        tower_density=density,
+        **over,
+    )
+
+
 def pytest_runtest_setup(item):
     """The one way a test skips without the real data: it is marked ``shared`` and ../shared is absent."""
     if item.get_closest_marker("shared") and not SHARED.is_dir():

@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from towerpipe.synth.background import VARIANTS
+from towerpipe.synth.delivery import VARIANTS
 from towerpipe.synth.real import FAMILIES
 
 __all__ = ["FAMILIES", "VARIANTS", "evaluate_model", "run_benchmark", "stamp_cards", "zone_name"]

@@ -9,18 +9,8 @@ A tile can be used several times (``copies``), each copy moved 3 km east with to
 its own, so that one small background holds enough towers for a benchmark. ``cranes``
 puts tower cranes beside the lines (hard negatives that the conductors pass near).
 
-Inserted points are coloured as a colourised flight colours them: a share of a tower's
-points (:attr:`~towerpipe.synth.params.SceneParams.tower_own_color`) takes the tower's own
-colour, the rest the colour of the background point below (the orthophoto pixel: ground,
-grass, shadow); intensity is the material's reflectance relative to the tile's ground
-intensity, times a factor drawn per tower; scan angle, GPS time and source id are those
-of the nearest background point. A tile without NIR gets a synthetic NIR (high on
-vegetation, about red elsewhere); one without colour an orthophoto colour from its classes.
-
-``variant`` then degrades the whole zone as public data sets often are:
-``no_intensity`` (intensity, return numbers, scan angle and GPS time all 0),
-``no_nir`` (NIR all 0), ``no_colour`` (point format 6: no RGB, no NIR) or ``no_wire_class``
-(the conductors class 1, as ``wire_class: false`` delivers them).
+Inserted points take their attributes as a colourised flight gives them, and ``variant`` then
+degrades the whole zone as public data sets often are (:mod:`towerpipe.synth.delivery`).
 """
 
 from __future__ import annotations
@@ -38,6 +28,7 @@ from scipy.spatial import cKDTree
 from towerpipe import classes
 from towerpipe.errors import ConfigError, InputError
 from towerpipe.synth import color as col
+from towerpipe.synth.delivery import VARIANTS, degrade, with_attributes
 from towerpipe.synth.lasout import write_block
 from towerpipe.synth.negatives import crane_beside_line
 from towerpipe.synth.params import SceneParams
@@ -50,8 +41,6 @@ from towerpipe.synth.wires import catenary
 
 log = logging.getLogger(__name__)
 
-#: Ways a zone's attributes are degraded (see the module docstring).
-VARIANTS = ("intact", "no_intensity", "no_nir", "no_colour", "no_wire_class")
 #: East shift (m) between copies of a background tile.
 COPY_SPACING = 3000.0
 #: Span (m) to a line's next tower, and the gap between parallel lines across a tile.
@@ -60,7 +49,6 @@ LINE_SPAN, LINE_GAP = (250.0, 380.0), (60.0, 95.0)
 EDGE_MARGIN, BUILDING_MARGIN = 15.0, 12.0
 #: A tower stands where the tile has a ground point closer than this (m).
 GROUND_GAP = 2.0
-_GROUND_BASE = 0.35  # reflectance of ground in towerpipe.synth.color (intensity reference)
 
 
 def ground_fn(xyz: np.ndarray, cls: np.ndarray):
@@ -128,25 +116,6 @@ def _stations(
                 break
         off += rng.uniform(*LINE_GAP)
     return np.array(pts).reshape(-1, 2), np.full(len(pts), heading)
-
-
-def _tile_colour(las: laspy.LasData, cls: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """``(n, 4)`` RGB + NIR in [0, 1] of a background tile (synthetic where it has none)."""
-    n = len(cls)
-    dims = set(las.point_format.dimension_names)
-    if "red" in dims and np.asarray(las.red).max() > 0:
-        rgb = np.c_[[np.asarray(las[c]).astype(np.float32) / 65535 for c in ("red", "green", "blue")]].T
-        if rgb.max() <= 255 / 65535:  # 8-bit colour stored raw
-            rgb *= 257
-    else:  # an orthophoto colour from the classes
-        mat = np.select([np.isin(cls, [3, 4, 5]), cls == 6], [col.TREE, col.ROOF], col.GROUND)
-        rgb = col.colors(mat, np.arange(n) // 50, np.full(n, 0.5), rng)[:, :3]
-    if "nir" in dims and np.asarray(las.nir).max() > 0:
-        nir = np.asarray(las.nir).astype(np.float32) / 65535
-    else:
-        veg = np.isin(cls, [3, 4, 5])
-        nir = np.where(veg, np.clip(0.35 + 1.6 * rgb[:, 1], 0, 1), np.clip(rgb[:, 0] * 0.95, 0, 1))
-    return np.c_[rgb, nir].astype(np.float32)
 
 
 def generate_background_zone(
@@ -239,7 +208,7 @@ def generate_background_zone(
             spans += ins["spans"]
             pts = ins["points"]
             for v in variants:
-                pts = _degrade(pts, v)
+                pts = degrade(pts, v)
             name = ins["name"]
             path = out / f"{name}.laz"
             # one CRS for the zone: tiles of one system can carry differently written WKTs
@@ -308,15 +277,18 @@ def _insert(
     btree = cKDTree(bld) if len(bld) else None
     gtree = cKDTree(xyz[cls == 2, :2]) if (cls == 2).any() else cKDTree(xyz[:, :2])
 
+    def box(p: np.ndarray) -> np.ndarray:
+        return (p[:, 0] >= xmin) & (p[:, 0] <= xmax) & (p[:, 1] >= ymin) & (p[:, 1] <= ymax)
+
     def in_box(p: np.ndarray) -> np.ndarray:
-        return p[(p[:, 0] >= xmin) & (p[:, 0] <= xmax) & (p[:, 1] >= ymin) & (p[:, 1] <= ymax)]
+        return p[box(p)]
 
     def clear(p):
         """Away from buildings, and on ground the tile has data of (a tile's box can be mostly empty)."""
         return (btree is None or btree.query(p)[0] > BUILDING_MARGIN) and gtree.query(p)[0] < GROUND_GAP
 
     where, heading = _stations(rng, (xmin, ymin, xmax, ymax), towers_per_tile, lines, clear)
-    towers = []  # (id, design, height, base, world points, attachments, material)
+    towers = []  # (id, design, height, base, world points, attachments, material, ground layer)
     wires: list[np.ndarray] = []
     for p, head in zip(where, heading):
         rot = head - np.pi / 2  # local x across the line
@@ -330,6 +302,7 @@ def _insert(
             if len(local) < 5:  # a thin pole at a low density: nothing to see
                 continue
             pts = to_world(local, p[0], p[1], base_z, rot)
+            ground = lib.ground(name, shape, local, h)
             att = to_world(attachments(local), p[0], p[1], base_z, rot)
             design, material = f"real:{name}", col.STEEL
         else:
@@ -342,16 +315,22 @@ def _insert(
             pts = pts[rng.random(len(pts)) < vis]
             att = t.attach
             material = col.WOOD if design in WOODEN else col.STEEL
-        pts = in_box(pts)
+            ground = np.zeros(len(pts), bool)
+        inside = box(pts)
+        pts, ground = pts[inside], ground[inside]
         if len(pts) >= 5:
-            towers.append((first_id + len(towers), design, h, base_z, pts, _three(att, head), material))
+            towers.append((first_id + len(towers), design, h, base_z, pts, _three(att, head), material, ground))
             if lines:
                 wires.append(_conductors(towers[-1][5], head, float(rng.uniform(*LINE_SPAN)), gz, tile_density, rng))
     parts, rows = [], []
-    for tid, design, h, base_z, pts, _, material in towers:
+    for tid, design, h, base_z, pts, _, material, ground in towers:
         own_share = float(rng.uniform(*params.tower_own_color))
         factor = float(np.exp(rng.uniform(*np.log(params.tower_intensity))))
-        parts.append((pts, classes.TOWER, tid, material, own_share, factor))
+        parts.append(
+            (pts, np.where(ground, classes.OTHER, classes.TOWER), np.where(ground, 0, tid), material, own_share, factor)
+        )
+        n_own = int((~ground).sum())
+        pts = pts[~ground] if n_own else pts  # the truth is the tower's own points
         fp = shapely.convex_hull(shapely.MultiPoint(pts[:, :2])).buffer(0.25, quad_segs=2)
         base = pts[pts[:, 2] < base_z + 0.1 * h]
         rows.append(
@@ -365,7 +344,7 @@ def _insert(
                 "y": float(np.median(base[:, 1])) if len(base) else float(pts[:, 1].mean()),
                 "centroid_x": fp.centroid.x,
                 "centroid_y": fp.centroid.y,
-                "n_points": int(len(pts)),
+                "n_points": n_own,
                 "block": None,
                 "blocks": None,
                 "line_id": tid if lines else 0,
@@ -384,7 +363,7 @@ def _insert(
             c, _ = sample_segments(neg.prim, dens, rng, beam=params.member_beam, vertical_factor=params.vertical_factor)
             parts.append((in_box(c), classes.OTHER, 0, col.STEEL, 0.7, 1.0))
             negatives.append({"kind": neg.kind, "x": neg.x, "y": neg.y, "height": round(neg.height, 3)})
-    points = _points(las, xyz, cls, parts, rng)
+    points = with_attributes(las, xyz, cls, parts, rng)
     return {
         "points": points,
         "rows": rows,
@@ -418,82 +397,4 @@ def _conductors(
             c = catenary(pa, pb, param)
             segs.append(np.stack([c[:-1], c[1:]], axis=1))
     pts, _ = sample_segments(segments(np.concatenate(segs), 0.12), density, rng, beam=0.0, vertical_factor=0.25)
-    return pts
-
-
-def _points(las: laspy.LasData, xyz: np.ndarray, cls: np.ndarray, parts, rng: np.random.Generator) -> dict:
-    """The tile's points plus the inserted ones, with their attributes (see the module docstring)."""
-    n0 = len(xyz)
-    dims = set(las.point_format.dimension_names)
-
-    def get(name, default):
-        return np.asarray(las[name]) if name in dims else default
-
-    colour = _tile_colour(las, cls, rng)
-    inten = get("intensity", np.zeros(n0, np.uint16)).astype(np.float64)
-    gint = inten[cls == 2]
-    scale = float(np.median(gint)) if len(gint) and np.median(gint) > 0 else 10000.0
-    sa = get("scan_angle", np.zeros(n0)) * (0.006 if las.point_format.id >= 6 else 1.0)
-    gps = get("gps_time", np.zeros(n0))
-    psid = get("point_source_id", np.zeros(n0))
-    tree = cKDTree(xyz[:, :2])
-    add = {k: [] for k in ("xyz", "cls", "tid", "rgbn", "int", "rn", "nr", "sa", "gps", "psid")}
-    for pts, klass, tid, material, own_share, factor in parts:
-        m = len(pts)
-        if not m:
-            continue
-        _, near = tree.query(pts[:, :2])
-        own = rng.random(m) < own_share
-        c = colour[near].copy()
-        c[own] = col.colors(
-            np.full(int(own.sum()), material), np.zeros(int(own.sum()), int), np.zeros(int(own.sum())), rng
-        )
-        nr = (1 + (rng.random(m) < 0.6)).astype(np.uint8)
-        rn = np.where((nr == 2) & (rng.random(m) < 0.25), 2, 1).astype(np.uint8)
-        rel = col.intensity(np.full(m, material), rn, nr, rng).astype(np.float64) / (40000.0 * _GROUND_BASE)
-        add["xyz"].append(pts)
-        add["cls"].append(np.full(m, klass, np.uint8))
-        add["tid"].append(np.full(m, tid, np.uint32))
-        add["rgbn"].append(c)
-        add["int"].append(np.clip(rel * scale * factor, 0, 65535))
-        add["rn"].append(rn)
-        add["nr"].append(nr)
-        add["sa"].append(sa[near])
-        add["gps"].append(gps[near])
-        add["psid"].append(psid[near])
-    cat = {k: (np.concatenate(v) if v else None) for k, v in add.items()}
-    m = 0 if cat["xyz"] is None else len(cat["xyz"])
-
-    def join(a, b, dtype):
-        return np.r_[a, b if b is not None else np.zeros(0)].astype(dtype)
-
-    rgbn = np.r_[colour, cat["rgbn"] if m else np.zeros((0, 4))]
-    return {
-        "x": join(xyz[:, 0], None if not m else cat["xyz"][:, 0], np.float64),
-        "y": join(xyz[:, 1], None if not m else cat["xyz"][:, 1], np.float64),
-        "z": join(xyz[:, 2], None if not m else cat["xyz"][:, 2], np.float64),
-        "classification": join(cls, cat["cls"], np.uint8),
-        "tower_id": join(np.zeros(n0), cat["tid"], np.uint32),
-        "return_number": join(get("return_number", np.ones(n0)), cat["rn"], np.uint8),
-        "number_of_returns": join(get("number_of_returns", np.ones(n0)), cat["nr"], np.uint8),
-        "intensity": join(inten, cat["int"], np.uint16),
-        "red": col.to16(rgbn[:, 0]),
-        "green": col.to16(rgbn[:, 1]),
-        "blue": col.to16(rgbn[:, 2]),
-        "nir": col.to16(rgbn[:, 3]),
-        "point_source_id": join(psid, cat["psid"], np.uint16),
-        "scan_angle": join(sa, cat["sa"], np.float32),
-        "gps_time": join(gps, cat["gps"], np.float64),
-    }
-
-
-def _degrade(pts: dict, variant: str) -> dict:
-    """The attributes a degraded export keeps (see :data:`VARIANTS`)."""
-    if variant == "no_intensity":
-        for k in ("intensity", "return_number", "number_of_returns", "scan_angle", "gps_time"):
-            pts[k] = np.zeros_like(pts[k])
-    elif variant == "no_nir":
-        pts["nir"] = np.zeros_like(pts["nir"])
-    elif variant == "no_wire_class":
-        pts["classification"][np.isin(pts["classification"], classes.WIRE)] = classes.OTHER
     return pts

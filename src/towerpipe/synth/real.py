@@ -4,6 +4,11 @@ Tower sources (a directory laid out as ``../shared/data/real/towers``):
 ``uav_towers/NNNTower.txt`` (doubled points deduplicated), ``ts40k/*.npy`` (class 15,
 largest cluster), ``utility_structures/*.las`` (split into structures by clustering;
 US-survey-feet files converted to metres). The package holds none of these files.
+
+Some sources label the ground and foundations within a tower's footprint as tower: a filled
+layer at the base of the set (:func:`ground_layer_top`). Its points are set into a zone as they
+are, labelled as other points (class 1), never as the tower's: no airborne product reports the
+ground under a tower as tower.
 """
 
 from __future__ import annotations
@@ -15,7 +20,7 @@ import laspy
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from towerpipe.errors import InputError
 from towerpipe.synth.params import SceneParams
@@ -24,6 +29,11 @@ from towerpipe.synth.towers import Tower
 
 log = logging.getLogger(__name__)
 US_FOOT = 1200.0 / 3937.0
+#: A real tower set's ground layer (:func:`ground_layer_top`): its points lower than ``DEPTH`` m over
+#: its lowest point, judged in plan cells of ``CELL`` m, are ground when they fill at least ``FILL``
+#: of their convex hull and the hull covers ``AREA`` m² or more; 0.25 m slices above, up to ``MAX``
+#: m, belong to it while their points fill half of that hull.
+GROUND_LAYER = {"DEPTH": 1.0, "CELL": 0.25, "FILL": 0.75, "AREA": 2.0, "MAX": 2.0}
 
 
 def clusters(xyz: np.ndarray, radius: float = 1.5, voxel: float = 0.5) -> np.ndarray:
@@ -50,6 +60,50 @@ def _normalise(xyz: np.ndarray) -> np.ndarray:
     a = np.arctan2(v[1, 1], v[0, 1])  # major axis angle
     ca, sa = np.cos(-a), np.sin(-a)
     return np.c_[ca * out[:, 0] - sa * out[:, 1], sa * out[:, 0] + ca * out[:, 1], out[:, 2]]
+
+
+def _plan_area(xy: np.ndarray, cell: float) -> float:
+    """Area (m²) of the plan cells of side ``cell`` that hold a point."""
+    return len(np.unique(np.floor(xy / cell).astype(np.int64), axis=0)) * cell * cell if len(xy) else 0.0
+
+
+def ground_layer_top(xyz: np.ndarray) -> float:
+    """Height over a real tower set's lowest point below which its points are ground; 0 where none.
+
+    A lattice's legs and a pole fill little of the plan their lowest metre spans (the 21 UAV
+    lattices of ``../shared``: at most 53 %); the ground or a foundation slab that a source labels
+    with the tower fills it (four of the eight TS40K sets: 85-100 % of 6-15 m², 27-62 % of their
+    points). Such a layer is the lowest ``GROUND_LAYER["DEPTH"]`` m, grown by the 0.25 m slices
+    above it that still fill half of its hull (a slab on sloping ground).
+
+    Parameters
+    ----------
+    xyz
+        ``(n, 3)`` points of one real tower set (metres).
+
+    Returns
+    -------
+    float
+        The layer's top over the lowest point (m), or 0.0 when the base is no filled layer.
+    """
+    g = GROUND_LAYER
+    xyz = np.asarray(xyz, float)
+    if len(xyz) < 3:
+        return 0.0
+    z = xyz[:, 2] - xyz[:, 2].min()
+    low = xyz[z < g["DEPTH"], :2]
+    if len(low) < 3:
+        return 0.0
+    try:
+        hull = float(ConvexHull(low).volume)
+    except QhullError:  # collinear or coincident: a pole's foot
+        return 0.0
+    if hull < g["AREA"] or _plan_area(low, g["CELL"]) < g["FILL"] * hull:
+        return 0.0
+    top = g["DEPTH"]
+    while top < g["MAX"] and _plan_area(xyz[(z >= top) & (z < top + 0.25), :2], g["CELL"]) >= 0.5 * hull:
+        top += 0.25
+    return float(top)
 
 
 def load_real_towers(root: str | Path) -> list[tuple[str, np.ndarray]]:
@@ -152,6 +206,15 @@ class RealTowerLibrary:
         for item in self.items:
             by_source.setdefault(item[0].split(":")[0], []).append(item)
         self.families = [by_source[k] for k in sorted(by_source)]
+        #: name -> :func:`ground_layer_top` of its normalised shape (0: no ground layer)
+        self.ground_top = {name: ground_layer_top(shape) for name, shape in self.items}
+
+    def ground(self, name: str, shape: np.ndarray, local: np.ndarray, height: float) -> np.ndarray:
+        """Which points of ``local`` (:func:`realise` of ``shape`` at ``height``) are its ground layer."""
+        top = self.ground_top.get(name, 0.0)
+        if top <= 0:
+            return np.zeros(len(local), bool)
+        return local[:, 2] < top * height / max(float(np.ptp(shape[:, 2])), 1e-6)
 
     def draw(self, rng: np.random.Generator) -> tuple[str, np.ndarray]:
         """A shape: a family with equal chance, then one of its shapes (name, normalised xyz)."""
@@ -168,7 +231,8 @@ class RealTowerLibrary:
             h = float(np.clip(t.height, 10.0, 60.0))
             pts = realise(shape, h, density, rng, params)
             world = to_world(pts, t.x, t.y, t.base_z, t.rot)
-            base = pts[pts[:, 2] < 0.1 * h]
+            ground = self.ground(name, shape, pts, h)
+            base = pts[~ground & (pts[:, 2] < 0.1 * h)]
             bw = float(np.ptp(base[:, 0])) if len(base) else 1.0
             return Tower(
                 t.tower_id,
@@ -183,6 +247,7 @@ class RealTowerLibrary:
                 bw,
                 points=world,
                 line_id=t.line_id,
+                ground=ground,
             )
 
         return make

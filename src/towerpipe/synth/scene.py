@@ -332,6 +332,7 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
         k = len(xyz)
         if not k:
             return
+        klass = np.asarray(klass)[keep] if np.ndim(klass) else klass  # per point: a real tower's ground layer
         smat, svar, _ = lookup_surface(xyz[:, 0], xyz[:, 1])
         own = rng.random(k) < own_share
         strip, ang, t = zone.plan.attributes(xyz[:, 0], xyz[:, 1], rng)
@@ -384,12 +385,13 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
             vis = vis * np.where(under, p.canopy_transmission, 1.0)
             xyz = xyz[r.random(len(xyz)) < vis]
         own, factor = _tower_look(zone, t)
+        ground = t.ground if t.points is not None and t.ground is not None else np.zeros(len(xyz), bool)
         add(
             xyz,
-            TOWER,
+            np.where(ground, OTHER, TOWER),
             col.WOOD if t.design in WOODEN else col.STEEL,
             own,
-            tid=np.full(len(xyz), t.tower_id),
+            tid=np.where(ground, 0, t.tower_id),
             intensity_factor=factor,
         )
     for wires, share in ((zone.lines.wires, 0.3), (zone.pole_wires, 0.3)):

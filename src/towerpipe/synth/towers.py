@@ -87,6 +87,9 @@ class Tower:
         Fixed point set in world coordinates (real towers), else ``None``.
     line_id
         Line the tower belongs to.
+    ground
+        Which of ``points`` are their source's ground (:func:`towerpipe.synth.real.ground_layer_top`),
+        written as other points; ``None``: none.
     """
 
     tower_id: int
@@ -102,10 +105,12 @@ class Tower:
     points: np.ndarray | None = None
     line_id: int = 0
     extra: dict = field(default_factory=dict)
+    ground: np.ndarray | None = None
 
     def outline(self) -> shapely.Polygon:
-        """Footprint: convex hull of the tower's horizontal projection."""
-        xy = self.points[:, :2] if self.points is not None else self.prim.xy_points()
+        """Footprint: convex hull of the tower's horizontal projection (its ground layer left out)."""
+        own = self.points if self.ground is None or self.ground.all() else self.points[~self.ground]
+        xy = own[:, :2] if own is not None else self.prim.xy_points()
         return shapely.convex_hull(shapely.MultiPoint(xy)).buffer(0.25, quad_segs=2)
 
 

@@ -1,0 +1,107 @@
+"""Real tower shapes (towerpipe.synth.real): the ground layer some sources label as tower."""
+
+from __future__ import annotations
+
+import laspy
+import numpy as np
+import pytest
+import shapely
+
+from conftest import TOWERS, one_family_on_a_real_tile
+from towerpipe.synth import generate_zone
+from towerpipe.synth.real import GROUND_LAYER, RealTowerLibrary, ground_layer_top, load_real_towers
+
+
+def _legs(rng: np.random.Generator, n: int = 400, half: float = 2.0, height: float = 20.0) -> np.ndarray:
+    """Four legs of a lattice leaning in from a 4 m square base to a 1 m top."""
+    z = rng.uniform(0, height, n)
+    k = rng.integers(4, size=n)
+    corner = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], float)[k]
+    w = half + (0.5 - half) * z / height
+    return np.c_[corner * w[:, None] + rng.normal(0, 0.05, (n, 2)), z]
+
+
+def test_a_filled_layer_at_the_base_is_ground_and_legs_are_not():
+    rng = np.random.default_rng(0)
+    legs = _legs(rng)
+    assert ground_layer_top(legs) == 0.0
+    # the ground in the footprint, labelled with the tower: a 4 x 4 m surface 0-0.8 m up
+    slab = np.c_[rng.uniform(-2, 2, (600, 2)), rng.uniform(0, 0.8, 600)]
+    assert ground_layer_top(np.r_[legs, slab]) == GROUND_LAYER["DEPTH"]
+    # on sloping ground the layer reaches higher: slices that still fill half its plan join it
+    sloped = np.r_[legs, slab, np.c_[rng.uniform(-2, 2, (600, 2)), rng.uniform(1.0, 1.25, 600)]]
+    assert ground_layer_top(sloped) == GROUND_LAYER["DEPTH"] + 0.25
+    # a pole's foot or a layer smaller than GROUND_LAYER["AREA"] is no ground
+    pole = np.c_[rng.normal(0, 0.1, (300, 2)), rng.uniform(0, 15, 300)]
+    assert ground_layer_top(pole) == 0.0
+    small = np.c_[rng.uniform(-0.6, 0.6, (300, 2)), rng.uniform(0, 0.8, 300)]
+    assert ground_layer_top(np.r_[pole, small]) == 0.0
+    assert ground_layer_top(np.zeros((2, 3))) == 0.0
+
+
+@pytest.mark.shared
+def test_the_real_sets_whose_ground_is_labelled_tower():
+    """Some TS40K sets hold the ground under the tower (a large share of their points); no UAV
+    lattice does."""
+    tops = {name: (ground_layer_top(xyz), xyz) for name, xyz in load_real_towers(TOWERS)}
+    ts40k = {n: v for n, v in tops.items() if n.startswith("ts40k:") and v[0] > 0}
+    assert len(ts40k) >= 3
+    for top, xyz in ts40k.values():
+        assert (xyz[:, 2] < top).mean() > 0.2
+    assert not any(top for n, (top, _) in tops.items() if n.startswith("uav:"))
+
+
+def _points(truth) -> dict[str, np.ndarray]:
+    lases = [laspy.read(b["path"]) for b in truth.blocks]
+    return {
+        k: np.concatenate([np.asarray(getattr(las, k)) for las in lases])
+        for k in ("x", "y", "z", "classification", "TowerId")
+    }
+
+
+def _assert_ground_layers_are_other_points(truth, lib: RealTowerLibrary) -> int:
+    """Every tower point is class 15 with its id, each truth row counts exactly those; the base of a
+    tower drawn from a set with a ground layer holds class-1 points without an id. Returns how many
+    such towers the zone has."""
+    p = _points(truth)
+    tower = p["classification"] == 15
+    assert (p["TowerId"][tower] > 0).all() and not p["TowerId"][~tower].any()
+    layered = 0
+    for _, r in truth.towers.iterrows():
+        own = p["TowerId"] == r["tower_id"]
+        assert own.sum() == r["n_points"]
+        name = r["design"].removeprefix("real:")
+        if lib.ground_top.get(name, 0.0) <= 0 or not own.any():
+            continue
+        layered += 1
+        fp = shapely.Polygon(r["geometry"].exterior).buffer(2.0)
+        base = (p["classification"] == 1) & (p["z"] < r["base_z"] + 2.0)
+        inside = shapely.contains_xy(fp, p["x"][base], p["y"][base])
+        assert inside.sum() >= 5
+        # and the tower's own points start above its source's ground layer
+        assert p["z"][own].min() > r["base_z"] + 0.2
+    return layered
+
+
+@pytest.mark.shared
+def test_a_real_towers_ground_layer_is_written_as_other_points_on_a_real_tile(tmp_path):
+    lib = RealTowerLibrary(TOWERS, ["ts40k"])
+    t = generate_zone(tmp_path, **one_family_on_a_real_tile(5, "ts40k", (10, 15)))
+    assert _assert_ground_layers_are_other_points(t, lib) >= 1
+
+
+@pytest.mark.shared
+def test_a_real_towers_ground_layer_is_written_as_other_points_in_a_generated_zone(tmp_path):
+    lib = RealTowerLibrary(TOWERS, ["ts40k"])
+    t = generate_zone(
+        tmp_path,
+        seed=3,
+        blocks=2,
+        size=200.0,
+        density=12.0,
+        preset="test",
+        tower_source="real",
+        real_towers=TOWERS,
+        tower_families=["ts40k"],
+    )
+    assert _assert_ground_layers_are_other_points(t, lib) >= 1
