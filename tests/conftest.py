@@ -30,17 +30,24 @@ GDAL36_PYTHON = GDAL36 / "usr" / "lib" / "python3" / "dist-packages"
 GDAL36_VALIDATOR = GDAL36_PYTHON / "osgeo_utils" / "samples" / "validate_gpkg.py"
 
 
-def one_family_on_a_real_tile(seed: int, family: str, density: tuple[float, float], **over) -> dict:
-    """The arguments of a zone of one real tower family on lines across the real IGN RGB+NIR tile."""
+def real_tile_zone(
+    seed: int,
+    families: str | list[str],
+    density: tuple[float, float],
+    tile: str = "ign_rgbnir_block.laz",
+    copies: int = 1,
+    **over,
+) -> dict:
+    """The arguments of a zone of real tower families (one name or a list) on lines across copies of one real IGN tile."""
     return dict(
         seed=seed,
         real_backgrounds=BACKGROUNDS,
-        background_files=["ign_rgbnir_block.laz"],
-        copies=1,
+        background_files=[tile],
+        copies=copies,
         lines=True,
         tower_source="real",
         real_towers=TOWERS,
-        tower_families=[family],
+        tower_families=[families] if isinstance(families, str) else list(families),
         tower_density=density,
         **over,
     )

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from conftest import BACKGROUNDS, TOWERS, preprocess_settings, schema_config
+from conftest import preprocess_settings, real_tile_zone, schema_config
 from towerpipe.evaluation.realshape import run_benchmark, score_resolution, stamp_cards, zone_name
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.shared]
@@ -23,17 +23,7 @@ def bare_zone(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("realshape")
     zone = zone_name("ts40k", "no_colour")
     truth = generate_zone(
-        tmp / "data" / zone,
-        seed=3,
-        real_backgrounds=BACKGROUNDS,
-        background_files=["ign_bridge.laz"],
-        copies=1,
-        lines=True,
-        tower_source="real",
-        real_towers=TOWERS,
-        tower_families=["ts40k"],
-        tower_density=(8, 15),
-        variant="no_colour",
+        tmp / "data" / zone, **real_tile_zone(3, "ts40k", (8, 15), "ign_bridge.laz", variant="no_colour")
     )
     block = truth.blocks[0]
     cache = tmp / "work" / zone / "cache" / block["name"]

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import shapely
 
-from conftest import TOWERS, one_family_on_a_real_tile
+from conftest import TOWERS, real_tile_zone
 from towerpipe.synth import generate_zone
 from towerpipe.synth.real import GROUND_LAYER, RealTowerLibrary, ground_layer_top, load_real_towers
 
@@ -86,7 +86,7 @@ def _assert_ground_layers_are_other_points(truth, lib: RealTowerLibrary) -> int:
 @pytest.mark.shared
 def test_a_real_towers_ground_layer_is_written_as_other_points_on_a_real_tile(tmp_path):
     lib = RealTowerLibrary(TOWERS, ["ts40k"])
-    t = generate_zone(tmp_path, **one_family_on_a_real_tile(5, "ts40k", (10, 15)))
+    t = generate_zone(tmp_path, **real_tile_zone(5, "ts40k", (10, 15)))
     assert _assert_ground_layers_are_other_points(t, lib) >= 1
 
 

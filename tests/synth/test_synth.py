@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import shapely
 
-from conftest import BACKGROUNDS, TOWERS, one_family_on_a_real_tile
+from conftest import BACKGROUNDS, TOWERS, real_tile_zone
 from towerpipe.synth import Terrain, generate_zone, preset
 from towerpipe.synth.scene import block_grid, block_points, build_zone
 
@@ -357,7 +357,7 @@ def test_realshape_zone_families_lines_and_variants(tmp_path):
     the degraded variants share the geometry and lose only their attributes."""
     from towerpipe.synth.real import tower_family
 
-    kw = one_family_on_a_real_tile(5, "ts40k", (4, 15), tower_variety=True)
+    kw = real_tile_zone(5, "ts40k", (4, 15), tower_variety=True)
     t = generate_zone(tmp_path / "intact", **kw)
     assert len(t.blocks) == 1 and len(t.towers) >= 3
     assert {tower_family(d) for d in t.towers["design"]} == {"ts40k"}
@@ -388,7 +388,7 @@ def test_realshape_zone_families_lines_and_variants(tmp_path):
 def test_realshape_zone_tower_height_scales_the_real_shapes(tmp_path):
     """``tower_height`` scales every real shape to a height drawn from its range (a zone of small
     UAV lattices, whose sources are 17-58 m tall); without it the shapes keep their own heights."""
-    kw = one_family_on_a_real_tile(9, "uav", (4, 7))
+    kw = real_tile_zone(9, "uav", (4, 7))
     small = generate_zone(tmp_path / "small", **kw, tower_height=(14, 19))
     own = generate_zone(tmp_path / "own", **kw)
     assert len(small.towers) >= 3
@@ -420,7 +420,7 @@ def test_cranes_beside_lines_on_real_backgrounds(tmp_path):
     tile, records them in the metadata, and leaves a zone without them as it was."""
     from towerpipe.synth.truth import META_JSON
 
-    kw = one_family_on_a_real_tile(11, "uav", (10, 20))
+    kw = real_tile_zone(11, "uav", (10, 20))
     plain = generate_zone(tmp_path / "plain", **kw)
     none = generate_zone(tmp_path / "none", **kw, cranes_beside_lines=0)
     np.testing.assert_array_equal(_all_points(none)["x"], _all_points(plain)["x"])

@@ -27,19 +27,9 @@ def test_a_zone_delivered_without_a_wire_class_differs_only_in_the_wires_class(t
 def test_a_real_background_zone_delivered_without_a_wire_class(tmp_path):
     """The benchmark's ``no_wire_class`` variant (and ``wire_class: false``): the same real-background
     zone, its conductors class 1."""
-    from conftest import BACKGROUNDS, TOWERS
+    from conftest import real_tile_zone
 
-    kw = dict(
-        seed=3,
-        real_backgrounds=BACKGROUNDS,
-        background_files=["ign_rgbnir_small.laz"],
-        copies=1,
-        lines=True,
-        tower_source="real",
-        real_towers=TOWERS,
-        tower_families=["uav"],
-        tower_density=(8, 15),
-    )
+    kw = real_tile_zone(3, "uav", (8, 15), "ign_rgbnir_small.laz")
     zones = {
         name: generate_zone(tmp_path / name, **kw, **extra)
         for name, extra in (("intact", {}), ("variant", {"variant": "no_wire_class"}), ("key", {"wire_class": False}))

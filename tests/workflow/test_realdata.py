@@ -16,7 +16,7 @@ import pyogrio
 import pytest
 import yaml
 
-from conftest import BACKGROUNDS, REPO, TOWERS
+from conftest import REPO, real_tile_zone
 from towerpipe.towers.shape import VERIFIER_RELEASE
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow, pytest.mark.shared]
@@ -31,17 +31,15 @@ def corridor(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("corridor")
     truth = generate_zone(
         tmp / "in",
-        seed=77,
-        real_backgrounds=BACKGROUNDS,
-        background_files=["ign_rgb_subset.laz"],
-        copies=3,
-        lines=True,
-        tower_source="real",
-        real_towers=TOWERS,
-        tower_families=["uav", "ts40k"],
-        tower_density=(10, 20),
-        tower_variety=True,
-        variant=["no_intensity", "no_nir"],
+        **real_tile_zone(
+            77,
+            ["uav", "ts40k"],
+            (10, 20),
+            "ign_rgb_subset.laz",
+            copies=3,
+            tower_variety=True,
+            variant=["no_intensity", "no_nir"],
+        ),
     )
     cfg = tmp / "zones.yaml"
     cfg.write_text(yaml.safe_dump({"zones": {ZONE: {"input": str(tmp / "in")}}, "workdir": str(tmp / "work")}))

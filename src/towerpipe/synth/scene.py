@@ -385,7 +385,7 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
             vis = vis * np.where(under, p.canopy_transmission, 1.0)
             xyz = xyz[r.random(len(xyz)) < vis]
         own, factor = _tower_look(zone, t)
-        ground = t.ground if t.points is not None and t.ground is not None else np.zeros(len(xyz), bool)
+        ground = t.ground if t.ground is not None else np.zeros(len(xyz), bool)  # set with a real shape's points
         add(
             xyz,
             np.where(ground, OTHER, TOWER),
