@@ -9,7 +9,14 @@ import shapely
 
 from conftest import TOWERS, real_tile_zone
 from towerpipe.synth import generate_zone
-from towerpipe.synth.real import GROUND_LAYER, RealTowerLibrary, ground_layer_top, load_real_towers
+from towerpipe.synth.real import (
+    GROUND_LAYER,
+    SLOPED_LAYER,
+    RealTowerLibrary,
+    ground_layer,
+    ground_layer_top,
+    load_real_towers,
+)
 
 
 def _legs(rng: np.random.Generator, n: int = 400, half: float = 2.0, height: float = 20.0) -> np.ndarray:
@@ -39,6 +46,26 @@ def test_a_filled_layer_at_the_base_is_ground_and_legs_are_not():
     assert ground_layer_top(np.zeros((2, 3))) == 0.0
 
 
+def test_a_sloping_filled_layer_wider_than_the_tower_is_ground():
+    rng = np.random.default_rng(1)
+    # a thin mast over ground sloping 15 degrees, the source's box cutting a 4 x 4 m piece of it,
+    # with shrubs on it and a few points of the mast's foot lower than all of it
+    mast = np.c_[rng.normal(0, 0.15, (300, 2)), rng.uniform(2.2, 18, 300)]
+    foot = np.c_[rng.normal(0, 0.1, (10, 2)), rng.uniform(0, 0.3, 10)]
+    xy = rng.uniform(-2, 2, (800, 2))
+    ground = np.c_[xy, 1.7 + np.tan(np.radians(15)) * xy[:, 0] + rng.normal(0, 0.1, 800)]
+    shrubs = np.c_[xy[:200], ground[:200, 2] + rng.uniform(0.45, 0.7, 200)]
+    xyz = np.r_[mast, foot, ground, shrubs]
+    assert ground_layer_top(xyz) == 0.0  # the lowest metre holds too little of it to be level ground
+    layer = ground_layer(xyz)
+    assert layer[300:].all() and not layer[:300][mast[:, 2] > 3.0].any()
+    # a lattice's base bracing is as wide as its body: no ground, however filled
+    legs = _legs(rng)
+    bracing = np.c_[rng.uniform(-1.9, 1.9, (400, 2)), rng.uniform(1.0, 1.3, 400)]
+    assert not ground_layer(np.r_[legs, bracing]).any()
+    assert not ground_layer(legs).any() and not ground_layer(np.zeros((2, 3))).any()
+
+
 @pytest.mark.shared
 def test_the_real_sets_whose_ground_is_labelled_tower():
     """Some TS40K sets hold the ground under the tower (a large share of their points); no UAV
@@ -49,6 +76,11 @@ def test_the_real_sets_whose_ground_is_labelled_tower():
     for top, xyz in ts40k.values():
         assert (xyz[:, 2] < top).mean() > 0.2
     assert not any(top for n, (top, _) in tops.items() if n.startswith("uav:"))
+    layers = {name: ground_layer(xyz) for name, (_, xyz) in tops.items()}
+    # two more TS40K sets hold ground on a slope under a mast (sample_575, sample_588)
+    sloped = [n for n, m in layers.items() if m.any() and tops[n][0] == 0 and n.startswith("ts40k:")]
+    assert len(sloped) >= 2 and all(layers[n].mean() > 0.5 for n in sloped)
+    assert not any(m.any() for n, m in layers.items() if n.startswith("uav:"))
 
 
 def _points(truth) -> dict[str, np.ndarray]:
@@ -71,11 +103,11 @@ def _assert_ground_layers_are_other_points(truth, lib: RealTowerLibrary) -> int:
         own = p["TowerId"] == r["tower_id"]
         assert own.sum() == r["n_points"]
         name = r["design"].removeprefix("real:")
-        if lib.ground_top.get(name, 0.0) <= 0 or not own.any():
+        if not lib.ground_layers[name].any() or not own.any():
             continue
         layered += 1
         fp = shapely.Polygon(r["geometry"].exterior).buffer(2.0)
-        base = (p["classification"] == 1) & (p["z"] < r["base_z"] + 2.0)
+        base = (p["classification"] == 1) & (p["z"] < r["base_z"] + SLOPED_LAYER["LOW"])
         inside = shapely.contains_xy(fp, p["x"][base], p["y"][base])
         assert inside.sum() >= 5
         # and the tower's own points start above its source's ground layer

@@ -298,11 +298,11 @@ def _insert(
             name, shape = lib.draw(rng)
             own = np.ptp(shape[:, 2]) * rng.uniform(0.9, 1.1)
             h = float(np.clip(rng.uniform(*tower_height) if tower_height else own, 10.0, 60.0))
-            local = realise(shape, h, dens, rng, params)
+            local, index = realise(shape, h, dens, rng, params)
             if len(local) < 5:  # a thin pole at a low density: nothing to see
                 continue
             pts = to_world(local, p[0], p[1], base_z, rot)
-            ground = lib.ground(name, shape, local, h)
+            ground = lib.ground(name, index)
             att = to_world(attachments(local), p[0], p[1], base_z, rot)
             design, material = f"real:{name}", col.STEEL
         else:

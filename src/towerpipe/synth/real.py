@@ -6,9 +6,9 @@ largest cluster), ``utility_structures/*.las`` (split into structures by cluster
 US-survey-feet files converted to metres). The package holds none of these files.
 
 Some sources label the ground and foundations within a tower's footprint as tower: a filled
-layer at the base of the set (:func:`ground_layer_top`). Its points are set into a zone as they
-are, labelled as other points (class 1), never as the tower's: no airborne product reports the
-ground under a tower as tower.
+layer at the base of the set, level (:func:`ground_layer_top`) or sloping (:func:`ground_layer`).
+Its points are set into a zone as they are, labelled as other points (class 1), never as the
+tower's: no airborne product reports the ground under a tower as tower.
 """
 
 from __future__ import annotations
@@ -34,6 +34,13 @@ US_FOOT = 1200.0 / 3937.0
 #: of their convex hull and the hull covers ``AREA`` m² or more; 0.25 m slices above, up to ``MAX``
 #: m, belong to it while their points fill half of that hull.
 GROUND_LAYER = {"DEPTH": 1.0, "CELL": 0.25, "FILL": 0.75, "AREA": 2.0, "MAX": 2.0}
+#: A real tower set's sloping ground layer (:func:`ground_layer`, where no level one is found): the
+#: points of its lowest ``LOW`` m within ``THICK`` m of a plane fitted to them, at most ``SLOPE``
+#: degrees steep, that fill ``GROUND_LAYER["FILL"]`` of a hull of ``GROUND_LAYER["AREA"]`` m² or
+#: more, ``WIDER`` times or more the plan of the body above (the median hull of its 1 m slices from
+#: ``LOW`` m to half its height); the points under that plane go with it, and the 0.25 m bands
+#: over it whose points still spread over half of that hull.
+SLOPED_LAYER = {"LOW": 3.0, "THICK": 0.4, "SLOPE": 30.0, "WIDER": 4.0}
 
 
 def clusters(xyz: np.ndarray, radius: float = 1.5, voxel: float = 0.5) -> np.ndarray:
@@ -67,6 +74,14 @@ def _plan_area(xy: np.ndarray, cell: float) -> float:
     return len(np.unique(np.floor(xy / cell).astype(np.int64), axis=0)) * cell * cell if len(xy) else 0.0
 
 
+def _hull_area(xy: np.ndarray) -> float:
+    """Convex hull area of plan points; 0 for fewer than three or collinear ones."""
+    try:
+        return float(ConvexHull(xy).volume) if len(xy) >= 3 else 0.0
+    except QhullError:
+        return 0.0
+
+
 def ground_layer_top(xyz: np.ndarray) -> float:
     """Height over a real tower set's lowest point below which its points are ground; 0 where none.
 
@@ -94,16 +109,74 @@ def ground_layer_top(xyz: np.ndarray) -> float:
     low = xyz[z < g["DEPTH"], :2]
     if len(low) < 3:
         return 0.0
-    try:
-        hull = float(ConvexHull(low).volume)
-    except QhullError:  # collinear or coincident: a pole's foot
-        return 0.0
+    hull = _hull_area(low)  # 0 where collinear or coincident: a pole's foot
     if hull < g["AREA"] or _plan_area(low, g["CELL"]) < g["FILL"] * hull:
         return 0.0
     top = g["DEPTH"]
     while top < g["MAX"] and _plan_area(xyz[(z >= top) & (z < top + 0.25), :2], g["CELL"]) >= 0.5 * hull:
         top += 0.25
     return float(top)
+
+
+def _sloped_layer(xyz: np.ndarray) -> np.ndarray:
+    """Which points of a real tower set are a sloping ground layer at its base (:data:`SLOPED_LAYER`)."""
+    g, s = GROUND_LAYER, SLOPED_LAYER
+    z = xyz[:, 2] - xyz[:, 2].min()
+    none = np.zeros(len(xyz), bool)
+    fit = z < s["LOW"]
+    a = np.c_[xyz[:, :2], np.ones(len(xyz))]
+    for _ in range(5):  # refit on the points near the plane until they stay the same
+        if fit.sum() < 10:
+            return none
+        coef = np.linalg.lstsq(a[fit], z[fit], rcond=None)[0]
+        resid = z - a @ coef
+        near = (np.abs(resid) < s["THICK"]) & (z < s["LOW"])
+        if (near == fit).all():
+            break
+        fit = near
+    layer = near
+    hull = _hull_area(xyz[layer, :2])
+    if hull < g["AREA"] or _plan_area(xyz[layer, :2], g["CELL"]) < g["FILL"] * hull:
+        return none
+    if np.degrees(np.arctan(np.hypot(*coef[:2]))) > s["SLOPE"]:
+        return none
+    top = float(z.max())
+    body = [
+        _hull_area(xyz[(z >= lo) & (z < lo + 1.0), :2]) for lo in np.arange(s["LOW"], max(top / 2, s["LOW"] + 1), 1.0)
+    ]
+    if hull < s["WIDER"] * float(np.median(body)):
+        return none  # a lattice's base bracing: as wide as the body above it
+    up = s["THICK"]  # grown by the 0.25 m bands over the plane that still spread over half of its hull
+    while _hull_area(xyz[(resid >= up) & (resid < up + 0.25) & (z < s["LOW"]), :2]) >= 0.5 * hull:
+        up += 0.25
+    return (resid < up) & (z < s["LOW"])
+
+
+def ground_layer(xyz: np.ndarray) -> np.ndarray:
+    """Which points of a real tower set are ground its source labels as tower.
+
+    A level layer (:func:`ground_layer_top`), else a sloping one: ground on a slope, which a
+    source's box around the tower cuts as a tilted slab filling a plan several times wider
+    than the tower above it (two of the eight TS40K sets; a UAV lattice's base bracing is as wide
+    as its body).
+
+    Parameters
+    ----------
+    xyz
+        ``(n, 3)`` points of a real tower set as :func:`load_real_towers` gives them.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n,)`` bool, True for the layer's points.
+    """
+    xyz = np.asarray(xyz, float)
+    if len(xyz) < 3:
+        return np.zeros(len(xyz), bool)
+    top = ground_layer_top(xyz)
+    if top > 0:
+        return xyz[:, 2] - xyz[:, 2].min() < top
+    return _sloped_layer(xyz)
 
 
 def load_real_towers(root: str | Path) -> list[tuple[str, np.ndarray]]:
@@ -151,24 +224,28 @@ def airborne_resample(
     vertical_factor: float = 0.25,
     vis_min: float = 0.3,
     voxel: float = 0.15,
-) -> np.ndarray:
+    return_index: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Thin a dense tower point set to what an airborne scanner at ``density`` sees.
 
     Voxel thinning removes the UAV over-sampling; the expected count is
     density × projected metal area × (1 + vertical factor), the metal area being
     estimated from the occupied 0.2 m cells of the xy projection; points are
-    kept with a probability that grows with height (occlusion of the lower part).
+    kept with a probability that grows with height (occlusion of the lower part). With
+    ``return_index``, also the kept points' indices into ``xyz``.
     """
     key = np.floor(xyz / voxel).astype(np.int64)
     _, first = np.unique(key, axis=0, return_index=True)
-    v = xyz[np.sort(first)]
+    first = np.sort(first)
+    v = xyz[first]
     cells = np.unique(np.floor(v[:, :2] / 0.2).astype(np.int64), axis=0)
     area = len(cells) * 0.04 * 0.5
     n_target = density * area * (1 + vertical_factor)
     zrel = np.clip(v[:, 2] / max(np.ptp(v[:, 2]), 1e-6), 0, 1)
     w = vis_min + (1 - vis_min) * zrel**0.6
     p = np.clip(n_target * w / w.sum(), 0, 1)
-    return v[rng.random(len(v)) < p]
+    kept = rng.random(len(v)) < p
+    return (v[kept], first[kept]) if return_index else v[kept]
 
 
 #: The real tower families (sources) of ``../shared/data/real/towers``, by name prefix.
@@ -206,15 +283,13 @@ class RealTowerLibrary:
         for item in self.items:
             by_source.setdefault(item[0].split(":")[0], []).append(item)
         self.families = [by_source[k] for k in sorted(by_source)]
-        #: name -> :func:`ground_layer_top` of its normalised shape (0: no ground layer)
-        self.ground_top = {name: ground_layer_top(shape) for name, shape in self.items}
+        #: name -> :func:`ground_layer` of its normalised shape (which of its points are ground)
+        self.ground_layers = {name: ground_layer(shape) for name, shape in self.items}
 
-    def ground(self, name: str, shape: np.ndarray, local: np.ndarray, height: float) -> np.ndarray:
-        """Which points of ``local`` (:func:`realise` of ``shape`` at ``height``) are its ground layer."""
-        top = self.ground_top.get(name, 0.0)
-        if top <= 0:
-            return np.zeros(len(local), bool)
-        return local[:, 2] < top * height / max(float(np.ptp(shape[:, 2])), 1e-6)
+    def ground(self, name: str, index: np.ndarray) -> np.ndarray:
+        """Which points of a :func:`realise` of the shape ``name`` (their ``index`` into it) are its
+        ground layer."""
+        return self.ground_layers[name][index]
 
     def draw(self, rng: np.random.Generator) -> tuple[str, np.ndarray]:
         """A shape: a family with equal chance, then one of its shapes (name, normalised xyz)."""
@@ -229,9 +304,9 @@ class RealTowerLibrary:
                 return t
             name, shape = self.draw(rng)
             h = float(np.clip(t.height, 10.0, 60.0))
-            pts = realise(shape, h, density, rng, params)
+            pts, index = realise(shape, h, density, rng, params)
             world = to_world(pts, t.x, t.y, t.base_z, t.rot)
-            ground = self.ground(name, shape, pts, h)
+            ground = self.ground(name, index)
             base = pts[~ground & (pts[:, 2] < 0.1 * h)]
             bw = float(np.ptp(base[:, 0])) if len(base) else 1.0
             return Tower(
@@ -255,11 +330,12 @@ class RealTowerLibrary:
 
 def realise(
     shape: np.ndarray, height: float, density: float, rng: np.random.Generator, params: SceneParams
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """A real shape as one airborne flight sees it, in its local frame (base centre at 0).
 
     Scaled to ``height``, mirrored with chance 1/2, its plan stretched by
     ``params.real_tower_jitter``, then thinned to ``density`` (:func:`airborne_resample`).
+    Returns the points and their indices into ``shape``.
     """
     s = shape * (height / max(np.ptp(shape[:, 2]), 1e-6))
     if rng.random() < 0.5:
@@ -267,7 +343,7 @@ def realise(
     if params.real_tower_jitter > 0:  # another tower of the same type: proportions vary
         s[:, :2] *= rng.uniform(1 - params.real_tower_jitter, 1 + params.real_tower_jitter, 2)
     return airborne_resample(
-        s, density, rng, vertical_factor=params.vertical_factor, vis_min=params.tower_visibility_min
+        s, density, rng, vertical_factor=params.vertical_factor, vis_min=params.tower_visibility_min, return_index=True
     )
 
 

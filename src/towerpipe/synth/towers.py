@@ -88,7 +88,7 @@ class Tower:
     line_id
         Line the tower belongs to.
     ground
-        Which of ``points`` are their source's ground (:func:`towerpipe.synth.real.ground_layer_top`),
+        Which of ``points`` are their source's ground (:func:`towerpipe.synth.real.ground_layer`),
         written as other points; ``None``: none.
     """
 
