@@ -8,7 +8,14 @@ import pytest
 
 from towerpipe import classes
 from towerpipe.synth import color as col
-from towerpipe.synth.delivery import VARIANTS, degrade, tile_colour, with_attributes
+from towerpipe.synth.delivery import (
+    SOURCE_GROUND,
+    VARIANTS,
+    degrade,
+    drop_source_ground,
+    tile_colour,
+    with_attributes,
+)
 
 
 def _tile(n: int = 200, seed: int = 0) -> tuple[laspy.LasData, np.ndarray, np.ndarray]:
@@ -43,6 +50,35 @@ def test_inserted_points_take_their_class_and_tower_id_per_point():
     # a whole part at one class still works, as for conductors and cranes
     out = with_attributes(las, xyz, cls, [(pts, classes.WIRE_CONDUCTOR, 0, col.WIRE, 0.3, 1.0)], rng)
     assert (out["classification"][n0:] == classes.WIRE_CONDUCTOR).all()
+
+
+def test_a_sources_ground_takes_its_draws_and_is_then_left_out():
+    """Points of class SOURCE_GROUND draw their attributes like any other and are then dropped: every
+    other point is what it would be with them set in."""
+    las, xyz, cls = _tile()
+    pts = np.c_[np.random.default_rng(2).uniform(20, 30, (30, 2)), np.linspace(100, 120, 30)]
+    ground = np.arange(30) < 10
+    kept = with_attributes(
+        las,
+        xyz,
+        cls,
+        [(pts, np.where(ground, classes.OTHER, classes.TOWER), 7, col.STEEL, 0.5, 1.0)],
+        np.random.default_rng(3),
+    )
+    out = drop_source_ground(
+        with_attributes(
+            las,
+            xyz,
+            cls,
+            [(pts, np.where(ground, SOURCE_GROUND, classes.TOWER), 7, col.STEEL, 0.5, 1.0)],
+            np.random.default_rng(3),
+        )
+    )
+    keep = np.r_[np.ones(len(xyz), bool), ~ground]
+    assert set(out) == set(kept) and len(out["x"]) == len(xyz) + 20
+    for k in out:
+        np.testing.assert_array_equal(out[k], np.asarray(kept[k])[keep])
+    assert drop_source_ground(kept) is kept  # nothing to drop: the same points
 
 
 def test_a_tile_without_nir_gets_one_and_its_own_colour_is_kept():

@@ -1,4 +1,4 @@
-"""Real tower shapes (towerpipe.synth.real): the ground layer some sources label as tower."""
+"""Real tower shapes (towerpipe.synth.real): the ground layer some sources label as tower, left out of zones."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import shapely
 
 from conftest import TOWERS, real_tile_zone
 from towerpipe.synth import generate_zone
+from towerpipe.synth.delivery import SOURCE_GROUND
 from towerpipe.synth.real import (
     GROUND_LAYER,
     SLOPED_LAYER,
@@ -91,13 +92,14 @@ def _points(truth) -> dict[str, np.ndarray]:
     }
 
 
-def _assert_ground_layers_are_other_points(truth, lib: RealTowerLibrary) -> int:
-    """Every tower point is class 15 with its id, each truth row counts exactly those; the base of a
-    tower drawn from a set with a ground layer holds class-1 points without an id. Returns how many
-    such towers the zone has."""
+def _assert_no_source_ground(truth, lib: RealTowerLibrary) -> int:
+    """Every tower point is class 15 with its id, each truth row counts exactly those, no point of a
+    source's ground is written, and a tower drawn from a set with a ground layer starts above it.
+    Returns how many such towers the zone has."""
     p = _points(truth)
     tower = p["classification"] == 15
     assert (p["TowerId"][tower] > 0).all() and not p["TowerId"][~tower].any()
+    assert not (p["classification"] == SOURCE_GROUND).any()
     layered = 0
     for _, r in truth.towers.iterrows():
         own = p["TowerId"] == r["tower_id"]
@@ -106,24 +108,19 @@ def _assert_ground_layers_are_other_points(truth, lib: RealTowerLibrary) -> int:
         if not lib.ground_layers[name].any() or not own.any():
             continue
         layered += 1
-        fp = shapely.Polygon(r["geometry"].exterior).buffer(2.0)
-        base = (p["classification"] == 1) & (p["z"] < r["base_z"] + SLOPED_LAYER["LOW"])
-        inside = shapely.contains_xy(fp, p["x"][base], p["y"][base])
-        assert inside.sum() >= 5
-        # and the tower's own points start above its source's ground layer
         assert p["z"][own].min() > r["base_z"] + 0.2
     return layered
 
 
 @pytest.mark.shared
-def test_a_real_towers_ground_layer_is_written_as_other_points_on_a_real_tile(tmp_path):
+def test_a_real_towers_source_ground_is_left_out_on_a_real_tile(tmp_path):
     lib = RealTowerLibrary(TOWERS, ["ts40k"])
     t = generate_zone(tmp_path, **real_tile_zone(5, "ts40k", (10, 15)))
-    assert _assert_ground_layers_are_other_points(t, lib) >= 1
+    assert _assert_no_source_ground(t, lib) >= 1
 
 
 @pytest.mark.shared
-def test_a_real_towers_ground_layer_is_written_as_other_points_in_a_generated_zone(tmp_path):
+def test_a_real_towers_source_ground_is_left_out_in_a_generated_zone(tmp_path):
     lib = RealTowerLibrary(TOWERS, ["ts40k"])
     t = generate_zone(
         tmp_path,
@@ -136,4 +133,12 @@ def test_a_real_towers_ground_layer_is_written_as_other_points_in_a_generated_zo
         real_towers=TOWERS,
         tower_families=["ts40k"],
     )
-    assert _assert_ground_layers_are_other_points(t, lib) >= 1
+    layered = _assert_no_source_ground(t, lib)
+    assert layered >= 1
+    # the tile's own points under such a tower: no class-1 layer over its ground any more
+    p = _points(t)
+    for _, r in t.towers.iterrows():
+        if lib.ground_layers[r["design"].removeprefix("real:")].any():
+            fp = shapely.Polygon(r["geometry"].exterior).buffer(2.0)
+            low = (p["classification"] == 1) & (p["z"] < r["base_z"] + SLOPED_LAYER["LOW"])
+            assert not shapely.contains_xy(fp, p["x"][low], p["y"][low]).any()

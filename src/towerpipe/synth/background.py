@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 from towerpipe import classes
 from towerpipe.errors import ConfigError, InputError
 from towerpipe.synth import color as col
-from towerpipe.synth.delivery import VARIANTS, degrade, with_attributes
+from towerpipe.synth.delivery import SOURCE_GROUND, VARIANTS, degrade, drop_source_ground, with_attributes
 from towerpipe.synth.lasout import write_block
 from towerpipe.synth.negatives import crane_beside_line
 from towerpipe.synth.params import SceneParams
@@ -327,7 +327,7 @@ def _insert(
         own_share = float(rng.uniform(*params.tower_own_color))
         factor = float(np.exp(rng.uniform(*np.log(params.tower_intensity))))
         parts.append(
-            (pts, np.where(ground, classes.OTHER, classes.TOWER), np.where(ground, 0, tid), material, own_share, factor)
+            (pts, np.where(ground, SOURCE_GROUND, classes.TOWER), np.where(ground, 0, tid), material, own_share, factor)
         )
         n_own = int((~ground).sum())
         pts = pts[~ground] if n_own else pts  # the truth is the tower's own points
@@ -363,7 +363,7 @@ def _insert(
             c, _ = sample_segments(neg.prim, dens, rng, beam=params.member_beam, vertical_factor=params.vertical_factor)
             parts.append((in_box(c), classes.OTHER, 0, col.STEEL, 0.7, 1.0))
             negatives.append({"kind": neg.kind, "x": neg.x, "y": neg.y, "height": round(neg.height, 3)})
-    points = with_attributes(las, xyz, cls, parts, rng)
+    points = drop_source_ground(with_attributes(las, xyz, cls, parts, rng))
     return {
         "points": points,
         "rows": rows,

@@ -23,7 +23,13 @@ from scipy.spatial import cKDTree
 from towerpipe import classes
 from towerpipe.synth import color as col
 
-__all__ = ["VARIANTS", "degrade", "tile_colour", "with_attributes"]
+__all__ = ["SOURCE_GROUND", "VARIANTS", "degrade", "drop_source_ground", "tile_colour", "with_attributes"]
+
+#: The class a real tower source's ground points (:func:`towerpipe.synth.real.ground_layer`) carry
+#: while a zone draws their attributes; :func:`drop_source_ground` then leaves them out. The tile or
+#: the scene has its own ground there, and the source's, set in over it, would hover over it (a
+#: sloping piece 1-3 m up). Drawn and then dropped, they leave every other point as it was.
+SOURCE_GROUND = 255
 
 #: Ways a zone's attributes are degraded (see the module docstring).
 VARIANTS = ("intact", "no_intensity", "no_nir", "no_colour", "no_wire_class")
@@ -114,6 +120,12 @@ def with_attributes(las: laspy.LasData, xyz: np.ndarray, cls: np.ndarray, parts,
         "scan_angle": join(sa, cat["sa"], np.float32),
         "gps_time": join(gps, cat["gps"], np.float64),
     }
+
+
+def drop_source_ground(pts: dict) -> dict:
+    """The points of a zone without those of class :data:`SOURCE_GROUND` (every array alike)."""
+    keep = np.asarray(pts["classification"]) != SOURCE_GROUND
+    return pts if keep.all() else {k: np.asarray(v)[keep] for k, v in pts.items()}
 
 
 def degrade(pts: dict, variant: str) -> dict:

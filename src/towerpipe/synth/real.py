@@ -7,8 +7,10 @@ US-survey-feet files converted to metres). The package holds none of these files
 
 Some sources label the ground and foundations within a tower's footprint as tower: a filled
 layer at the base of the set, level (:func:`ground_layer_top`) or sloping (:func:`ground_layer`).
-Its points are set into a zone as they are, labelled as other points (class 1), never as the
-tower's: no airborne product reports the ground under a tower as tower.
+Its points are never the tower's: no airborne product reports the ground under a tower as
+tower. A zone draws their attributes and then leaves them out
+(:data:`towerpipe.synth.delivery.SOURCE_GROUND`): the zone has its own ground there, over which the
+source's would hover.
 """
 
 from __future__ import annotations

@@ -28,6 +28,7 @@ from towerpipe.synth.buildings import (
     rasterize_roofs,
     sample_walls,
 )
+from towerpipe.synth.delivery import SOURCE_GROUND, drop_source_ground
 from towerpipe.synth.negatives import Negative, crane_beside_line, make_negatives
 from towerpipe.synth.params import SceneParams
 from towerpipe.synth.primitives import Primitives, sample_segments
@@ -385,10 +386,10 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
             vis = vis * np.where(under, p.canopy_transmission, 1.0)
             xyz = xyz[r.random(len(xyz)) < vis]
         own, factor = _tower_look(zone, t)
-        ground = t.ground if t.ground is not None else np.zeros(len(xyz), bool)  # set with a real shape's points
+        ground = t.ground if t.ground is not None else np.zeros(len(xyz), bool)  # a real shape's source ground
         add(
             xyz,
-            np.where(ground, OTHER, TOWER),
+            np.where(ground, SOURCE_GROUND, TOWER),
             col.WOOD if t.design in WOODEN else col.STEEL,
             own,
             tid=np.where(ground, 0, t.tower_id),
@@ -441,7 +442,7 @@ def block_points(zone: Zone, index: int) -> dict[str, np.ndarray]:
     out["point_source_id"] = (out.pop("strip") + 1).astype(np.uint16)
     for k in ("material", "color_material", "color_variant"):
         out.pop(k)
-    return out
+    return drop_source_ground(out)  # after every draw: the other points stay as they were
 
 
 def _tower_look(zone: Zone, t: Tower) -> tuple[float, float]:

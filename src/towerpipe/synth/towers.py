@@ -89,7 +89,7 @@ class Tower:
         Line the tower belongs to.
     ground
         Which of ``points`` are their source's ground (:func:`towerpipe.synth.real.ground_layer`),
-        written as other points; ``None``: none.
+        left out of the zone once their attributes are drawn; ``None``: none.
     """
 
     tower_id: int
