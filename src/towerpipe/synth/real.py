@@ -84,6 +84,14 @@ def _hull_area(xy: np.ndarray) -> float:
         return 0.0
 
 
+def _filled_hull(xy: np.ndarray) -> float:
+    """The hull area of plan points that fill ``GROUND_LAYER["FILL"]`` of a hull of ``GROUND_LAYER["AREA"]``
+    m² or more (in cells of ``GROUND_LAYER["CELL"]`` m), else 0: a layer of ground, not legs or a pole's foot."""
+    g = GROUND_LAYER
+    hull = _hull_area(xy)  # 0 where collinear or coincident: a pole's foot
+    return hull if hull >= g["AREA"] and _plan_area(xy, g["CELL"]) >= g["FILL"] * hull else 0.0
+
+
 def ground_layer_top(xyz: np.ndarray) -> float:
     """Height over a real tower set's lowest point below which its points are ground; 0 where none.
 
@@ -111,8 +119,8 @@ def ground_layer_top(xyz: np.ndarray) -> float:
     low = xyz[z < g["DEPTH"], :2]
     if len(low) < 3:
         return 0.0
-    hull = _hull_area(low)  # 0 where collinear or coincident: a pole's foot
-    if hull < g["AREA"] or _plan_area(low, g["CELL"]) < g["FILL"] * hull:
+    hull = _filled_hull(low)
+    if not hull:
         return 0.0
     top = g["DEPTH"]
     while top < g["MAX"] and _plan_area(xyz[(z >= top) & (z < top + 0.25), :2], g["CELL"]) >= 0.5 * hull:
@@ -122,7 +130,7 @@ def ground_layer_top(xyz: np.ndarray) -> float:
 
 def _sloped_layer(xyz: np.ndarray) -> np.ndarray:
     """Which points of a real tower set are a sloping ground layer at its base (:data:`SLOPED_LAYER`)."""
-    g, s = GROUND_LAYER, SLOPED_LAYER
+    s = SLOPED_LAYER
     z = xyz[:, 2] - xyz[:, 2].min()
     none = np.zeros(len(xyz), bool)
     fit = z < s["LOW"]
@@ -136,9 +144,8 @@ def _sloped_layer(xyz: np.ndarray) -> np.ndarray:
         if (near == fit).all():
             break
         fit = near
-    layer = near
-    hull = _hull_area(xyz[layer, :2])
-    if hull < g["AREA"] or _plan_area(xyz[layer, :2], g["CELL"]) < g["FILL"] * hull:
+    hull = _filled_hull(xyz[near, :2])
+    if not hull:
         return none
     if np.degrees(np.arctan(np.hypot(*coef[:2]))) > s["SLOPE"]:
         return none
