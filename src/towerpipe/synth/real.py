@@ -133,14 +133,15 @@ def _sloped_layer(xyz: np.ndarray) -> np.ndarray:
     s = SLOPED_LAYER
     z = xyz[:, 2] - xyz[:, 2].min()
     none = np.zeros(len(xyz), bool)
-    fit = z < s["LOW"]
+    low = z < s["LOW"]
+    fit = low
     a = np.c_[xyz[:, :2], np.ones(len(xyz))]
     for _ in range(5):  # refit on the points near the plane until they stay the same
         if fit.sum() < 10:
             return none
         coef = np.linalg.lstsq(a[fit], z[fit], rcond=None)[0]
         resid = z - a @ coef
-        near = (np.abs(resid) < s["THICK"]) & (z < s["LOW"])
+        near = (np.abs(resid) < s["THICK"]) & low
         if (near == fit).all():
             break
         fit = near
@@ -156,9 +157,9 @@ def _sloped_layer(xyz: np.ndarray) -> np.ndarray:
     if hull < s["WIDER"] * float(np.median(body)):
         return none  # a lattice's base bracing: as wide as the body above it
     up = s["THICK"]  # grown by the 0.25 m bands over the plane that still spread over half of its hull
-    while _hull_area(xyz[(resid >= up) & (resid < up + 0.25) & (z < s["LOW"]), :2]) >= 0.5 * hull:
+    while _hull_area(xyz[(resid >= up) & (resid < up + 0.25) & low, :2]) >= 0.5 * hull:
         up += 0.25
-    return (resid < up) & (z < s["LOW"])
+    return (resid < up) & low
 
 
 def ground_layer(xyz: np.ndarray) -> np.ndarray:
