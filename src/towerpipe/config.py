@@ -247,6 +247,9 @@ class TowersConfig(Section):
     threshold: float
     #: Points closer than this (m, 3-D) belong to one tower.
     linkage: float
+    #: A cluster standing on the masts of towers whose tops stand this far (m) over the saddle
+    #: between them is split into one tower each (0: never; :mod:`towerpipe.towers.masts`).
+    mast_prominence: float
     #: Towers with fewer points are dropped.
     min_points: int
     #: Towers lower than this (m, max HAG) are dropped.

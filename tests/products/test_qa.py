@@ -159,11 +159,11 @@ def test_block_report_page_and_json(tmp_path):
     assert infer["seconds"] == 12.5 and infer["max_rss_mb"] == pytest.approx(1534.2)
     assert {"code": "warnings", "reason": "1 warning(s) during processing"} in doc["flags"]
     assert doc["status"] == "look"
-    # the schema's limits (its qa section and four tower rules), keys in this order
+    # the schema's limits (its qa section and five tower rules), keys in this order
     assert json.dumps(on_disk["limits"]) == (
         '{"min_density": 2.0, "min_ground_ratio": 0.05, "edge_margin_m": 2.0, "min_tower_prob": 0.6, '
         '"min_wire_support": 0.5, "wire_min_height": 20.0, "max_gate_ratio": 0.25, "min_recall": 1.0, '
-        '"min_precision": 1.0, "min_truth_points": 20, "min_shape_score": 0.95}'
+        '"min_precision": 1.0, "min_truth_points": 20, "mast_prominence": 2.0, "min_shape_score": 0.95}'
     )
     assert doc["summary"].startswith("2 towers found")
     for text in ("40006004600060", "tile t3: 2 holes filled", "Accuracy against", "peak memory (MB)"):

@@ -18,6 +18,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from towerpipe.errors import InputError
+from towerpipe.towers.masts import split_masts
 
 _PRED_NAMES = ("block_id", "point_index", "x", "y", "z", "hag", "prob")
 
@@ -171,6 +172,7 @@ def cluster_towers(
     merge_gap: float = 1.0,
     max_extent: float = 25.0,
     reach: float = 10.0,
+    mast_prominence: float = 0.0,
     min_points: int,
     min_height: float,
 ) -> np.ndarray:
@@ -236,6 +238,15 @@ def cluster_towers(
         a, b = tree.query(hulls, predicate="dwithin", distance=merge_gap)
         merged = _components(k, np.stack([a, b], axis=1))
         labels[valid] = merged[labels[valid]]
+    # split clusters standing on the masts of two towers (crossarms linked, plans touching)
+    if mast_prominence > 0 and valid.any():
+        nxt = labels.max() + 1
+        for lab in np.unique(labels[valid]):
+            idx = np.flatnonzero(labels == lab)
+            sub = split_masts(xyz[idx], hag[idx], linkage=linkage, prominence=mast_prominence, min_points=min_points)
+            if sub.max() > 0:
+                labels[idx] = np.where(sub == 0, lab, sub - 1 + nxt)
+                nxt += int(sub.max())
     # filters
     valid = labels >= 0
     if valid.any():

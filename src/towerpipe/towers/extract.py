@@ -14,8 +14,8 @@ crowns beside it that ``rules.crowns`` leaves out (:mod:`towerpipe.towers.crown`
 1. connected components of a 3-D ``cKDTree`` graph (points closer than ``linkage``);
 2. a component wider than ``max_extent`` (a chain of falsely predicted wire points
    linking towers) is split into its vertical columns (see :func:`towerpipe.towers.cluster._split_wide`);
-3. components whose xy footprints are within ``merge_gap`` of each other are merged
-   (a tower whose crossarms were separated from its body);
+3. components whose xy footprints are within ``merge_gap`` of each other are merged (a tower whose
+   crossarms were separated from its body), one on two towers' masts split (:mod:`towerpipe.towers.masts`);
 4. towers with fewer than ``min_points`` points or lower than ``min_height`` (max HAG)
    are dropped (the paper's towers are >= 10 m high and >= 20 points), and so are
    towers without a confident core: fewer than 10 % of their points at or above
@@ -310,6 +310,7 @@ def extract_towers(
             pts["hag"][idx],
             linkage=rules.linkage,
             merge_gap=merge_gap,
+            mast_prominence=rules.mast_prominence,
             max_extent=max_extent,
             min_points=min_points,
             min_height=rules.min_height,

@@ -24,12 +24,13 @@ def towers_from_labels(
     min_points: int = 1,
     min_height: float = 0.0,
     min_width: float = 1.0,
+    mast_prominence: float = 0.0,
     crs: Any = None,
 ) -> gpd.GeoDataFrame:
     """Truth towers from point labels (e.g. input Classification == 15).
 
     Clusters the labelled points as :func:`towerpipe.towers.cluster.cluster_towers` does (no size filter by
-    default) and returns ``tower_id`` (``truth_<k>``), ``n_points``, ``height_m``
+    default; ``mast_prominence``: two towers whose crossarms touch are two, as ``towers.mast_prominence``) and returns ``tower_id`` (``truth_<k>``), ``n_points``, ``height_m``
     (max HAG, or z range when ``hag`` is None) and the footprint Polygon.
     """
     sel = np.asarray(is_tower, dtype=bool)
@@ -39,7 +40,14 @@ def towers_from_labels(
     if h is None:
         h = xyz[:, 2] - (xyz[:, 2].min() if len(xyz) else 0.0)
     labels = cluster_towers(
-        xyz, h, linkage=linkage, merge_gap=1.0, max_extent=np.inf, min_points=min_points, min_height=min_height
+        xyz,
+        h,
+        linkage=linkage,
+        merge_gap=1.0,
+        max_extent=np.inf,
+        mast_prominence=mast_prominence,
+        min_points=min_points,
+        min_height=min_height,
     )
     rows, geoms = [], []
     for k in range(labels.max() + 1 if len(labels) else 0):

@@ -381,6 +381,7 @@ def block_report(
             gdf,
             bounds,
             min_truth_points=int(limits.min_truth_points),
+            mast_prominence=float(limits.mast_prominence),
             neighbour_towers=inputs.neighbour_towers,
             truth_points=inputs.truth_points,
         )

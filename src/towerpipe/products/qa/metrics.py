@@ -22,7 +22,7 @@ from towerpipe import classes
 class Limits:
     """Limits that flag a block or a tower for a human look.
 
-    No defaults here: the schema holds them (the config's ``qa`` section, and three tower
+    No defaults here: the schema holds them (the config's ``qa`` section, and the tower
     rules of its ``towers`` section, :attr:`FROM_TOWERS`); :meth:`from_config` reads a
     validated config.
     """
@@ -47,6 +47,8 @@ class Limits:
     min_precision: float
     #: Labelled clusters with fewer points are not towers (``towers.min_points``).
     min_truth_points: int
+    #: Labelled clusters standing on two towers' masts are two towers (``towers.mast_prominence``).
+    mast_prominence: float
     #: Shape score of a tower below this: flagged (``towers.min_shape_score``); only rule 12 (the
     #: conductors' vouch, ``towers.vouch_height``) or rule 13 (tall clusters,
     #: ``towers.tall_shape_score``) report a tower with such a score.
@@ -57,6 +59,7 @@ class Limits:
         "min_wire_support": "min_wire_support",
         "wire_min_height": "wire_min_height",
         "min_truth_points": "min_points",
+        "mast_prominence": "mast_prominence",
         "min_shape_score": "min_shape_score",
     }
 
@@ -422,6 +425,7 @@ def label_accuracy(
     bounds: Sequence[float] | None,
     *,
     min_truth_points: int,
+    mast_prominence: float = 0.0,
     neighbour_towers: Sequence[Mapping[str, Any]] | None = None,
     truth_points: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, Any] | None:
@@ -449,15 +453,13 @@ def label_accuracy(
     p_mask = pts["classification"] == classes.TOWER
     inter = int(np.count_nonzero(p_mask & t_mask))
     union = int(np.count_nonzero(p_mask | t_mask))
+    # labelled towers are clustered as the tower rules cluster (two towers whose crossarms touch: two)
+    split = {"min_points": int(min_truth_points), "mast_prominence": float(mast_prominence)}
     if truth_points is not None:
         tp = truth_points
-        true_towers = towers_from_labels(
-            tp["x"], tp["y"], tp["z"], tp.get("hag"), np.ones(len(tp["x"]), bool), min_points=int(min_truth_points)
-        )
+        true_towers = towers_from_labels(tp["x"], tp["y"], tp["z"], tp.get("hag"), np.ones(len(tp["x"]), bool), **split)
     else:
-        true_towers = towers_from_labels(
-            pts["x"], pts["y"], pts["z"], pts.get("hag"), t_mask, min_points=int(min_truth_points)
-        )
+        true_towers = towers_from_labels(pts["x"], pts["y"], pts["z"], pts.get("hag"), t_mask, **split)
     across = true_towers.iloc[:0]
     if bounds is not None and len(true_towers):
         c = true_towers.geometry.centroid
