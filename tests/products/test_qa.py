@@ -162,7 +162,7 @@ def test_block_report_page_and_json(tmp_path):
     # the schema's limits (its qa section and five tower rules), keys in this order
     assert json.dumps(on_disk["limits"]) == (
         '{"min_density": 2.0, "min_ground_ratio": 0.05, "edge_margin_m": 2.0, "min_tower_prob": 0.6, '
-        '"min_wire_support": 0.5, "wire_min_height": 20.0, "max_gate_ratio": 0.25, "min_recall": 1.0, '
+        '"min_wire_support": 0.5, "wire_min_height": 15.0, "max_gate_ratio": 0.25, "min_recall": 1.0, '
         '"min_precision": 1.0, "min_truth_points": 20, "mast_prominence": 2.0, "min_shape_score": 0.95}'
     )
     assert doc["summary"].startswith("2 towers found")

@@ -556,7 +556,7 @@ def test_a_tall_cluster_passes_the_shape_check_lower_with_conductors(monkeypatch
 
 def test_a_low_cluster_needs_the_full_shape_score_whatever_the_tall_one():
     """A 14 m cluster scored 0.92 stays under ``min_shape_score`` (0.95) with ``tall_shape_score``
-    0.9: rule 13 is for clusters the conductor rule judges (``towers.wire_min_height``, 20 m)."""
+    0.9: rule 13 is for clusters the conductor rule judges (``towers.wire_min_height``, 15 m)."""
     import towerpipe.towers.extract as ex
 
     rng = np.random.default_rng(4)

@@ -250,11 +250,11 @@ def test_a_tall_cluster_needs_the_tall_core_probability():
         return len(extract([pair], "b1", BOUNDS, zone="z1", min_core_prob=0.9, **rules).towers)
 
     assert found() == 1  # the 30 m tower's core is under 0.9
-    assert found(tall_core_prob=0.8) == 2  # 30 m is tall (wire_min_height 20 m): 0.8 is its bar
+    assert found(tall_core_prob=0.8) == 2  # 30 m is tall (wire_min_height 15 m): 0.8 is its bar
     assert found(tall_core_prob=0.8, wire_min_height=35.0) == 1  # not tall: min_core_prob holds
     assert found(tall_core_prob=0.95) == 1  # never more than min_core_prob asks
     assert tower_rules(tall_core_prob=0.2).core_needed(25.0) == 0.2
-    assert tower_rules(tall_core_prob=0.2).core_needed(15.0) == tower_rules().core_needed(25.0) == 0.3
+    assert tower_rules(tall_core_prob=0.2).core_needed(12.0) == tower_rules().core_needed(25.0) == 0.3
 
 
 def test_wire_chain_is_split_into_towers():
