@@ -13,11 +13,10 @@ from typing import Any
 
 import numpy as np
 import shapely
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from towerpipe.errors import InputError
+from towerpipe.towers.graph import components, nearest_seed
 from towerpipe.towers.masts import split_masts
 
 _PRED_NAMES = ("block_id", "point_index", "x", "y", "z", "hag", "prob")
@@ -95,20 +94,12 @@ def gather_points(preds: Sequence[Any], threshold: float) -> dict[str, np.ndarra
 
 
 # --------------------------------------------------------------------------- clustering
-def _components(n: int, pairs: np.ndarray) -> np.ndarray:
-    """Connected-component labels of ``n`` nodes joined by ``pairs`` (k, 2)."""
-    if n == 0:
-        return np.empty(0, dtype=np.int64)
-    graph = coo_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    return connected_components(graph, directed=False)[1].astype(np.int64)
-
-
 def _link(xyz: np.ndarray, linkage: float) -> np.ndarray:
     """Component labels of points closer than ``linkage`` (3-D)."""
     if len(xyz) == 0:
         return np.empty(0, dtype=np.int64)
     pairs = cKDTree(xyz).query_pairs(linkage, output_type="ndarray")
-    return _components(len(xyz), pairs)
+    return components(len(xyz), pairs)
 
 
 def _split_wide(
@@ -143,16 +134,7 @@ def _split_wide(
     if not is_col.any():
         return labels
     col_idx = np.flatnonzero(is_col)
-    labels[col_idx] = _link(xyz[col_idx], linkage)
-    pairs = cKDTree(xyz).query_pairs(linkage, output_type="ndarray")
-    w = np.linalg.norm(xyz[pairs[:, 0]] - xyz[pairs[:, 1]], axis=1) + 1e-9
-    graph = coo_matrix((w, (pairs[:, 0], pairs[:, 1])), shape=(len(xyz), len(xyz))).tocsr()
-    dist, _, source = dijkstra(
-        graph, directed=False, indices=col_idx, min_only=True, limit=reach, return_predecessors=True
-    )
-    ok = np.isfinite(dist) & (source >= 0)
-    labels[ok] = labels[source[ok]]
-    return labels
+    return nearest_seed(xyz, col_idx, _link(xyz[col_idx], linkage), linkage, limit=reach)
 
 
 def _footprint(xy: np.ndarray, min_width: float) -> shapely.Polygon:
@@ -236,7 +218,7 @@ def cluster_towers(
         hulls = [shapely.convex_hull(shapely.multipoints(xyz[g, :2])) for g in np.split(vidx, splits)]
         tree = shapely.STRtree(hulls)
         a, b = tree.query(hulls, predicate="dwithin", distance=merge_gap)
-        merged = _components(k, np.stack([a, b], axis=1))
+        merged = components(k, np.stack([a, b], axis=1))
         labels[valid] = merged[labels[valid]]
     # split clusters standing on the masts of two towers (crossarms linked, plans touching)
     if mast_prominence > 0 and valid.any():

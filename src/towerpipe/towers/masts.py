@@ -31,9 +31,9 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import ndimage
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
+
+from towerpipe.towers.graph import components, nearest_seed
 
 #: The band of a cluster's height (shares of its highest point) in which its masts stand apart:
 #: above shrubs and a foot's clutter, below the crossarms.
@@ -62,11 +62,6 @@ GROUND_SHARE = 0.1
 _EIGHT = np.ones((3, 3), bool)
 
 
-def _components(n: int, pairs: np.ndarray) -> np.ndarray:
-    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    return connected_components(graph, directed=False)[1]
-
-
 def mast_bodies(xyz: np.ndarray, hag: np.ndarray, linkage: float) -> list[np.ndarray]:
     """The masts a cluster stands on: indices of its band points (:data:`BAND`), one array a mast.
 
@@ -84,7 +79,7 @@ def mast_bodies(xyz: np.ndarray, hag: np.ndarray, linkage: float) -> list[np.nda
     if len(band) < 2 * MIN_BODY_POINTS:
         return []
     pairs = cKDTree(xyz[band, :2]).query_pairs(linkage, output_type="ndarray")
-    lab = _components(len(band), pairs)
+    lab = components(len(band), pairs)
     masts = []
     for k in range(int(lab.max()) + 1):
         m = band[lab == k]
@@ -115,20 +110,12 @@ def _saddle(raster: np.ndarray, a: tuple[int, int], b: tuple[int, int]) -> float
 def _nearest_mast(xyz: np.ndarray, masts: list[np.ndarray], linkage: float) -> np.ndarray:
     """For each point, the mast nearest along the graph of points closer than ``linkage`` (in
     3-D where no path reaches one)."""
-    n = len(xyz)
     seeds = np.concatenate(masts)
     seed_mast = np.concatenate([np.full(len(m), k) for k, m in enumerate(masts)])
-    pairs = cKDTree(xyz).query_pairs(linkage, output_type="ndarray")
-    w = np.linalg.norm(xyz[pairs[:, 0]] - xyz[pairs[:, 1]], axis=1) + 1e-9
-    graph = coo_matrix((w, (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
-    dist, _, source = dijkstra(graph, directed=False, indices=seeds, min_only=True, return_predecessors=True)
-    reached = np.isfinite(dist) & (source >= 0)
-    mast_of_seed = np.full(n, -1, np.int64)
-    mast_of_seed[seeds] = seed_mast
-    owner = np.full(n, -1, np.int64)
-    owner[reached] = mast_of_seed[source[reached]]
-    if not reached.all():
-        owner[~reached] = seed_mast[cKDTree(xyz[seeds]).query(xyz[~reached])[1]]
+    owner = nearest_seed(xyz, seeds, seed_mast, linkage)
+    lost = owner < 0
+    if lost.any():
+        owner[lost] = seed_mast[cKDTree(xyz[seeds]).query(xyz[lost])[1]]
     return owner
 
 
@@ -186,7 +173,7 @@ def split_masts(
                 prominence, PROMINENCE_SHARE * low
             ):
                 same.append((i, j))
-    tower = _components(len(masts), np.array(same, np.int64).reshape(-1, 2))
+    tower = components(len(masts), np.array(same, np.int64).reshape(-1, 2))
     if tower.max() == 0:
         return labels
     centres = np.array([np.median(xyz[m, :2], axis=0) for m in masts])

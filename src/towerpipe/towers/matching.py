@@ -30,7 +30,8 @@ def towers_from_labels(
     """Truth towers from point labels (e.g. input Classification == 15).
 
     Clusters the labelled points as :func:`towerpipe.towers.cluster.cluster_towers` does (no size filter by
-    default; ``mast_prominence``: two towers whose crossarms touch are two, as ``towers.mast_prominence``) and returns ``tower_id`` (``truth_<k>``), ``n_points``, ``height_m``
+    default; with ``mast_prominence`` two towers whose crossarms touch are two, as ``towers.mast_prominence``)
+    and returns ``tower_id`` (``truth_<k>``), ``n_points``, ``height_m``
     (max HAG, or z range when ``hag`` is None) and the footprint Polygon.
     """
     sel = np.asarray(is_tower, dtype=bool)
