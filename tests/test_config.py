@@ -45,6 +45,14 @@ def test_unknown_keys_name_the_closest_valid_one():
     ]
 
 
+def test_a_zone_crs_is_read_before_any_job():
+    """A CRS pyproj cannot read stops the run at validation, naming the key and a form it reads."""
+    assert validate_config({"zones": {"z": {"input": "in", "crs": "EPSG:25831"}}}, SCHEMA)
+    for bad in ("EPSG:99999", "EPSG25831"):
+        (line,) = problems({"zones": {"z": {"input": "in", "crs": bad}}})
+        assert line.startswith(f"config: zones.z.crs: '{bad}' is not a CRS (") and 'e.g. "EPSG:25831"' in line
+
+
 def test_one_line_per_problem():
     lines = problems(
         {"zones": {"z": {"inptu": "in"}}, "inference": {"gate": 1.5, "tta": 3}, "preprocess": {"buffer": "wide"}}
@@ -107,6 +115,15 @@ def test_run_config_errors_are_one_line(tmp_path, capsys):
     assert err.count("\n") == 0 and "infrence: unknown key; did you mean 'inference'?" in err
     assert main(["run", "no_such_zone"]) == 1
     assert "zone 'no_such_zone' is not configured" in capsys.readouterr().err
+    # an input directory without a block: one line before Snakemake starts (no banner)
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "e.yaml").write_text(f"zones: {{ez: {{input: {tmp_path / 'empty'}}}}}\n")
+    assert main(["run", "ez", "--config", str(tmp_path / "e.yaml")]) == 1
+    out = capsys.readouterr()
+    assert out.err.strip() == (
+        f"towerpipe: error: ConfigError: zones.ez.input: no .las/.laz files under '{tmp_path / 'empty'}'"
+    )
+    assert "Snakemake version" not in out.out + out.err
 
 
 @pytest.mark.usefixtures("pdal_cli")

@@ -124,14 +124,28 @@ def _problems(error: Any) -> list[str]:
         extra = [k for k in error.instance if k not in props and not any(re.search(p, str(k)) for p in patterns)]
         return [f"{_key_path([*error.absolute_path, k])}: unknown key; {_closest(str(k), props)}" for k in extra]
     message = " ".join(error.message.split())
+    if error.validator == "format" and error.validator_value == "crs":
+        cause = " ".join(str(error.cause or "").split())
+        message = f'{error.instance!r} is not a CRS ({cause}); write it as e.g. "EPSG:25831"'
     if len(message) > MAX_PROBLEM_CHARS:
         message = message[: MAX_PROBLEM_CHARS - 1] + "…"
     return [f"{where or '(top level)'}: {message}"]
 
 
+def _format_checker() -> Any:
+    """The schema's formats: ``crs``, a string pyproj reads as a CRS (``EPSG:25831``, WKT, PROJ)."""
+    from jsonschema import FormatChecker
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    checker = FormatChecker(())
+    checker.checks("crs", raises=CRSError)(lambda value: not isinstance(value, str) or bool(CRS.from_user_input(value)))
+    return checker
+
+
 def config_problems(config: MutableMapping[str, Any], schema: Mapping[str, Any]) -> list[str]:
     """Every problem of ``config`` against ``schema``, one line each (defaults are filled in)."""
-    validator = _validator_class()(schema)
+    validator = _validator_class()(schema, format_checker=_format_checker())
     lines: list[str] = []
     for error in sorted(validator.iter_errors(config), key=lambda e: [str(p) for p in e.absolute_path]):
         for line in _problems(error):

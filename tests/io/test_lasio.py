@@ -5,6 +5,7 @@ from __future__ import annotations
 import laspy
 import numpy as np
 import pytest
+from pyproj import CRS
 
 from conftest import RGBNIR_SMALL
 from towerpipe.errors import InputError
@@ -78,6 +79,22 @@ def test_bad_crs_override(tmp_path):
     p = write_points(tmp_path / "b.laz", crs=None)
     with pytest.raises(InputError, match=r"zones\.z1\.crs"):
         read_block(p, crs="EPSG:not-a-code", zone="z1")
+
+
+def test_a_file_keeps_its_own_crs(tmp_path):
+    """The zone's ``crs`` is for files without one: a file's own CRS is kept, one in another plan
+    CRS is refused (naming both, the key and the fix), a vertical datum the key lacks is kept."""
+    p = write_points(tmp_path / "own.laz", crs="EPSG:25831")
+    assert CRS.from_wkt(read_block(p, crs="EPSG:25831", zone="z1").crs_wkt).to_epsg() == 25831
+    with pytest.raises(
+        InputError,
+        match=r"own\.laz: its CRS \(EPSG:25831\) differs from config key `zones\.z1\.crs` \(EPSG:25830\).*a_srs",
+    ) as exc:
+        read_block(p, crs="EPSG:25830", zone="z1")
+    assert "\n" not in str(exc.value)
+    q = write_points(tmp_path / "compound.laz", crs="EPSG:25831+5782")
+    kept = CRS.from_wkt(read_block(q, crs="EPSG:25831", zone="z1").crs_wkt)
+    assert kept.is_compound and kept.sub_crs_list[0].to_epsg() == 25831
 
 
 def test_las12_without_colour(tmp_path):

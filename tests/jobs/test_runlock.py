@@ -7,7 +7,7 @@ import subprocess
 import sys
 import time
 
-from conftest import REPO
+from conftest import REPO, snakemake_run, write_zone_config
 
 
 def _holder(tmp_path, zone):
@@ -43,6 +43,26 @@ def test_second_run_of_a_zone_is_refused_naming_the_live_process(tmp_path):
         hold_zone("z1", tmp_path)
     except TowerpipeError as exc:  # pragma: no cover - the assertion below explains
         raise AssertionError(f"the lock of a killed run survived: {exc}") from exc
+
+
+def test_a_plain_snakemake_on_a_busy_zone_stops_with_one_line(tmp_path):
+    """Snakemake itself (not only the nightly script): exit 75, the live process named, no traceback."""
+    zone = f"pytest_busy_{os.getpid()}"
+    (tmp_path / "in").mkdir()
+    cfg = write_zone_config(tmp_path / "c.yaml", {zone: {"input": str(tmp_path / "in")}}, tmp_path / "work")
+    proc = _holder(REPO, zone)
+    try:
+        run = snakemake_run("--cores", "1", f"results/{zone}/", f"--configfile={cfg}")
+    finally:
+        proc.kill()
+        proc.wait()
+        for p in (REPO / ".snakemake" / "towerpipe").glob(f"zone-{zone}*.lock"):
+            p.unlink()
+    assert run.returncode == 75, run.stderr
+    assert run.stderr.rstrip().splitlines()[-1] == (
+        f"zone {zone} is being processed by another run (process {proc.pid}); nothing done: wait for it to finish"
+    )
+    assert "Traceback" not in run.stderr and "Exception" not in run.stderr
 
 
 def test_unlock_only_when_no_run_is_alive(tmp_path):

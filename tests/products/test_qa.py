@@ -326,6 +326,11 @@ def test_read_benchmark_repeats_and_na(tmp_path):
     p = tmp_path / "b.tsv"
     p.write_text("s\th:m:s\tmax_rss\tcpu_time\n10\t0:00:10\t100\tNA\n20\t0:00:20\t300\tNA\n")
     assert read_benchmark(p) == {"seconds": 15.0, "max_rss_mb": 300.0}
+    # a job Snakemake's sampler never saw working (cpu_time 0): its memory is not known
+    p.write_text("s\th:m:s\tmax_rss\tcpu_time\n0.48\t0:00:00\t7.2\t0.00\n")
+    assert read_benchmark(p) == {"seconds": 0.48, "cpu_seconds": 0.0}
+    p.write_text("s\th:m:s\tmax_rss\tcpu_time\n0.5\t0:00:00\t7.2\t0.00\n2.5\t0:00:02\t412\t2.1\n")
+    assert read_benchmark(p)["max_rss_mb"] == 412.0
 
 
 def _benchmark(path, seconds: float, rss: float):
@@ -358,8 +363,11 @@ def test_zone_index(tmp_path):
     assert t["summary"] == "2 towers found in 3 blocks; 1 failed; 1 needs a look."
     page = (tmp_path / "index.html").read_text()
     assert 'href="qa/a.html"' in page and "merge_block failed" in page and "ground classified" in page
-    assert page.count("LAZ merged in") == 1 and "LAZ merged in 3.2 s, 512 MB" in page
+    assert page.count("LAZ merged in") == 1 and "LAZ merged in 3.2 s, peak memory 512 MB" in page
     assert json.loads((tmp_path / "index.json").read_text())["totals"]["towers"] == 2
+    # no zone GeoPackage (every block failed, or none given): no link to it, and the page says so
+    assert "towers.gpkg</a>" not in page and 'href="../towers.gpkg"' not in page
+    assert "no <code>towers.gpkg</code> was written" in page
 
 
 def test_edge_tower_reported_by_the_neighbour_counts_as_found(tmp_path):

@@ -5,6 +5,7 @@ import functools
 import json
 import os
 import re
+import sys
 from pathlib import Path
 
 from snakemake.exceptions import WorkflowError
@@ -16,7 +17,7 @@ from towerpipe.errors import PdalError, TowerpipeError
 from towerpipe.jobs import runlock
 from towerpipe.jobs.batch import timing_file
 from towerpipe.io import workdir
-from towerpipe.io.inputs import describe, scan_zone
+from towerpipe.io.inputs import describe, no_blocks_message, scan_zone
 from towerpipe.preprocess.pdal import pdal_version
 
 WORK = config["workdir"]
@@ -128,7 +129,9 @@ def zone_input(zone):
         try:
             runlock.hold_zone(zone)
         except TowerpipeError as exc:
-            raise WorkflowError(str(exc))
+            # one line, no traceback of this input function; 75 (EX_TEMPFAIL): try again later
+            print(exc, file=sys.stderr, flush=True)
+            raise SystemExit(75)
     if "synth" in zc:
         if os.path.normpath(path) != os.path.normpath(f"data/{zone}"):
             config_exit(f"zones.{zone}.input must be data/{zone} for a synthetic zone (got {path})")
@@ -143,7 +146,7 @@ def zone_input(zone):
 def _inputs(zone, path):
     found = scan_zone(path, cache=f"{WORK}/{zone}/inputs.json")
     if not found:
-        config_exit(f"zones.{zone}.input: no .las/.laz files under {path!r}")
+        config_exit(no_blocks_message(zone, path))
     return found
 
 

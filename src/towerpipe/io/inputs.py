@@ -132,6 +132,11 @@ def find_blocks(input_dir: str | os.PathLike[str]) -> dict[str, str]:
     return {b: str(root / rel) for b, rel in block_ids(rels).items()}
 
 
+def no_blocks_message(zone: str, input_dir: str | os.PathLike[str]) -> str:
+    """What an operator reads when a zone's input directory holds no block."""
+    return f"zones.{zone}.input: no .las/.laz files under {str(input_dir)!r}"
+
+
 def fingerprint(path: str | os.PathLike[str]) -> str:
     """Content fingerprint of a file (see the module docstring): 24 hex digits."""
     h = hashlib.sha256(f"towerpipe-fingerprint-{FINGERPRINT_VERSION}".encode())

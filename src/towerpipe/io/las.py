@@ -123,19 +123,51 @@ def resolve_crs(
 ) -> str:
     """The CRS to use for a block, as WKT.
 
-    The zone's ``crs:`` override wins; else the file's own CRS; else an
-    :class:`InputError` naming the config key to set.
+    The file's own CRS when it has one; else the zone's ``crs:`` (for files without a CRS); else
+    an :class:`InputError` naming the config key to set. A file whose CRS differs from the zone's
+    ``crs:`` in plan is refused: the products of a block would land where its points are not, or
+    disagree with its classified copy (which keeps the file's CRS). Only the horizontal part is
+    compared, so a file in ``EPSG:2154+5720`` keeps its vertical datum under ``crs: EPSG:2154``.
     """
+    key = f"zones.{zone}.crs" if zone else "crs"
     if override:
         try:
-            return CRS.from_user_input(override).to_wkt()
+            wanted = CRS.from_user_input(override)
         except CRSError as exc:
-            key = f"zones.{zone}.crs" if zone else "crs"
             raise InputError(path, f"config key `{key}` = {override!r} is not a CRS ({exc})") from exc
+        if not file_wkt:
+            return wanted.to_wkt()
+        if not same_crs(file_wkt, wanted.to_wkt(), horizontal=True):
+            raise InputError(
+                path,
+                f"its CRS ({crs_name(file_wkt)}) differs from config key `{key}` ({crs_name(wanted.to_wkt())}), "
+                "which is for files without a CRS: remove the key, or rewrite the file's CRS "
+                "(e.g. pdal translate in.laz out.laz --writers.las.a_srs=EPSG:…)",
+            )
     if file_wkt:
         return file_wkt
     z = zone or "ZONE"
     raise InputError(path, f'no CRS in the file; set it in the config: `zones: {{{z}: {{crs: "EPSG:…"}}}}`')
+
+
+def _horizontal(crs: CRS) -> CRS:
+    """The horizontal part of a CRS (the first of a compound one)."""
+    return crs.sub_crs_list[0] if crs.is_compound else crs
+
+
+def same_crs(a: str, b: str, *, horizontal: bool = False) -> bool:
+    """Whether two CRSs (WKT) are the same, axis order aside (``horizontal``: their plan parts)."""
+    ca, cb = CRS.from_wkt(a), CRS.from_wkt(b)
+    if horizontal:
+        ca, cb = _horizontal(ca), _horizontal(cb)
+    return bool(ca.equals(cb, ignore_axis_order=True))
+
+
+def crs_name(wkt: str) -> str:
+    """A CRS as a reader names it: ``EPSG:<code>``, else its name."""
+    c = CRS.from_wkt(wkt)
+    epsg = c.to_epsg()
+    return f"EPSG:{epsg}" if epsg else c.name
 
 
 _METRE_NAMES = ("metre", "meter", "metres", "meters")
@@ -255,7 +287,7 @@ def iter_block(
     ------
     InputError
         Not a LAS file, truncated, zero points, non-finite coordinates, or no
-        CRS (and no override).
+        CRS (and no zone ``crs:``), or a CRS other than the zone's ``crs:``.
     """
     header = read_header(path)
     crs_wkt = resolve_crs(path, header.crs_wkt, crs, zone)
@@ -304,7 +336,7 @@ def read_block(path: str | os.PathLike[str], *, crs: str | None = None, zone: st
     path
         A ``.las``/``.laz`` file.
     crs
-        Override of the file's CRS (the zone's ``crs:`` key).
+        The CRS of a file without one (the zone's ``crs:`` key; :func:`resolve_crs`).
     zone
         Zone name, used in error messages.
     """

@@ -100,7 +100,7 @@ def split_batch(
         The zone.
     blocks
         One mapping per block, the arguments of its split: ``block``, ``file``, ``crs`` (the
-        zone's override), ``zone_crs`` and ``source`` (its input record).
+        zone's ``crs:``, for files without one), ``zone_crs`` and ``source`` (its input record).
     out_dir
         The batch's directory (:data:`towerpipe.io.workdir.BATCH_SPLIT`): each block's
         :data:`~towerpipe.io.workdir.CACHE`.

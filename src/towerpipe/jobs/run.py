@@ -70,7 +70,9 @@ def profile_settings(root: Path) -> dict[str, Any]:
 
 
 def check_zone(config: Mapping[str, Any], zone: str) -> None:
-    """The zone is configured and its input is there (or will be generated)."""
+    """The zone is configured and its input is there, with a block in it (or will be generated)."""
+    from towerpipe.io.inputs import find_blocks, no_blocks_message
+
     zones = config.get("zones") or {}
     if zone not in zones:
         raise ConfigError(
@@ -78,8 +80,12 @@ def check_zone(config: Mapping[str, Any], zone: str) -> None:
             f"`zones: {{{zone}: {{input: DIR}}}}` to a YAML file and pass it with --config"
         )
     zc = zones[zone]
-    if "synth" not in zc and not Path(zc["input"]).is_dir():
+    if "synth" in zc:
+        return
+    if not Path(zc["input"]).is_dir():
         raise ConfigError(f"zones.{zone}.input: directory {zc['input']!r} does not exist")
+    if not find_blocks(zc["input"]):
+        raise ConfigError(no_blocks_message(zone, zc["input"]))
 
 
 def run_zone(
@@ -97,7 +103,7 @@ def run_zone(
     ------
     ConfigError
         Before Snakemake starts: the config file is missing or invalid, the zone is not
-        configured or its input directory is missing.
+        configured, or its input directory is missing or holds no .las/.laz file.
     """
     from snakemake.api import SnakemakeApi
     from snakemake.settings.types import (

@@ -300,9 +300,10 @@ def qa_step(
     for stage, tsvs in benchmarks.items():
         rows = [read_benchmark(t) for t in tsvs if Path(t).exists()]
         if rows:
+            rss = [r["max_rss_mb"] for r in rows if "max_rss_mb" in r]
             timings[stage] = {
                 "seconds": sum(r.get("seconds", 0.0) for r in rows),
-                "max_rss_mb": max(r.get("max_rss_mb", 0.0) for r in rows),
+                "max_rss_mb": max(rss) if rss else None,
                 "jobs": len(rows),
             }
     tile_metas = [read_meta(p) for p in tile_files]

@@ -204,7 +204,7 @@ def zone_step(
             (tmp / layout.INCOMPLETE).write_text(
                 "This zone is INCOMPLETE: the run failed for these blocks (see qa/index.html):\n"
                 + "".join(f"  {b}: {r}\n" for b, r in sorted(failures.items()))
-                + "Fix the inputs (or remove them) and rerun the same snakemake command.\n"
+                + "Fix the inputs (or remove them) and rerun the command that made this zone.\n"
             )
 
     stage = Path(stage_dir) if stage_dir is not None else None

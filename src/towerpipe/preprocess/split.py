@@ -29,7 +29,16 @@ from towerpipe.config import PreprocessConfig
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.io.blockcache import BlockCache, BlockCacheWriter
 from towerpipe.io.diskspace import WORK_BYTES_PER_POINT, require_free
-from towerpipe.io.las import BLOCK_COLUMNS, BlockHeader, check_metric_crs, color_info, iter_block, read_header
+from towerpipe.io.las import (
+    BLOCK_COLUMNS,
+    BlockHeader,
+    check_metric_crs,
+    color_info,
+    crs_name,
+    iter_block,
+    read_header,
+    same_crs,
+)
 from towerpipe.io.lasformat import check_format, own_dimensions
 from towerpipe.preprocess import tiling
 from towerpipe.preprocess.attributes import AttributeStats, degenerate, describe
@@ -72,7 +81,7 @@ def split_block(
     block, zone
         Names (for metadata and messages).
     crs
-        The zone's CRS override.
+        The zone's `crs:`, for files without a CRS (:func:`towerpipe.io.las.resolve_crs`).
     zone_crs
         The CRS the zone's other blocks have (WKT); a block in another CRS is refused
         (a zone is one CRS: windows, neighbours and the GeoPackage mix blocks).
@@ -146,13 +155,13 @@ def _split_block(
     it = iter_block(path, crs=crs, zone=zone, records=True)
     header, crs_wkt = next(it)
     check_format(header.version, header.point_format, path)
-    check_metric_crs(path, crs_wkt, zone=zone, from_config=bool(crs))
+    check_metric_crs(path, crs_wkt, zone=zone, from_config=bool(crs) and not header.crs_wkt)
     own = own_dimensions(path)  # towerpipe output is reprocessed; a foreign dimension of that name is refused
-    if zone_crs and not crs and not _same_crs(crs_wkt, zone_crs):
+    if zone_crs and not crs and not same_crs(crs_wkt, zone_crs):
         raise InputError(
             path,
-            f"its CRS ({_crs_name(crs_wkt)}) differs from the rest of zone {zone!r} "
-            f"({_crs_name(zone_crs)}); reproject it or put it in a zone of its own",
+            f"its CRS ({crs_name(crs_wkt)}) differs from the rest of zone {zone!r} "
+            f"({crs_name(zone_crs)}); reproject it or put it in a zone of its own",
         )
     n = header.point_count
     # the block's work files (cache, tiles, classified LAZ), before any is written
@@ -286,17 +295,3 @@ def _stream_block(
         "withheld_points": n_withheld,
         "timings": {"read": t_read},
     }
-
-
-def _same_crs(a: str, b: str) -> bool:
-    from pyproj import CRS
-
-    return CRS.from_wkt(a).equals(CRS.from_wkt(b), ignore_axis_order=True)
-
-
-def _crs_name(wkt: str) -> str:
-    from pyproj import CRS
-
-    c = CRS.from_wkt(wkt)
-    epsg = c.to_epsg()
-    return f"EPSG:{epsg}" if epsg else c.name

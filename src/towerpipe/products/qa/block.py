@@ -319,8 +319,9 @@ def block_report(
         figures.append(
             {
                 "src": hag_histogram(hag, cls == classes.TOWER if cls is not None else None),
-                "caption": f"Height above ground ({hag_source}); the axis ends at the 99.9th percentile "
-                "or the highest tower point, higher points count in the last bar",
+                "caption": f"Height above ground ({hag_source}) of every point of the classified block, the "
+                "noise classes (7, 18) included; the axis starts at the lowest point and ends at the 99.9th "
+                "percentile or the highest tower point, higher points count in the last bar",
             }
         )
     if raster is not None:

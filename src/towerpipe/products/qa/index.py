@@ -86,7 +86,8 @@ def zone_index(
         Optional JSON with the index numbers.
     gpkg
         The zone's tower GeoPackage: its ``lines`` layer, when it has one, is drawn on the
-        overview map (the towers come from the block JSONs).
+        overview map (the towers come from the block JSONs), and the page links it. None (or a
+        missing file: every block failed) leaves both out and says so.
     block_bounds
         Block → ``(xmin, ymin, xmax, ymax)``, for the blocks without a QA JSON (failed) on
         the map; the others take theirs from their JSON.
@@ -212,6 +213,11 @@ def zone_index(
     if out_json is not None:
         write_text_atomic(out_json, json.dumps(doc, indent=1))
     zone_svg = Markup(zone_map(doc["blocks"], tower_xy, lines)) if any(b.get("bounds") for b in doc["blocks"]) else None
-    links = [{"label": f"zone towers ({layout.ZONE_GPKG})", "href": layout.link(layout.QA_INDEX, layout.ZONE_GPKG)}]
+    # the zone's GeoPackage is written when a block finished (none when every block failed)
+    links = (
+        [{"label": f"zone towers ({layout.ZONE_GPKG})", "href": layout.link(layout.QA_INDEX, layout.ZONE_GPKG)}]
+        if gpkg is not None and Path(gpkg).exists()
+        else []
+    )
     render("index.html", out_html, d=doc, zone_svg=zone_svg, links=links)
     return doc

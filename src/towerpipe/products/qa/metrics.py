@@ -208,12 +208,21 @@ def read_benchmark(path: str | os.PathLike[str]) -> dict[str, float]:
     """Wall time ``s`` and peak memory ``max_rss`` (MB) of a Snakemake benchmark TSV.
 
     With several repetitions (rows) the mean time and the largest peak are used;
-    columns that are missing or ``NA``/``-`` are left out.
+    columns that are missing or ``NA``/``-`` are left out. Snakemake samples a job's memory
+    while it runs: a row whose ``cpu_time`` is 0 was not sampled while the job worked (a job
+    of a second or less), and its ``max_rss`` (the wrapper's few MB) is left out too.
     """
     lines = [ln.rstrip("\n").split("\t") for ln in Path(path).read_text().splitlines() if ln.strip()]
     if len(lines) < 2:
         return {}
     head, rows = lines[0], lines[1:]
+
+    def value(row: list[str], col: str) -> float | None:
+        try:
+            return float(row[head.index(col)])
+        except (ValueError, IndexError):
+            return None
+
     out: dict[str, float] = {}
     for col, key, agg in (
         ("s", "seconds", np.mean),
@@ -221,12 +230,11 @@ def read_benchmark(path: str | os.PathLike[str]) -> dict[str, float]:
         ("cpu_time", "cpu_seconds", np.mean),
     ):
         if col in head:
-            vals = []
-            for r in rows:
-                try:
-                    vals.append(float(r[head.index(col)]))
-                except (ValueError, IndexError):
-                    pass
+            vals = [
+                v
+                for r in rows
+                if (v := value(r, col)) is not None and not (col == "max_rss" and value(r, "cpu_time") == 0.0)
+            ]
             if vals:
                 out[key] = float(agg(vals))
     return out

@@ -147,7 +147,8 @@ def block_map(
     if grid is not None and np.isfinite(grid).any():
         gb = grid_bounds
         ax.imshow(hillshade(grid, cell), cmap="gray", extent=(gb[0], gb[2], gb[1], gb[3]), vmin=0, vmax=1)
-        ax.imshow(fill_nearest(grid), cmap="terrain", alpha=0.25, extent=(gb[0], gb[2], gb[1], gb[3]))
+        tint = ax.imshow(fill_nearest(grid), cmap="terrain", alpha=0.25, extent=(gb[0], gb[2], gb[1], gb[3]))
+        fig.colorbar(tint, ax=ax, shrink=0.7, pad=0.02, label="elevation (m)")
     if bounds is not None:
         xmin, ymin, xmax, ymax = bounds
         ax.plot([xmin, xmax, xmax, xmin, xmin], [ymin, ymin, ymax, ymax, ymin], color=INK, lw=1.2, ls="--")
