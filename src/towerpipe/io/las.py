@@ -137,10 +137,10 @@ def resolve_crs(
             raise InputError(path, f"config key `{key}` = {override!r} is not a CRS ({exc})") from exc
         if not file_wkt:
             return wanted.to_wkt()
-        if not same_crs(file_wkt, wanted.to_wkt(), horizontal=True):
+        if not same_crs(file_wkt, wanted, horizontal=True):
             raise InputError(
                 path,
-                f"its CRS ({crs_name(file_wkt)}) differs from config key `{key}` ({crs_name(wanted.to_wkt())}), "
+                f"its CRS ({crs_name(file_wkt)}) differs from config key `{key}` ({crs_name(wanted)}), "
                 "which is for files without a CRS: remove the key, or rewrite the file's CRS "
                 "(e.g. pdal translate in.laz out.laz --writers.las.a_srs=EPSG:…)",
             )
@@ -155,17 +155,18 @@ def _horizontal(crs: CRS) -> CRS:
     return crs.sub_crs_list[0] if crs.is_compound else crs
 
 
-def same_crs(a: str, b: str, *, horizontal: bool = False) -> bool:
-    """Whether two CRSs (WKT) are the same, axis order aside (``horizontal``: their plan parts)."""
-    ca, cb = CRS.from_wkt(a), CRS.from_wkt(b)
+def same_crs(a: str | CRS, b: str | CRS, *, horizontal: bool = False) -> bool:
+    """Whether two CRSs (WKT or :class:`pyproj.CRS`) are the same, axis order aside (``horizontal``:
+    their plan parts)."""
+    ca, cb = CRS.from_user_input(a), CRS.from_user_input(b)
     if horizontal:
         ca, cb = _horizontal(ca), _horizontal(cb)
     return bool(ca.equals(cb, ignore_axis_order=True))
 
 
-def crs_name(wkt: str) -> str:
-    """A CRS as a reader names it: ``EPSG:<code>``, else its name."""
-    c = CRS.from_wkt(wkt)
+def crs_name(crs: str | CRS) -> str:
+    """A CRS (WKT or :class:`pyproj.CRS`) as a reader names it: ``EPSG:<code>``, else its name."""
+    c = CRS.from_user_input(crs)
     epsg = c.to_epsg()
     return f"EPSG:{epsg}" if epsg else c.name
 
