@@ -46,6 +46,12 @@ def test_fingerprint_sees_content_not_time(tmp_path):
     a.write_bytes(data)
     os.utime(a, ns=(st.st_atime_ns - 10**16, st.st_mtime_ns - 10**16))  # an older mtime
     assert fingerprint(a) != fp
+    fp = fingerprint(a)
+    # one point's class byte edited in place in an uncompressed file, between any samples
+    # a partial hash would read (its size, header and ends unchanged): still another file
+    data[(5 << 20) // 2 + 12_345] ^= 0x07
+    a.write_bytes(data)
+    assert fingerprint(a) != fp
     b = tmp_path / "b.laz"
     shutil.copy2(a, b)  # cp -p: same content, same mtime
     assert fingerprint(b) == fingerprint(a)
@@ -71,3 +77,22 @@ def test_scan_zone_caches_by_stat_and_flags_two_files_of_one_block(tmp_path):
     again = scan_zone(d, cache)
     assert again["sub__y"].fingerprint != found["sub__y"].fingerprint
     assert find_blocks(d) == {b: i.path for b, i in again.items()}
+
+
+def test_a_record_of_the_sampled_recipe_stands_while_its_file_is_unchanged(tmp_path):
+    """An upgrade reruns no block: the cache's version-1 fingerprint is kept while the file's
+    stat holds; once the file changes, it is read whole."""
+    import json
+
+    d = tmp_path / "in"
+    d.mkdir()
+    x = d / "x.laz"
+    x.write_bytes(b"1" * 100)
+    cache = tmp_path / "inputs.json"
+    scan_zone(d, cache)
+    rec = json.loads(cache.read_text())
+    rec["x.laz"].update(version=1, fingerprint="0123456789abcdef01234567")
+    cache.write_text(json.dumps(rec))
+    assert scan_zone(d, cache)["x"].fingerprint == "0123456789abcdef01234567"
+    x.write_bytes(b"2" * 100)
+    assert scan_zone(d, cache)["x"].fingerprint == fingerprint(x) != "0123456789abcdef01234567"
