@@ -601,6 +601,19 @@ def test_block_page_links_to_index_and_products(tmp_path):
 
 
 # --------------------------------------------------------------------------- zone index
+def test_zone_index_counts_a_tower_of_two_overlapping_blocks_once(tmp_path):
+    """Two blocks that overlap both list the tower in the overlap; the zone's GeoPackage holds
+    it once, and so do the index's totals and summary (they summed the blocks' counts)."""
+    pts = make_block()
+    for b in ("a", "a_overlap"):
+        report(tmp_path / "qa", b, zone="z1", towers=towers_of(pts), classified=pts)
+    jsons = [tmp_path / "qa" / "a.json", tmp_path / "qa" / "a_overlap.json"]
+    assert zone_index(tmp_path / "i0.html", jsons, zone="z1")["totals"]["towers"] == 4  # the blocks' sum
+    doc = zone_index(tmp_path / "index.html", jsons, zone="z1", n_towers=2)
+    assert doc["totals"]["towers"] == 2 and doc["totals"]["summary"].startswith("2 towers found in 2 blocks")
+    assert [b["n_towers"] for b in doc["blocks"]] == [2, 2]  # each block still lists its own
+
+
 def test_zone_index_map_with_lines_and_failed_block(tmp_path):
     import geopandas as gpd
     import shapely

@@ -199,6 +199,7 @@ def zone_step(
             block_bounds=block_bounds,
             vanished=vanished_rows,
             merge_benchmarks=merge_benchmarks,
+            n_towers=None if content is None else len(content["towers"]),
         )
         if failures:
             (tmp / layout.INCOMPLETE).write_text(

@@ -18,13 +18,36 @@ from towerpipe.products import layout
 #: Where zones are published (``results/<zone>/``).
 RESULTS_DIR = "results"
 
+_NAME = r"[A-Za-z0-9][A-Za-z0-9_.-]*"
+#: A job of a zone's assembly or publication in Snakemake's log: its rule line and the
+#: indented lines under it (its zone from ``wildcards``, or from a ``results/<zone>/``
+#: output; its job id).
+_ZONE_JOB = re.compile(
+    r"^(?:local)?rule (?:assemble_zone|zone_results):\n"
+    rf"(?:(?:[ \t]+output: {RESULTS_DIR}/(?P<out>{_NAME})/?[ \t]*\n)"
+    r"|(?:[ \t]+jobid: (?P<jobid>\d+)[ \t]*\n)"
+    rf"|(?:[ \t]+wildcards: (?:[^\n]*, )?zone=(?P<zone>{_NAME})(?:,[^\n]*)?\n)"
+    r"|(?:[ \t]+[^\n]*\n))*",
+    re.M,
+)
+
 
 def zones_in_log(snakemake_log: str | os.PathLike[str] | Sequence[str] | None) -> list[str]:
-    """Zones whose results directory a run (re)built, from Snakemake's main log."""
+    """Zones a run assembled or (re)published, from Snakemake's main log.
+
+    A zone counts when a job of its assembly (``assemble_zone``: every run that changed a
+    block) or of its publication (``zone_results``: ``results/<zone>/`` made anew) finished;
+    a job that started and failed does not count (the run's failures are reported apart).
+    """
     logs = [snakemake_log] if isinstance(snakemake_log, (str, os.PathLike)) else list(snakemake_log or [])
     text = "\n".join(Path(p).read_text(errors="replace") for p in logs if Path(p).exists())
-    found = re.findall(rf"^\s+output: {RESULTS_DIR}/([A-Za-z0-9][A-Za-z0-9_.-]*)/?\s*$", text, re.M)
-    return sorted(set(found) - {"models"})
+    finished = set(re.findall(r"^Finished job(?:id:)? (\d+)", text, re.M))
+    found = set()
+    for m in _ZONE_JOB.finditer(text):
+        zone = m["zone"] or m["out"]
+        if zone and (m["jobid"] is None or m["jobid"] in finished):
+            found.add(zone)
+    return sorted(found - {"models"})
 
 
 def zone_summary(zone: str, results_dir: str | os.PathLike[str] = RESULTS_DIR) -> str:

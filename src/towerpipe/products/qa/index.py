@@ -66,6 +66,7 @@ def zone_index(
     block_bounds: Mapping[str, Sequence[float] | None] | None = None,
     vanished: Sequence[Mapping[str, Any]] = (),
     merge_benchmarks: Mapping[str, str | os.PathLike[str]] | None = None,
+    n_towers: int | None = None,
 ) -> dict[str, Any]:
     """Write the zone's QA index: every block, totals, a map, and the blocks that need a look.
 
@@ -99,6 +100,10 @@ def zone_index(
         Block → Snakemake benchmark TSV of its merge (the classified LAZ): its wall time
         and peak memory are listed with the block (the merge runs beside the block's own
         QA page, which reports the jobs before it). A missing file leaves them empty.
+    n_towers
+        The towers of the zone's GeoPackage: a tower that two overlapping blocks both report
+        is one tower there (:func:`towerpipe.products.gpkg_read.concat_towers`) and in the
+        totals, though each block lists it. None: the sum over the blocks.
 
     Returns
     -------
@@ -175,7 +180,7 @@ def zone_index(
         "failed": sum(b["status"] == "failed" for b in blocks),
         "look": sum(b["status"] == "look" for b in blocks),
         "ok": sum(b["status"] == "ok" for b in blocks),
-        "towers": int(sum(b.get("n_towers") or 0 for b in done)),
+        "towers": int(n_towers) if n_towers is not None else int(sum(b.get("n_towers") or 0 for b in done)),
         "points": int(sum(b.get("points") or 0 for b in done)),
         "windows_total": int(sum(b.get("windows_total") or 0 for b in done)),
         "windows_passed_gate": int(sum(b.get("windows_passed_gate") or 0 for b in done)),
