@@ -110,6 +110,8 @@ def assert_invariant(
     assert np.array_equal(rb[:, size_a : size_a + 4].copy().view(np.float32).ravel(), prob)
     cls_in = np.asarray(a.classification)
     want = np.where(expected_prob >= threshold, 15, np.where(cls_in == 15, 1, cls_in))
+    # a withheld point ("not to be included in processing") keeps its class, 15 included
+    want = np.where(np.asarray(a.withheld, bool), cls_in, want)
     np.testing.assert_array_equal(np.asarray(b.classification), want)
 
     # VLRs: all but the Extra Bytes / LAZ ones identical and in order; EB descriptors kept
@@ -192,6 +194,8 @@ def test_relabel_rules():
     cls = np.array([1, 2, 15, 15, 6, 65, 2], np.uint8)
     prob = np.array([0.0, 0.7, 0.9, 0.2, 0.5, 0.0, 0.49], np.float32)
     np.testing.assert_array_equal(relabel(cls, prob, 0.5), [1, 15, 15, 1, 15, 65, 2])
+    withheld = np.array([0, 0, 0, 1, 0, 0, 0], bool)  # a withheld 15 is never taken back
+    np.testing.assert_array_equal(relabel(cls, prob, 0.5, withheld=withheld), [1, 15, 15, 15, 15, 65, 2])
 
 
 def test_block_probabilities_filters_block_and_checks_range(tmp_path):
@@ -232,10 +236,11 @@ def test_merge_generated_formats(tmp_path, version, pf):
     expected[idx] = p
     assert_invariant(src, out, expected)
     assert stats["points"] == n
-    assert stats["tower_points"] == int((expected >= 0.5).sum())
+    withheld = np.asarray(laspy.read(src).withheld, bool)
+    assert stats["tower_points"] == int(((expected >= 0.5) & ~withheld).sum())
     cls_in = np.asarray(laspy.read(src).classification)
     assert stats["input_tower_points"] == int((cls_in == 15).sum())
-    assert stats["relabelled_15_to_1"] == int(((cls_in == 15) & (expected < 0.5)).sum())
+    assert stats["relabelled_15_to_1"] == int(((cls_in == 15) & (expected < 0.5) & ~withheld).sum())
     assert not (out.parent / "b.laz.part").exists()
     assert laspy.open(out).header.are_points_compressed
 
@@ -246,7 +251,8 @@ def test_merge_without_predictions_only_demotes_input_towers(tmp_path):
     stats = merge_block(src, [], out, threshold=0.5)
     assert_invariant(src, out, np.zeros(5000, np.float32))
     cls_in = np.asarray(laspy.read(src).classification)
-    assert stats["relabelled_15_to_1"] == int((cls_in == 15).sum()) > 0
+    withheld = np.asarray(laspy.read(src).withheld, bool)
+    assert stats["relabelled_15_to_1"] == int(((cls_in == 15) & ~withheld).sum()) > 0
     assert stats["tower_points"] == 0
 
 
@@ -293,7 +299,8 @@ def test_own_output_is_reprocessed_values_replaced(tmp_path, version, pf):
     assert list(c.point_format.dimension_names) == list(a.point_format.dimension_names)
     np.testing.assert_array_equal(np.asarray(c[PROB_DIMENSION]), expected)
     assert not np.asarray(c[TOWER_ID_DIMENSION]).any()
-    assert not (np.asarray(c.classification) == 15).any()
+    # nothing classified 15 but the withheld points the input held as 15 (never processed)
+    assert np.array_equal(np.asarray(c.classification) == 15, (np.asarray(c.classification) == 15) & c.withheld)
     for name in a.point_format.dimension_names:
         if name not in ("classification", "raw_classification", PROB_DIMENSION, TOWER_ID_DIMENSION):
             assert np.array_equal(np.asarray(a[name]), np.asarray(c[name])), name
@@ -390,7 +397,8 @@ def test_merge_with_tower_points_classifies_only_reported_towers(tmp_path):
     n = 5000
     src = make_las(tmp_path / "b.laz", version="1.4", point_format=6, n=n)
     rng = np.random.default_rng(2)
-    idx = rng.choice(n, 800, replace=False)
+    # predictions exist for processed points only: never for a withheld one
+    idx = rng.choice(np.flatnonzero(~np.asarray(laspy.read(src).withheld, bool)), 800, replace=False)
     p = np.full(800, 0.95, np.float32)
     pred = write_pred(tmp_path / "t.npz", "b", idx, p)
     tower = idx[:300]  # the reported tower; the other 500 points were dropped
@@ -405,6 +413,8 @@ def test_merge_with_tower_points_classifies_only_reported_towers(tmp_path):
     cls_in = np.asarray(laspy.read(src).classification)
     expected = np.where(cls_in == 15, 1, cls_in)
     expected[tower] = 15
+    withheld = np.asarray(laspy.read(src).withheld, bool)  # never processed: their class is kept
+    expected = np.where(withheld, cls_in, expected)
     np.testing.assert_array_equal(np.asarray(las.classification), expected)
     prob = np.zeros(n, np.float32)
     prob[idx] = p

@@ -146,18 +146,26 @@ def _assign_max(prob: np.ndarray, idx: np.ndarray, p: np.ndarray) -> None:
 
 
 def relabel(
-    classification: np.ndarray, prob: np.ndarray, threshold: float, *, tower: np.ndarray | None = None
+    classification: np.ndarray,
+    prob: np.ndarray,
+    threshold: float,
+    *,
+    tower: np.ndarray | None = None,
+    withheld: np.ndarray | None = None,
 ) -> np.ndarray:
     """New ASPRS classes from input classes and tower probabilities.
 
     ``prob >= threshold`` → 15 (or, when given, the points of reported towers
-    ``tower``); input 15 otherwise → 1; everything else unchanged. Works on plain class
-    values (not the packed 1.2 byte).
+    ``tower``); input 15 otherwise → 1; everything else unchanged. Points whose LAS
+    *withheld* flag is set (``withheld``) keep their class whatever it is: they were never
+    processed. Works on plain class values (not the packed 1.2 byte).
     """
     if tower is None:
         tower = prob >= threshold
     out = np.where(classification == classes.TOWER, classes.OTHER, classification).astype(classification.dtype)
     out[tower] = classes.TOWER
+    if withheld is not None and withheld.any():
+        out[withheld] = classification[withheld]
     return out
 
 
@@ -184,7 +192,9 @@ class BlockLabels:
     tower: np.ndarray | None
     info: dict[str, Any]
 
-    def classes(self, classification: np.ndarray, threshold: float, start: int = 0) -> np.ndarray:
+    def classes(
+        self, classification: np.ndarray, threshold: float, start: int = 0, *, withheld: np.ndarray | None = None
+    ) -> np.ndarray:
         """The output classes of the points ``start, start + 1, ...`` of the block (:func:`relabel`).
 
         Parameters
@@ -195,10 +205,12 @@ class BlockLabels:
             Tower probability threshold (used when there are no tower-points files).
         start
             Index of the first of them in the block (the merge relabels chunk by chunk).
+        withheld
+            Their LAS *withheld* flags: those points keep their class.
         """
         stop = start + len(classification)
         tower = None if self.tower is None else self.tower[start:stop]
-        return relabel(classification, self.prob[start:stop], threshold, tower=tower)
+        return relabel(classification, self.prob[start:stop], threshold, tower=tower, withheld=withheld)
 
 
 def block_labels(
@@ -444,16 +456,18 @@ def merge_block(
                     ob[:, prob_off : prob_off + 4] = p.view(np.uint8).reshape(m, 4)
                     ob[:, id_off : id_off + 8] = tower_ids[start : start + m].view(np.uint8).reshape(m, 8)
                     raw_cls = out[cls_field].copy()
-                    if pf_id >= 6:
+                    if pf_id >= 6:  # withheld: bit 2 of the classification flags
                         cls = raw_cls
-                        new = labels.classes(cls, threshold, start)
+                        withheld = (out["classification_flags"] & 0x04) > 0
+                        new = labels.classes(cls, threshold, start, withheld=withheld)
                         out[cls_field] = new
-                    else:
+                    else:  # withheld: bit 7 of the classification byte
                         cls = raw_cls & 0x1F
-                        new = labels.classes(cls, threshold, start)
+                        withheld = (raw_cls & 0x80) > 0
+                        new = labels.classes(cls, threshold, start, withheld=withheld)
                         out[cls_field] = (raw_cls & 0xE0) | new
                     n_in15 += int((cls == classes.TOWER).sum())
-                    n_tower += int((new == classes.TOWER).sum())
+                    n_tower += int(((new == classes.TOWER) & ~withheld).sum())
                     n_above += int((p >= threshold).sum())
                     n_relab += int(((cls == classes.TOWER) & (new == classes.OTHER)).sum())
                     tc = time.perf_counter()
