@@ -96,3 +96,13 @@ def test_a_record_of_the_sampled_recipe_stands_while_its_file_is_unchanged(tmp_p
     assert scan_zone(d, cache)["x"].fingerprint == "0123456789abcdef01234567"
     x.write_bytes(b"2" * 100)
     assert scan_zone(d, cache)["x"].fingerprint == fingerprint(x) != "0123456789abcdef01234567"
+
+
+def test_hidden_files_and_folders_are_not_blocks(tmp_path):
+    """macOS's ``._x.laz`` beside ``x.laz`` on a share, a ``.snapshot`` folder: not blocks."""
+    d = tmp_path / "in"
+    (d / ".snapshot").mkdir(parents=True)
+    (d / "x.laz").write_bytes(b"1")
+    (d / "._x.laz").write_bytes(b"2")
+    (d / ".snapshot" / "x.laz").write_bytes(b"1")
+    assert list(find_blocks(d)) == ["x"]

@@ -1,6 +1,7 @@
 """A zone's input files: safe block ids and content fingerprints.
 
-Every ``.las``/``.laz`` file under a zone's input directory is one block. Its **block
+Every ``.las``/``.laz`` file under a zone's input directory is one block (hidden files and
+folders, whose name starts with ``.``, are not: :func:`find_blocks`). Its **block
 id** names its jobs and products (``results/<zone>/blocks/<id>.laz``), so it must be a
 safe file name and unique in the zone, whatever the file is called:
 
@@ -124,12 +125,18 @@ def block_ids(relpaths: list[str]) -> dict[str, str]:
 
 
 def find_blocks(input_dir: str | os.PathLike[str]) -> dict[str, str]:
-    """Block id → path of every ``.las``/``.laz`` file under ``input_dir`` (sorted by id)."""
+    """Block id → path of every ``.las``/``.laz`` file under ``input_dir`` (sorted by id).
+
+    Hidden files and folders (a name starting with ``.``) are not blocks: the ``._x.laz``
+    that macOS writes beside ``x.laz`` on a network share holds no points, and a folder
+    such as ``.snapshot`` holds copies.
+    """
     root = Path(input_dir)
+    found = (p.relative_to(root) for p in sorted(root.rglob("*")) if p.suffix.lower() in LAS_SUFFIXES)
     rels = [
-        p.relative_to(root).as_posix()
-        for p in sorted(root.rglob("*"))
-        if p.suffix.lower() in LAS_SUFFIXES and p.is_file()
+        rel.as_posix()
+        for rel in found
+        if not any(part.startswith(".") for part in rel.parts) and (root / rel).is_file()
     ]
     return {b: str(root / rel) for b, rel in block_ids(rels).items()}
 
