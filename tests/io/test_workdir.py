@@ -40,3 +40,34 @@ def test_a_tiles_conductor_points_are_beside_it(tmp_path):
     for root in (tmp_path / "z", tmp_path / "z" / workdir.BATCH_INFER.format(batch="b3333_38333")):
         tile = root / workdir.TILE.format(block="a", tile="0_1")
         assert workdir.conductors_of(tile) == root / workdir.WIRES.format(block="a", tile="0_1")
+
+
+def test_a_block_that_left_the_zone_leaves_nothing_behind(tmp_path):
+    """A block whose input file is gone: its intermediates (zone layout and batches), logs and
+    benchmarks are found and removed; the blocks of the zone, batch records and zone files stay."""
+    z = tmp_path / "z"
+    batch = z / workdir.BATCH_INFER.format(batch="b3333_38333")
+    keep = [
+        _touch(z / workdir.TILE.format(block="a.b", tile="0_0")),  # a block id may hold dots
+        _touch(z / workdir.TOWERS_GPKG.format(block="a.b")),
+        _touch(z / "logs" / "split_block" / "a.b.log"),
+        _touch(z / "logs" / "infer_batch" / "b3333_38333.log"),
+        _touch(z / "logs" / "plan_zone.log"),
+        _touch(z / "registry.gpkg"),
+        _touch(batch / workdir.PRED.format(block="c", tile="0_0")),
+    ]
+    gone = [
+        *(
+            _touch(z / p.format(block="old", tile="0_1"))
+            for p in (workdir.TILE, workdir.PRED, workdir.TOWERS_GPKG, workdir.TOWERS_NEIGHBOURS, workdir.QA_JSON)
+        ),
+        _touch(z / workdir.CACHE.format(block="old") / "meta.json"),
+        _touch(z / "logs" / "split_block" / "old.log"),
+        _touch(z / "benchmarks" / "infer_tile" / "old" / "0_1.tsv"),
+        _touch(batch / workdir.PRED.format(block="old2", tile="0_0")),
+    ]
+    found = workdir.gone_blocks(z, ["a.b", "c"])
+    assert sorted(found) == ["old", "old2"]
+    workdir.remove_gone_blocks(z, ["a.b", "c"])
+    assert all(p.exists() for p in keep) and not any(p.exists() for p in gone)
+    assert workdir.gone_blocks(z, ["a.b", "c"]) == {}

@@ -12,6 +12,8 @@ their :data:`TOWERS_GPKG` … :data:`QA_JSON`.
 from __future__ import annotations
 
 import os
+import shutil
+from collections.abc import Iterable
 from pathlib import Path
 
 #: Per-block intermediates, relative to ``<workdir>/<zone>/`` or to a batch's directory.
@@ -34,6 +36,70 @@ BATCH_INFER = "batches/{batch}/infer"
 BATCH_PRODUCTS = "batches/{batch}/products"
 #: A block's time at one stage of its batch (a Snakemake benchmark TSV), relative to the batch's directory.
 BATCH_TIMING = "timings/{block}.{stage}.tsv"
+
+
+#: A block's intermediates (relative to ``<workdir>/<zone>/`` or to a batch's directory): what a
+#: block that left the zone leaves behind (:func:`gone_blocks`).
+PER_BLOCK = (CACHE, TILE, DTM, PRED, WIRES, TOWERS_GPKG, TOWERS_NEIGHBOURS, TOWER_MEMBERS, BLOCK_LAZ, QA_HTML, QA_JSON)
+#: The per-job logs and benchmarks of a zone, ``<rule>/<block>.log`` or ``<rule>/<block>/<tile>.log``
+#: under these (``log_of`` and ``benchmark_of`` of ``workflow/rules/common.smk``).
+JOB_RECORDS = ("logs", "benchmarks")
+
+
+def gone_blocks(zone_dir: str | os.PathLike[str], blocks: Iterable[str]) -> dict[str, list[Path]]:
+    """The intermediates a zone's working directory keeps of blocks no longer in the zone.
+
+    Parameters
+    ----------
+    zone_dir
+        ``<workdir>/<zone>/``.
+    blocks
+        The zone's blocks now (every input file's block id, failed ones included).
+
+    Returns
+    -------
+    dict
+        Block → its files and folders (:data:`PER_BLOCK`, in the zone's directory and in
+        each batch's, and its jobs' :data:`JOB_RECORDS`), for every block that has some
+        and is not in ``blocks``.
+    """
+    root, keep = Path(zone_dir), set(blocks)
+    bases = [root, *sorted((root / "batches").glob("*/*"))]
+    gone: dict[str, list[Path]] = {}
+    for base in bases:
+        for pattern in PER_BLOCK:
+            head, tail = pattern.split("{block}", 1)
+            folder = base / head
+            if not folder.is_dir():
+                continue
+            if not tail or tail.startswith("/"):  # a folder per block
+                found = [(p.name, p) for p in folder.iterdir() if p.is_dir()]
+            else:  # files named by the block
+                found = [(p.name[: -len(tail)], p) for p in folder.glob(f"*{tail}") if p.is_file()]
+            for block, path in found:
+                if block not in keep:
+                    gone.setdefault(block, []).append(path)
+    for records in JOB_RECORDS:
+        for rule_dir in sorted(p for p in (root / records).glob("*") if p.is_dir()):
+            for path in rule_dir.iterdir():
+                block = path.name if path.is_dir() else path.name.rsplit(".", 1)[0]
+                if block in gone:  # a batch's records are named by the batch: never a gone block's
+                    gone[block].append(path)
+    return gone
+
+
+def remove_gone_blocks(zone_dir: str | os.PathLike[str], blocks: Iterable[str]) -> dict[str, int]:
+    """Delete what :func:`gone_blocks` finds; returns block → bytes freed."""
+    freed: dict[str, int] = {}
+    for block, paths in gone_blocks(zone_dir, blocks).items():
+        for path in paths:
+            files = [path] if path.is_file() else [f for f in path.rglob("*") if f.is_file()]
+            freed[block] = freed.get(block, 0) + sum(f.stat().st_size for f in files)
+            if path.is_dir():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+    return freed
 
 
 def zone_files(work: str | os.PathLike[str], zone: str, pattern: str) -> list[Path]:

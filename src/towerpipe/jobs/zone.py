@@ -9,6 +9,7 @@ called by the workflow's ``onerror`` handler).
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 from collections.abc import Mapping, Sequence
@@ -19,11 +20,14 @@ from typing import TYPE_CHECKING, Any
 from towerpipe import __version__
 from towerpipe.io.atomic import assemble_directory, publish_copy, write_text_atomic
 from towerpipe.io.blockcache import BlockCache
+from towerpipe.io.workdir import remove_gone_blocks
 from towerpipe.model.cards import config_hash
 from towerpipe.products import layout
 
 if TYPE_CHECKING:  # geopandas is imported by the functions that need it: the DAG does not
     import geopandas as gpd
+
+log = logging.getLogger(__name__)
 
 
 def zone_towers(
@@ -217,6 +221,10 @@ def zone_step(
     if registry is not None and content is not None and content["crs"] is not None:
         crs = content["crs"]
         write_registry(registry, content["registry"], crs.to_wkt() if hasattr(crs, "to_wkt") else crs)
+    if manifest is not None and sources is not None:
+        # the intermediates of blocks whose input file is gone (work/ would keep them for ever)
+        for block, size in remove_gone_blocks(Path(manifest).parent, sources).items():
+            log.info("block %s is no longer in the zone: its intermediates removed (%.1f MB)", block, size / 1e6)
     if manifest is not None:
         blocks = sorted({Path(rel).stem for rel in files if rel.startswith("blocks/")})
         write_text_atomic(
