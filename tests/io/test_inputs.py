@@ -106,3 +106,16 @@ def test_hidden_files_and_folders_are_not_blocks(tmp_path):
     (d / "._x.laz").write_bytes(b"2")
     (d / ".snapshot" / "x.laz").write_bytes(b"1")
     assert list(find_blocks(d)) == ["x"]
+
+
+def test_a_readable_file_of_zero_points_is_empty_an_unreadable_one_is_not(tmp_path):
+    import laspy
+
+    from towerpipe.io.inputs import is_empty
+
+    d = tmp_path / "in"
+    d.mkdir()
+    laspy.LasData(laspy.LasHeader(point_format=6, version="1.4")).write(d / "sea.laz")
+    (d / "broken.laz").write_bytes(b"not a las file")
+    found = scan_zone(d)
+    assert is_empty(found["sea"]) and not is_empty(found["broken"])  # the split says what is wrong with it

@@ -612,6 +612,11 @@ def test_zone_index_counts_a_tower_of_two_overlapping_blocks_once(tmp_path):
     doc = zone_index(tmp_path / "index.html", jsons, zone="z1", n_towers=2)
     assert doc["totals"]["towers"] == 2 and doc["totals"]["summary"].startswith("2 towers found in 2 blocks")
     assert [b["n_towers"] for b in doc["blocks"]] == [2, 2]  # each block still lists its own
+    # a file of zero points: listed among the blocks that need a look, not failed
+    doc = zone_index(tmp_path / "index.html", jsons, zone="z1", n_towers=2, empty={"sea": "flight/sea.laz"})
+    assert doc["blocks"][0]["block"] == "sea" and doc["blocks"][0]["codes"] == ["empty"]
+    assert doc["totals"]["failed"] == 0 and doc["totals"]["summary"].endswith("1 needs a look.")
+    assert "flight/sea.laz: the file holds zero points" in (tmp_path / "index.html").read_text()
 
 
 def test_zone_index_map_with_lines_and_failed_block(tmp_path):

@@ -41,7 +41,6 @@ pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow]
 FAILING = {
     "not_las": r"InputError: .*not_las\.laz: not a readable LAS/LAZ file",
     "truncated": r"InputError: .*truncated\.laz: trunc",
-    "empty": r"InputError: .*empty\.laz: the file holds zero points",
     "no_crs": r"InputError: .*no_crs\.laz: no CRS in the file; set it in the config: `zones: \{{zone}: \{crs",
     "other_crs": r"InputError: .*other_crs\.laz: its CRS \(EPSG:25831\) differs from the rest of zone",
     "no_colour": r"ModelError: block 'no_colour' has no valid nir, rgb but model .* needs it; set `inference.model: auto`",
@@ -200,6 +199,22 @@ def test_broken_block_fails_alone_with_a_one_line_reason(matrix, block):
     assert line is not None and re.search(pattern, line), incomplete
     assert block in (out / "qa" / "index.html").read_text()
     assert not (out / "blocks" / f"{block}.laz").exists()
+
+
+@pytest.mark.shared
+def test_a_file_of_zero_points_is_listed_never_failed(matrix):
+    """A readable file without points (a sea tile) has nothing to process: the zone's QA index
+    lists it among the blocks that need a look, and it is neither run nor a failure."""
+    zone, _, _ = matrix["a"]
+    out = REPO / "results" / zone
+    index = json.loads((out / "qa" / "index.json").read_text())
+    (row,) = [b for b in index["blocks"] if b["block"] == "empty"]
+    assert row["status"] == "look" and row["codes"] == ["empty"]
+    assert row["reasons"] == [
+        "empty.laz: the file holds zero points: nothing to process; skipped while it is in the zone, never a failure"
+    ]
+    assert "empty:" not in (out / "INCOMPLETE.txt").read_text()  # the zone is incomplete for the others
+    assert not (out / "blocks" / "empty.laz").exists() and not (matrix["work"] / zone / "cache" / "empty").exists()
 
 
 @pytest.mark.shared

@@ -17,7 +17,7 @@ from towerpipe.errors import PdalError, TowerpipeError
 from towerpipe.jobs import runlock
 from towerpipe.jobs.batch import timing_file
 from towerpipe.io import workdir
-from towerpipe.io.inputs import describe, no_blocks_message, scan_zone
+from towerpipe.io.inputs import describe, is_empty, no_blocks_message, scan_zone
 from towerpipe.preprocess.pdal import pdal_version
 
 WORK = config["workdir"]
@@ -143,11 +143,25 @@ def zone_input(zone):
 
 
 @functools.cache
-def _inputs(zone, path):
+def _scan(zone, path):
     found = scan_zone(path, cache=f"{WORK}/{zone}/inputs.json")
     if not found:
         config_exit(no_blocks_message(zone, path))
     return found
+
+
+@functools.cache
+def _inputs(zone, path):
+    """The zone's blocks: its files but those that hold zero points (listed on the QA index, never run)."""
+    found = {b: i for b, i in _scan(zone, path).items() if not is_empty(i)}
+    if not found:
+        config_exit(f"zones.{zone}.input: every .las/.laz file under {path!r} holds zero points")
+    return found
+
+
+def empty_blocks(zone):
+    """Block id -> original file of the zone's files that hold zero points (the QA index lists them)."""
+    return {b: i.relpath for b, i in _scan(zone, zone_input(zone)).items() if is_empty(i)}
 
 
 def inputs(zone):

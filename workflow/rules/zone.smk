@@ -33,6 +33,8 @@ rule assemble_zone:
         # the merge runs beside the block's QA page: the zone's index reports its time
         merge_benchmarks=lambda wc: merge_benchmarks(wc.zone, known_batches(wc.zone)),
         sources=lambda wc: {b: i.relpath for b, i in inputs(wc.zone).items()},
+        # the zone's files of zero points: listed on the QA index, never run
+        empty=lambda wc: empty_blocks(wc.zone),
         run=run_params(),
         block_bounds=lambda wc: bounds(wc.zone),
         # the tower registry: updated by each assembly (state kept across runs, not an output)

@@ -17,5 +17,6 @@ run_step(
         sources=p.sources,
         block_bounds=p.block_bounds,
         registry=p.registry,
+        empty=p.empty,
     ),
 )

@@ -223,6 +223,17 @@ def scan_zone(input_dir: str | os.PathLike[str], cache: str | os.PathLike[str] |
     return out
 
 
+#: Why a file of zero points is listed and not run (the zone's QA index).
+EMPTY_REASON = "the file holds zero points: nothing to process; skipped while it is in the zone, never a failure"
+
+
+def is_empty(block: BlockInput) -> bool:
+    """A readable LAS/LAZ file whose header counts zero points: a block with nothing to process
+    (a sea tile, a tile cut to a boundary). The zone skips it and its QA index lists it; an
+    unreadable file (no header) is not empty: its split says what is wrong."""
+    return block.header is not None and block.header.get("point_count") == 0
+
+
 def describe(block: BlockInput) -> dict[str, Any]:
     """JSON-able record of a block input (for the split's metadata)."""
     d = asdict(block)

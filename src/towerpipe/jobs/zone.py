@@ -125,6 +125,7 @@ def zone_step(
     block_bounds: Mapping[str, Sequence[float] | None] | None = None,
     registry: str | os.PathLike[str] | None = None,
     merge_benchmarks: Mapping[str, str] | None = None,
+    empty: Mapping[str, str] | None = None,
 ) -> Path:
     """Publish ``results/<zone>/``: per-block links, zone GeoPackage, QA index (+ ``INCOMPLETE.txt``).
 
@@ -142,6 +143,8 @@ def zone_step(
     directory is in place. Towers of ``failures`` blocks are left as they were.
     ``merge_benchmarks`` (block → benchmark TSV of its merge, which runs beside its QA
     page) gives the time and memory of each block's classified LAZ on the QA index.
+    ``empty`` (block → file) are the zone's files of zero points: the index lists them, nothing
+    else is made of them.
     """
     from towerpipe.products.qa.index import zone_index
     from towerpipe.products.registry_file import read_registry, write_registry
@@ -204,6 +207,7 @@ def zone_step(
             vanished=vanished_rows,
             merge_benchmarks=merge_benchmarks,
             n_towers=None if content is None else len(content["towers"]),
+            empty=empty,
         )
         if failures:
             (tmp / layout.INCOMPLETE).write_text(
@@ -302,6 +306,7 @@ def assemble_incomplete_zone(
     sources: Mapping[str, str] | None = None,
     block_bounds: Mapping[str, Sequence[float] | None] | None = None,
     registry: str | os.PathLike[str] | None = None,
+    empty: Mapping[str, str] | None = None,
 ) -> Path:
     """``results/<zone>/`` from the blocks that completed, the failed ones listed.
 
@@ -338,6 +343,7 @@ def assemble_incomplete_zone(
         sources=sources,
         block_bounds=block_bounds,
         registry=registry,
+        empty=empty,
     )
 
 

@@ -14,6 +14,7 @@ import numpy as np
 from markupsafe import Markup
 
 from towerpipe.io.atomic import write_text_atomic
+from towerpipe.io.inputs import EMPTY_REASON
 from towerpipe.products import layout
 from towerpipe.products.qa.metrics import jsonable, read_benchmark
 from towerpipe.products.qa.pages import render
@@ -67,6 +68,7 @@ def zone_index(
     vanished: Sequence[Mapping[str, Any]] = (),
     merge_benchmarks: Mapping[str, str | os.PathLike[str]] | None = None,
     n_towers: int | None = None,
+    empty: Mapping[str, str] | None = None,
 ) -> dict[str, Any]:
     """Write the zone's QA index: every block, totals, a map, and the blocks that need a look.
 
@@ -104,6 +106,9 @@ def zone_index(
         The towers of the zone's GeoPackage: a tower that two overlapping blocks both report
         is one tower there (:func:`towerpipe.products.gpkg_read.concat_towers`) and in the
         totals, though each block lists it. None: the sum over the blocks.
+    empty
+        Block → file, of the zone's files that hold zero points: listed as blocks that need
+        a look (:data:`towerpipe.io.inputs.EMPTY_REASON`), not as failures.
 
     Returns
     -------
@@ -170,6 +175,10 @@ def zone_index(
                 "codes": ["failed"],
                 "bounds": block_bounds.get(b),
             }
+        )
+    for b, source in (empty or {}).items():
+        blocks.append(
+            {"block": b, "status": "look", "reasons": [f"{source}: {EMPTY_REASON}"], "codes": ["empty"], "bounds": None}
         )
     order = {"failed": 0, "look": 1, "ok": 2}
     blocks.sort(key=lambda b: (order.get(b["status"], 1), str(b["block"])))
