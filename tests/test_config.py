@@ -179,3 +179,40 @@ def test_defaults_live_only_in_the_schema_and_towerpipe_config_prints_them(tmp_p
     assert cfg["towers"]["min_core_prob"] == 0.3 and cfg["towers"]["max_base_ratio"] == 0.7
     assert cfg["qa"]["min_density"] == 2.0 and cfg["qa"]["max_gate_ratio"] == 0.25  # the QA limits
     assert "demo" in cfg["zones"] and cfg["training"]["models"]  # config/models.yaml too, as the workflow loads it
+
+
+@pytest.mark.usefixtures("pdal_cli")
+def test_a_model_that_is_not_there_stops_the_run_before_any_job(tmp_path):
+    """A misspelt model path: one line naming the key and the path, before a block is split (it
+    let a published zone keep last night's products, and made a new zone fail at its model choice)."""
+    from conftest import RGBNIR_SMALL
+
+    indir = tmp_path / "in"
+    indir.mkdir()
+    (indir / "b0.laz").symlink_to(RGBNIR_SMALL)
+    for key, model in (("zones.mz.model", "results/models/agency-shape-v2"), ("inference.model", str(tmp_path / "no"))):
+        zone = {"input": str(indir)}
+        cfg = {"zones": {"mz": zone}, "workdir": str(tmp_path / "work")}
+        if key.startswith("zones"):
+            zone["model"] = model
+        else:
+            cfg["inference"] = {"model": model}
+        (tmp_path / "m.yaml").write_text(yaml.safe_dump(cfg))
+        rc, lines = snakemake_dry_run("results/mz/", f"--configfile={tmp_path / 'm.yaml'}")
+        errors = [ln for ln in lines if ln.startswith("config:")]
+        assert rc == 1 and errors == [
+            f"config: {key}: no model at '{model}'; name `auto`, a shipped feature set "
+            "(geometry, shape), the directory of a trained model, or results/models/<name> "
+            "of a model in training.models"
+        ], lines
+
+
+def test_a_snakemake_error_is_told_by_its_message_not_its_label():
+    from snakemake.exceptions import WorkflowError
+
+    from towerpipe.jobs.run import error_line
+
+    msg = "zone 'z' is one the models train on; give its input another zone name"
+    assert error_line(WorkflowError(f"Error:\n  {msg}\n")) == msg  # it printed "failed: Error:"
+    assert error_line(WorkflowError(msg)) == msg
+    assert error_line(ValueError("")) == "ValueError"

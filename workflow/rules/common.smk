@@ -125,6 +125,7 @@ def zone_input(zone):
         return _COMPLETE["input"][zone]
     zc = zone_config(zone)
     path = zc["input"]
+    _model_files(zone)  # a model that is not there stops the run here, before any job of the zone
     if executes_jobs():
         try:
             runlock.hold_zone(zone)
@@ -547,9 +548,23 @@ def _model_files(zone):
     from towerpipe.model.choice import AUTO, resolve_model
     from towerpipe.model.cards import BUNDLE_FILES, MODEL_RELEASES, default_model_path
 
-    spec = model_spec_of(zone)[0]
+    spec, key = model_spec_of(zone)
     dirs = [default_model_path(fs) for fs in MODEL_RELEASES] if spec == AUTO else [resolve_model(spec)]
+    for d in dirs:
+        # a model this workflow trains may come in the same run; any other must be there now
+        where, name = os.path.split(os.path.normpath(d))
+        trained_here = os.path.normpath(where) in _TRAINED_MODEL_DIRS and name.partition(LOSO)[0] in TRAIN["models"]
+        if not os.path.isdir(d) and not trained_here:
+            config_exit(
+                f"{key}: no model at {str(d)!r}; name `auto`, a shipped feature set "
+                f"({', '.join(sorted(MODEL_RELEASES))}), the directory of a trained model, or "
+                f"results/models/<name> of a model in training.models"
+            )
     return [f"{d}/{f}" for d in dirs for f in BUNDLE_FILES]
+
+
+#: Where this workflow's training rules put the models they train (rules train_model, model_results).
+_TRAINED_MODEL_DIRS = {os.path.normpath(f"{WORK}/models"), os.path.normpath("results/models")}
 
 
 def verifier_files():

@@ -145,12 +145,19 @@ def run_zone(
     except TowerpipeError:
         raise
     except Exception as exc:  # noqa: BLE001 - Snakemake's errors, shown as one line
-        first = next((ln.strip() for ln in str(exc).splitlines() if ln.strip()), type(exc).__name__)
-        print(f"towerpipe: run of zone {zone} failed: {first}", flush=True)
+        print(f"towerpipe: run of zone {zone} failed: {error_line(exc)}", flush=True)
         return 1
     finally:
         os.chdir(cwd)
     return 0
+
+
+def error_line(exc: BaseException) -> str:
+    """The one line that says what an error of Snakemake is: its first line that says more than
+    a label (Snakemake's ``WorkflowError`` reads "Error:", then the message on the next line)."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    said = [ln for ln in lines if ln.rstrip(":").strip() not in ("Error", "WorkflowError", type(exc).__name__)]
+    return said[0] if said else type(exc).__name__
 
 
 def _cmd(args: argparse.Namespace) -> int:
