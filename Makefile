@@ -69,7 +69,7 @@ benchmark-realshape: setup
 # transfer scores in their cards (what inference.model: auto ranks by).
 ship-models:
 	for m in $(MODELS); do mkdir -p models/$$m && \
-	  cp results/models/$$m/{classifier.pt,segmenter.pt,model_card.json,MODEL_CARD.md,metrics.json,classifier_curves.png,segmenter_curves.png} models/$$m/; done
+	  cp results/models/$$m/{classifier.pt,segmenter.pt,classifier.folded.npz,segmenter.folded.npz,model_card.json,MODEL_CARD.md,metrics.json,classifier_curves.png,segmenter_curves.png} models/$$m/; done
 	$(BIN)/towerpipe realshape-stamp --scores results/benchmark/realshape/scores.json
 	mkdir -p models/$(VERIFIER) && cp work/verifiers/$(VERIFIER)/{verifier.json,MODEL_CARD.md} models/$(VERIFIER)/
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import model_card, trained_like
+from conftest import REPO, model_card, trained_like
 from towerpipe.errors import ModelError
 from towerpipe.model.bundle import load_bundle, save_bundle
 from towerpipe.model.cards import MODEL_RELEASES, default_model_path, validate_card
@@ -129,3 +129,17 @@ def test_default_model_path(monkeypatch, tmp_path):
     assert (p.parent.parent / "pyproject.toml").is_file()
     monkeypatch.setenv("TOWERPIPE_MODELS", str(tmp_path))
     assert default_model_path() == tmp_path / f"towerpipe-shape-v{MODEL_RELEASES['shape']}"
+
+
+def test_a_card_names_its_architecture_and_its_warm_start():
+    """The card's text said PointNet_L whatever the widths; a warm start showed only in the config."""
+    import json
+
+    from towerpipe.model.cards import card_markdown
+
+    shipped = json.loads((REPO / "models" / "towerpipe-shape-v3" / "model_card.json").read_text())
+    md = card_markdown(shipped)
+    assert "a compact PointNet: PointNet_L with half its global width" in md and "warm-started" not in md
+    assert (REPO / "models" / "towerpipe-shape-v3" / "MODEL_CARD.md").read_text().splitlines()[2] == md.splitlines()[2]
+    tuned = card_markdown({**shipped, "architecture": {"arch": "light"}, "init_from": "models/towerpipe-shape-v3"})
+    assert "PointNet_L, the light PointNet" in tuned and "- warm-started from: `models/towerpipe-shape-v3`" in tuned

@@ -192,18 +192,30 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
+#: What each network architecture (``architecture.arch`` of a card) is, in words.
+ARCH_WORDS = {
+    "light": "PointNet_L, the light PointNet of Carós et al. 2022",
+    "full": "PointNet at its full widths",
+    "compact": "a compact PointNet: PointNet_L with half its global width (Carós et al. 2022)",
+    "edge": "EdgeConv over each point's neighbours",
+}
+
+
 def card_markdown(card: Mapping[str, Any]) -> str:
     """Human-readable ``MODEL_CARD.md`` for a card."""
+    arch = (card.get("architecture") or {}).get("arch", "light")
     lines = [
         f"# {card['name']} v{card['version']}",
         "",
-        "Power-tower classifier + segmenter (PointNet_L, Carós et al. 2022) for towerpipe.",
+        f"Power-tower classifier + segmenter for towerpipe: {ARCH_WORDS.get(arch, arch)} (`{arch}`).",
         "",
         f"- feature set: `{card['feature_set']}` — columns {', '.join(card['features'])}",
         f"- code: towerpipe {card['code'].get('towerpipe')} commit {card['code'].get('git_commit')}",
         f"- config hash: `{card['config_hash']}`",
-        "",
     ]
+    if card.get("init_from"):
+        lines.append(f"- warm-started from: `{_fmt(card['init_from'])}` (its own card says what it learned from)")
+    lines.append("")
     for section in ("normalisation", "sampling", "training_data", "metrics", "transfer"):
         if section not in card:
             continue
