@@ -141,5 +141,7 @@ def test_a_card_names_its_architecture_and_its_warm_start():
     md = card_markdown(shipped)
     assert "a compact PointNet: PointNet_L with half its global width" in md and "warm-started" not in md
     assert (REPO / "models" / "towerpipe-shape-v3" / "MODEL_CARD.md").read_text().splitlines()[2] == md.splitlines()[2]
-    tuned = card_markdown({**shipped, "architecture": {"arch": "light"}, "init_from": "models/towerpipe-shape-v3"})
-    assert "PointNet_L, the light PointNet" in tuned and "- warm-started from: `models/towerpipe-shape-v3`" in tuned
+    init = {"name": "towerpipe-shape", "version": "3", "path": "models/towerpipe-shape-v3"}
+    tuned = card_markdown({**shipped, "architecture": {"arch": "light"}, "init_from": init})
+    assert "PointNet_L, the light PointNet" in tuned
+    assert "- warm-started from: `towerpipe-shape v3 (models/towerpipe-shape-v3)`" in tuned

@@ -57,6 +57,7 @@ def test_train_bundle_round_trip(windows, tmp_path):
         "segmenter_curves.png",
     } <= names
     card = json.loads((out / "model_card.json").read_text())
+    assert (card["name"], card["version"]) == ("towerpipe-full", "2")  # from the directory's name
     assert card["features"] == ["x", "y", "z", "intensity", "green", "blue", "ndvi"]
     assert card["sampling"]["n_points"] == 128 and len(card["config_hash"]) == 16
     assert card["code"]["towerpipe"]
@@ -90,7 +91,11 @@ def test_warm_start_continues_from_a_bundle(windows, tmp_path, random_model_fact
     out = train_bundle(
         [path], tmp_path / "warm", "full", dict(TINY, epochs=1, init_from=str(init), segmenter={"epochs": 1})
     )
-    rec = json.loads((out / "model_card.json").read_text())["init_from"]
+    card = json.loads((out / "model_card.json").read_text())
+    # a directory without a release names the model itself, release 0: never the shipped model's name
+    assert (card["name"], card["version"]) == ("warm", "0")
+    assert "warm-started from: `towerpipe-random-full" in (out / "MODEL_CARD.md").read_text()
+    rec = card["init_from"]
     assert rec["name"] == "towerpipe-random-full" and set(rec["files_sha256"]) == {
         "classifier.pt",
         "segmenter.pt",

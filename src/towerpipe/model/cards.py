@@ -213,8 +213,10 @@ def card_markdown(card: Mapping[str, Any]) -> str:
         f"- code: towerpipe {card['code'].get('towerpipe')} commit {card['code'].get('git_commit')}",
         f"- config hash: `{card['config_hash']}`",
     ]
-    if card.get("init_from"):
-        lines.append(f"- warm-started from: `{_fmt(card['init_from'])}` (its own card says what it learned from)")
+    init = card.get("init_from")
+    if init:
+        what = f"{init.get('name')} v{init.get('version')} ({init.get('path')})" if isinstance(init, Mapping) else init
+        lines.append(f"- warm-started from: `{what}` (its own card says what it learned from)")
     lines.append("")
     for section in ("normalisation", "sampling", "training_data", "metrics", "transfer"):
         if section not in card:

@@ -45,7 +45,6 @@ import torch
 
 from towerpipe.errors import ConfigError
 from towerpipe.model.bundle import load_bundle, save_bundle
-from towerpipe.model.cards import MODEL_RELEASES
 from towerpipe.model.features import FEATURE_SETS, required_attributes
 from towerpipe.model.pointnet import PointNetClassifier, PointNetSegmenter, build_model, count_parameters
 from towerpipe.progress import peak_rss_mb
@@ -405,10 +404,11 @@ def train_bundle(
             "tiles lack it; use a feature set without it (e.g. --feature-set shape)"
         )
     out = Path(out_dir)
-    # the release from the directory name (``towerpipe-shape-v3``, ``towerpipe-shape-v3-without-uav``),
-    # decided before hours of training rather than after
+    # the name and release from the directory name (``towerpipe-shape-v3``, ``towerpipe-shape-v3-without-uav``),
+    # decided before hours of training rather than after; a directory named otherwise names the
+    # model itself, release 0: never taken for a shipped model (``towerpipe-shape`` v3)
     release = re.search(r"-v(\d+)(?:-without-[a-z0-9]+)?$", out.name)
-    version = release.group(1) if release else str(MODEL_RELEASES.get(feature_set, 0))
+    version = release.group(1) if release else "0"
     out.mkdir(parents=True, exist_ok=True)
     clf, h_clf, m_clf = train_classifier(ws, {**cfg, **per_net["classifier"]})
     seg, h_seg, m_seg = train_segmenter(ws, {**cfg, **per_net["segmenter"]})
@@ -416,7 +416,13 @@ def train_bundle(
     save_curves(h_seg, out / "segmenter_curves.png", f"segmenter ({feature_set})")
     (out / "history.json").write_text(json.dumps({"classifier": h_clf, "segmenter": h_seg}, indent=1))
     card = make_card(
-        feature_set, ws, {**cfg, "per_network": per_net}, m_clf, m_seg, name=_bundle_name(out.name), version=version
+        feature_set,
+        ws,
+        {**cfg, "per_network": per_net},
+        m_clf,
+        m_seg,
+        name=_bundle_name(out.name) or out.name,
+        version=version,
     )
     save_bundle(out, clf, seg, card)
     log.info(
@@ -426,6 +432,6 @@ def train_bundle(
 
 
 def _bundle_name(dirname: str) -> str | None:
-    """``towerpipe-shape-v3-without-uav`` -> ``towerpipe-shape-without-uav``; ``None`` for the default name."""
+    """``towerpipe-shape-v3-without-uav`` -> ``towerpipe-shape-without-uav``; ``None`` for a name without a release."""
     m = re.match(r"^(.*)-v\d+(-without-[a-z0-9]+)?$", dirname)
     return f"{m.group(1)}{m.group(2) or ''}" if m else None
