@@ -116,3 +116,31 @@ def test_ablation_table(windows, tmp_path):
     assert "IoU tower" in text and "Dropping RGB and NIR" in text
     res = json.loads((tmp_path / "ablation.json").read_text())["results"]
     assert res["no_rgb_nir"]["classifier"]["parameters"] < res["reference"]["classifier"]["parameters"] + 100
+
+
+def test_a_feature_set_needs_its_attributes_valid_on_every_training_block(tmp_path):
+    """A geometry model trained on blocks whose intensity is all 0 (present, not valid) was only
+    refused when the night ran it; training refuses it, naming the attribute."""
+    from test_dataset import make_tiles
+
+    from towerpipe.errors import ConfigError
+    from towerpipe.io.tiles import Tile, load_tile, save_tile
+
+    paths = make_tiles(tmp_path, 3, n_veg=400, tower_pts=60)
+    for i, p in enumerate(paths):
+        t = load_tile(p)
+        valid = ["nir", "rgb"] + ([] if i == 0 else ["intensity"]) + ["returns"]
+        save_tile(p, Tile(t.arrays, {**t.meta, "valid_attributes": sorted(valid)}))
+    ws = build_windows(
+        paths,
+        {
+            "n_points": 64,
+            "seed": 0,
+            "random_negatives_per_tile": 2,
+            "split": {"val": ["b2"], "test": ["b0"]},
+        },
+    )
+    assert ws.meta["attributes_known"] and ws.meta["valid_attributes"] == ["nir", "returns", "rgb"]
+    ws.save(tmp_path / "w.npz")
+    with pytest.raises(ConfigError, match="needs intensity valid on every training block"):
+        train_bundle([tmp_path / "w.npz"], tmp_path / "g-v1", "geometry", dict(TINY, epochs=1))

@@ -469,6 +469,14 @@ def build_windows(
             "tiles": paths,
             "has_rgb": all(bool(r["meta"].get("has_rgb", False)) for r in per_tile),
             "has_nir": all(bool(r["meta"].get("has_nir", False)) for r in per_tile),
+            # the attributes valid on every tile's block (towerpipe.preprocess.attributes): present
+            # is not enough, an intensity all 0 teaches a model nothing it can use
+            "valid_attributes": sorted(
+                set.intersection(*(set(r["meta"].get("valid_attributes", ())) for r in per_tile))
+                if per_tile and all("valid_attributes" in r["meta"] for r in per_tile)
+                else ()
+            ),
+            "attributes_known": bool(per_tile) and all("valid_attributes" in r["meta"] for r in per_tile),
             "towers": int(sum(r["counts"]["towers"] for r in per_tile)),
             "towers_dropped_small": int(sum(r["counts"]["towers_dropped"] for r in per_tile)),
             "tall_objects": int(sum(r["counts"]["tall_objects"] for r in per_tile)),

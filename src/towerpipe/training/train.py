@@ -393,15 +393,19 @@ def train_bundle(
     ws = load_or_build(dataset_paths, config.get("dataset"))
     config["feature_set"] = feature_set
     cfg = train_config(config)
-    lacking = [
-        a
-        for a, flag in (("rgb", "has_rgb"), ("nir", "has_nir"))
-        if a in required_attributes(feature_set) and not ws.meta.get(flag)
-    ]
+    if ws.meta.get("attributes_known"):  # valid on every training block, not only present
+        lacking = [a for a in required_attributes(feature_set) if a not in ws.meta["valid_attributes"]]
+    else:  # windows built before the blocks' attributes were recorded: presence only
+        lacking = [
+            a
+            for a, flag in (("rgb", "has_rgb"), ("nir", "has_nir"))
+            if a in required_attributes(feature_set) and not ws.meta.get(flag)
+        ]
     if lacking:
         raise ConfigError(
-            f"train: feature set {feature_set!r} needs {', '.join(lacking).upper()} but some training "
-            "tiles lack it; use a feature set without it (e.g. --feature-set shape)"
+            f"train: feature set {feature_set!r} needs {', '.join(lacking)} valid on every training block, "
+            "but some blocks lack it or carry it degenerate (all 0, constant: their QA pages say which); "
+            "use a feature set without it (e.g. --feature-set shape)"
         )
     out = Path(out_dir)
     # the name and release from the directory name (``towerpipe-shape-v3``, ``towerpipe-shape-v3-without-uav``),
