@@ -158,18 +158,19 @@ def evaluate_zone(
     results_dir
         ``results/<zone>/``.
     truth_gpkg
-        True tower footprints (default: ``input_dir/towers_truth.gpkg``).
+        True tower footprints (default: ``input_dir/towers_truth.gpkg``, else the towers the
+        blocks label 15: :func:`towerpipe.evaluation.calibrate.zone_truth`).
     min_truth_points
         True towers with fewer points (``n_points`` of the truth file) are left out of
         the tower figures, and a prediction matching one is not counted as false: the
         paper drops towers under 20 points from its data. 0 evaluates every tower.
     """
+    from towerpipe.evaluation.calibrate import zone_truth
     from towerpipe.products.gpkg_read import read_towers
     from towerpipe.towers.matching import match_towers
 
     input_dir, results_dir = Path(input_dir), Path(results_dir)
-    truth_path = Path(truth_gpkg) if truth_gpkg else input_dir / "towers_truth.gpkg"
-    truth = gpd.read_file(truth_path, layer="towers")
+    truth = zone_truth(input_dir, truth_gpkg)
     pred = read_towers(results_dir / "towers.gpkg")
     ignored = 0
     if min_truth_points and "n_points" in truth.columns:
@@ -356,7 +357,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("evaluate", help="tower precision/recall and point IoU of a processed zone against truth")
     p.add_argument("--zone-dir", required=True, help="the zone's input directory (labelled blocks)")
     p.add_argument("--results", required=True, help="results/<zone>/")
-    p.add_argument("--truth", help="true tower footprints (default: ZONE_DIR/towers_truth.gpkg)")
+    p.add_argument(
+        "--truth",
+        help="true tower footprints (default: ZONE_DIR/towers_truth.gpkg, else the towers its blocks label 15)",
+    )
     p.add_argument("--json", help="write the figures here")
     p.add_argument(
         "--min-truth-points",

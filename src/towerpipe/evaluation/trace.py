@@ -111,11 +111,10 @@ def trace_zone(
         ``reported_other`` (those of them not labelled tower in the input). True towers under
         ``towers.min_points`` points are left out, as the scores leave them out.
     """
-    import geopandas as gpd
     import shapely
 
     from towerpipe.config import TowersConfig
-    from towerpipe.evaluation.calibrate import NEAR_TOWER_M, tower_labels, zone_survey, zone_towers
+    from towerpipe.evaluation.calibrate import NEAR_TOWER_M, tower_labels, zone_survey, zone_towers, zone_truth
     from towerpipe.evaluation.predcache import zone_tiles
     from towerpipe.io import workdir
     from towerpipe.io.predictions import load_pred
@@ -129,7 +128,7 @@ def trace_zone(
             Path(work, zone, "pred"),
             f"no predictions of zone {zone!r}; run `snakemake --cores 2 results/{zone}/` first",
         )
-    truth = gpd.read_file(truth_file or Path(input_dir) / "towers_truth.gpkg", layer="towers")
+    truth = zone_truth(input_dir, truth_file)
     rules = TowersConfig.from_config({"towers": dict(towers)})
     preds = [load_pred(p) for p in pred_files]
     trace: list[dict[str, Any]] = []
@@ -325,7 +324,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="config files over config/config.yaml and config/models.yaml, as the zone was run",
     )
     p.add_argument("--workdir", help="the workdir (default: the config's)")
-    p.add_argument("--truth", help="true tower footprints (default: <input>/towers_truth.gpkg)")
+    p.add_argument(
+        "--truth",
+        help="true tower footprints (default: <input>/towers_truth.gpkg, else the towers its blocks label 15)",
+    )
     p.add_argument("--json", help="write the rows here")
     p.add_argument(
         "--cached",

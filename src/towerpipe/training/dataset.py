@@ -186,7 +186,8 @@ def split_blocks(
     if len(tower) < 3:
         raise ConfigError(
             f"dataset: a block split needs >= 3 blocks with towers, got {len(tower)} "
-            f"({tower}); use a larger training zone or set `split: {{val: [...], test: [...]}}`"
+            f"({tower}); use a larger training zone or name the held-out blocks: "
+            "`training: {dataset: {split: {val: [...], test: [...]}}}` (block ids, quoted)"
         )
     out: dict[str, str] = {}
     for group, need in ((tower, True), (other, False)):
