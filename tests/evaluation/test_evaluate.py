@@ -102,8 +102,8 @@ def test_labelled_blocks_without_a_truth_file_are_scored_by_their_class_15(tmp_p
 
     def block(name, x0, towers):
         pts = [np.c_[rng.uniform(x0, x0 + 100, 500), rng.uniform(0, 100, 500), rng.uniform(0, 1, 500), np.full(500, 2)]]
-        for tx, ty, lo, hi in towers:  # a column of labelled points, cut at the block's edge
-            xs = rng.uniform(tx - 1.5, tx + 1.5, 200)
+        for tx, ty, lo, hi, *count in towers:  # a column of labelled points, cut at the block's edge
+            xs = rng.uniform(tx - 1.5, tx + 1.5, count[0] if count else 200)
             keep = (xs >= x0) & (xs < x0 + 100)
             pts.append(
                 np.c_[
@@ -121,11 +121,13 @@ def test_labelled_blocks_without_a_truth_file_are_scored_by_their_class_15(tmp_p
         las.write(d / f"{name}.laz")
 
     block("a", 0, [(30, 30, 0, 25), (100, 60, 0, 30)])  # the second stands across the edge
-    block("b", 100, [(100, 60, 0, 30)])
-    truth = zone_truth(d)
+    block("b", 100, [(100, 60, 0, 30), (140, 20, 3, 3.1, 1)])  # and a stray labelled point
+    truth = zone_truth(d, min_points=20)
     edge = [int(((las.classification == 15) & (las.x > 400050)).sum()) for las in map(laspy.read, sorted(d.glob("*")))]
     assert min(edge) > 0  # both blocks hold a part of it
-    assert len(truth) == 2 and sorted(truth["n_points"]) == sorted([200, sum(edge)])
+    assert len(truth) == 2 and sorted(truth["n_points"]) == sorted([200, sum(edge) - 1])
+    assert truth["height_m"].min() > 20  # each cluster's own height, not the rise over the zone's lowest point
+    assert len(zone_truth(d)) == 3  # every labelled cluster, the stray point too
     assert not (d / "towers_truth.gpkg").exists()
     for f in d.glob("*.laz"):
         las = laspy.read(f)
@@ -133,3 +135,24 @@ def test_labelled_blocks_without_a_truth_file_are_scored_by_their_class_15(tmp_p
         las.write(f)
     with pytest.raises(InputError, match="nothing to score against"):
         zone_truth(d)
+
+
+def test_window_figures_refuse_the_tiles_a_model_trained_on(tmp_path, random_model_factory):
+    """evaluate-windows on a model's own training tiles gave figures that read as held-out."""
+    import shutil
+
+    import pytest
+
+    from towerpipe.errors import InputError
+    from towerpipe.evaluation.evaluate import evaluate_windows
+
+    model = tmp_path / "m"
+    shutil.copytree(random_model_factory("shape"), model)
+    tile = tmp_path / "work" / "z" / "tiles" / "b0" / "0_0.npz"
+    tile.parent.mkdir(parents=True)
+    tile.write_bytes(b"")  # refused before it is read
+    card = json.loads((model / "model_card.json").read_text())
+    card.setdefault("training_data", {})["tiles"] = [str(tile)]
+    (model / "model_card.json").write_text(json.dumps(card))
+    with pytest.raises(InputError, match="1 of the 1 tiles are among those .* was trained on"):
+        evaluate_windows(model, [str(tile)])

@@ -163,7 +163,7 @@ def test_block_report_page_and_json(tmp_path):
     assert json.dumps(on_disk["limits"]) == (
         '{"min_density": 2.0, "min_ground_ratio": 0.05, "edge_margin_m": 2.0, "min_tower_prob": 0.6, '
         '"min_wire_support": 0.5, "wire_min_height": 15.0, "max_gate_ratio": 0.25, "min_recall": 1.0, '
-        '"min_precision": 1.0, "min_truth_points": 20, "mast_prominence": 2.0, "min_shape_score": 0.95}'
+        '"min_precision": 1.0, "min_point_recall": 0.5, "min_truth_points": 20, "mast_prominence": 2.0, "min_shape_score": 0.95}'
     )
     assert doc["summary"].startswith("2 towers found")
     for text in ("40006004600060", "tile t3: 2 holes filled", "Accuracy against", "peak memory (MB)"):
@@ -403,6 +403,26 @@ def test_edge_tower_reported_by_the_neighbour_counts_as_found(tmp_path):
     assert any(m.get("owner") == "neighbour" for m in acc["matches"])
     assert not any(f["code"] == "missed_towers" for f in doc["flags"])
     assert doc["stage_counts"]["… of them in towers a neighbouring block reports (40020004600100)"] == 57
+
+
+def test_labelled_tower_points_in_no_reported_tower_flag_the_block(tmp_path):
+    """The west part of a labelled tower whose centroid lies in the neighbour block, missed by
+    both: no tower of the block's own to miss, so the tower recall says nothing; the page said
+    "nothing to check". The share of its labelled points in a reported tower flags it."""
+    pts = make_block(towers_at=((X0 + SIZE + 1.5, Y0 + 100),))
+    labelled = pts["classification"] == classes.TOWER
+    whole = {k: pts[k][labelled] for k in ("x", "y", "z", "hag")}  # the block's tiles see it whole
+    inside = pts["x"] < X0 + SIZE
+    pts = {k: v[inside] for k, v in pts.items()}
+    truth = pts["classification"].copy()
+    missed = {**pts, "prob": np.zeros_like(pts["prob"]), "classification": np.where(truth == 15, 1, truth)}
+    kw = dict(zone="z1", truth=truth, truth_points=whole)
+    doc = report(tmp_path, "b1", towers=towers_of(missed), classified=missed, **kw)
+    assert doc["accuracy"]["towers_true"] == 0 and doc["accuracy"]["points_true"] >= 20
+    (flag,) = [f for f in doc["flags"] if f["code"] == "missed_tower_points"]
+    assert flag["reason"].endswith("labelled 15 here are in no reported tower (0% found)") and doc["status"] == "look"
+    found = report(tmp_path, "b1", stem="f", towers=towers_of(pts), classified=pts, **kw)
+    assert not any(f["code"] == "missed_tower_points" for f in found["flags"])
 
 
 def test_a_labelled_tower_on_the_seam_counts_in_the_block_of_its_centroid(tmp_path):

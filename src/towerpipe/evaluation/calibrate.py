@@ -70,7 +70,9 @@ def zone_survey(work: str | os.PathLike[str], zone: str) -> list[list[float]]:
 TRUTH_FILE = "towers_truth.gpkg"
 
 
-def zone_truth(input_dir: str | os.PathLike[str], truth_file: str | os.PathLike[str] | None = None):
+def zone_truth(
+    input_dir: str | os.PathLike[str], truth_file: str | os.PathLike[str] | None = None, *, min_points: int = 1
+):
     """The true towers of a zone: its truth file, else the towers its blocks label 15.
 
     A synthetic zone has :data:`TRUTH_FILE`; an agency's own labelled blocks have only their
@@ -84,6 +86,10 @@ def zone_truth(input_dir: str | os.PathLike[str], truth_file: str | os.PathLike[
         The zone's input directory.
     truth_file
         A truth GeoPackage (layer ``towers``) to use instead; it must exist.
+    min_points
+        Labelled clusters with fewer points are no towers (as the QA pages take
+        ``towers.min_points``): a stray labelled point beside a tower is not a tower of its own
+        that a prediction could match. Not applied to a truth file.
 
     Returns
     -------
@@ -117,7 +123,8 @@ def zone_truth(input_dir: str | os.PathLike[str], truth_file: str | os.PathLike[
             input_dir,
             f"no {TRUTH_FILE} and no point labelled {classes.TOWER} in any block: nothing to score against",
         )
-    return towers_from_labels(xyz["x"], xyz["y"], xyz["z"], None, np.ones(len(xyz["x"]), bool), crs=crs)
+    ones = np.ones(len(xyz["x"]), bool)
+    return towers_from_labels(xyz["x"], xyz["y"], xyz["z"], None, ones, min_points=int(min_points), crs=crs)
 
 
 def tower_labels(input_dir: Path) -> dict[str, np.ndarray]:

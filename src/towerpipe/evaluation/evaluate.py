@@ -170,7 +170,7 @@ def evaluate_zone(
     from towerpipe.towers.matching import match_towers
 
     input_dir, results_dir = Path(input_dir), Path(results_dir)
-    truth = zone_truth(input_dir, truth_gpkg)
+    truth = zone_truth(input_dir, truth_gpkg, min_points=max(1, int(min_truth_points)))
     pred = read_towers(results_dir / "towers.gpkg")
     ignored = 0
     if min_truth_points and "n_points" in truth.columns:
@@ -257,6 +257,12 @@ def evaluate_windows(
     dict
         ``classifier`` (F1, precision, recall, accuracy, n, positives), ``segmenter``
         (IoU tower, IoU background, mIoU, points, windows), ``windows``, ``towers``.
+
+    Raises
+    ------
+    InputError
+        Some of the tiles are among those the model was trained on (its card's
+        ``training_data.tiles``, paths as the training saw them, relative to the repository).
     """
     from towerpipe.model.bundle import load_bundle
     from towerpipe.training.dataset import build_windows
@@ -266,6 +272,15 @@ def evaluate_windows(
     paths = sorted(str(p) for p in tile_paths)
     if not paths:
         raise InputError(str(model_dir), "no tile files to evaluate on; run the zone's preprocessing first")
+    trained_on = {os.path.realpath(t) for t in (bundle.card.get("training_data") or {}).get("tiles") or ()}
+    seen = [p for p in paths if os.path.realpath(p) in trained_on]
+    if seen:
+        raise InputError(
+            seen[0],
+            f"{len(seen)} of the {len(paths)} tiles are among those {bundle.name} v{bundle.version} was trained "
+            "on (its card's training_data.tiles): figures on them are not held-out; give the tiles of a zone "
+            "it never saw",
+        )
     recorded = bundle.card.get("config") or {}
     cfg = dict(recorded.get("dataset") or {})
     cfg.update(dataset_config or {})

@@ -32,7 +32,7 @@ def towers_from_labels(
     Clusters the labelled points as :func:`towerpipe.towers.cluster.cluster_towers` does (no size filter by
     default; with ``mast_prominence`` two towers whose crossarms touch are two, as ``towers.mast_prominence``)
     and returns ``tower_id`` (``truth_<k>``), ``n_points``, ``height_m``
-    (max HAG, or z range when ``hag`` is None) and the footprint Polygon.
+    (max HAG, or the cluster's z range when ``hag`` is None) and the footprint Polygon.
     """
     sel = np.asarray(is_tower, dtype=bool)
     # indexed, not converted first: a column read a piece at a time gives only the tower points
@@ -55,7 +55,9 @@ def towers_from_labels(
         g = np.flatnonzero(labels == k)
         if len(g) == 0:
             continue
-        rows.append({"tower_id": f"truth_{k}", "n_points": int(len(g)), "height_m": float(h[g].max())})
+        # without heights above ground, a cluster's own z range (not the rise over the zone's lowest tower point)
+        height = h[g].max() if hag is not None else np.ptp(xyz[g, 2])
+        rows.append({"tower_id": f"truth_{k}", "n_points": int(len(g)), "height_m": float(height)})
         geoms.append(_footprint(xyz[g, :2], min_width))
     if not rows:
         return gpd.GeoDataFrame(

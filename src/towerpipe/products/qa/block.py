@@ -393,6 +393,15 @@ def block_report(
                     f"{accuracy['fn']} of {accuracy['towers_true']} labelled towers not found "
                     f"(recall {accuracy['recall']:.2f})",
                 )
+            labelled, caught = accuracy["points_true"], accuracy["points_both"]
+            if labelled >= limits.min_truth_points and caught < limits.min_point_recall * labelled:
+                # also a labelled tower across the edge that the neighbour owning it missed: no
+                # tower of this block's own to count in the recall above
+                flag(
+                    "missed_tower_points",
+                    f"{labelled - caught} of the {labelled} points labelled {classes.TOWER} here are in no reported "
+                    f"tower ({caught / labelled:.0%} found)",
+                )
             if accuracy["precision"] is not None and accuracy["precision"] < limits.min_precision:
                 flag(
                     "false_towers",

@@ -45,6 +45,8 @@ class Limits:
     min_recall: float
     #: Tower precision against input labels (when present) below this: the block is flagged.
     min_precision: float
+    #: Share of the block's labelled tower points in a reported tower below this: flagged.
+    min_point_recall: float
     #: Labelled clusters with fewer points are not towers (``towers.min_points``).
     min_truth_points: int
     #: Labelled clusters standing on two towers' masts are two towers (``towers.mast_prominence``).
