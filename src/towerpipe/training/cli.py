@@ -76,8 +76,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="labelled tile .npz files (globs allowed) or one windows .npz",
     )
     p.add_argument("--out", required=True, help="checkpoint directory to write")
-    p.add_argument("--feature-set", default="full", choices=sorted(FEATURE_SETS))
-    p.add_argument("--config", help="JSON/YAML file of training overrides (key `dataset` for the dataset)")
+    p.add_argument(
+        "--feature-set",
+        default="shape",
+        choices=sorted(FEATURE_SETS),
+        help="the columns the networks read (default: shape, the shipped default; full is the paper's)",
+    )
+    p.add_argument(
+        "--config",
+        help="JSON/YAML file of training overrides (key `dataset` for the dataset); without one, the "
+        "schema's defaults train the paper's recipe, not the shipped one (config/models.yaml's training.train)",
+    )
     p.add_argument("--epochs", type=int)
     p.add_argument("--seed", type=int)
     p.add_argument("--time-budget-s", dest="time_budget_s", type=float, help="per-network wall-clock budget")
