@@ -14,11 +14,8 @@ from conftest import BACKGROUNDS, preprocess_settings
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.io.lasformat import OWN_DIMENSIONS, PROB_DIMENSION, TOWER_ID_DIMENSION, own_dimensions
 from towerpipe.io.predictions import PRED_META_KEYS, save_pred
-from towerpipe.products.merge import (
-    block_probabilities,
-    merge_block,
-    relabel,
-)
+from towerpipe.products.labels import block_probabilities, relabel
+from towerpipe.products.merge import merge_block
 
 # ----------------------------------------------------------------------------- helpers
 

@@ -140,7 +140,7 @@ def test_a_feature_set_needs_its_attributes_valid_on_every_training_block(tmp_pa
             "split": {"val": ["b2"], "test": ["b0"]},
         },
     )
-    assert ws.meta["attributes_known"] and ws.meta["valid_attributes"] == ["nir", "returns", "rgb"]
+    assert ws.meta["valid_attributes"] == ["nir", "returns", "rgb"]
     ws.save(tmp_path / "w.npz")
     with pytest.raises(ConfigError, match="needs intensity valid on every training block"):
         train_bundle([tmp_path / "w.npz"], tmp_path / "g-v1", "geometry", dict(TINY, epochs=1))

@@ -241,10 +241,10 @@ def classified_points(
     """The block's points as the merge step classifies them, from the decoded cache.
 
     ``x, y, z`` (read a chunk at a time: :class:`~towerpipe.io.blockcache.ColumnReader`), the
-    output ``classification`` and ``prob``, as :func:`towerpipe.products.merge.block_labels`
+    output ``classification`` and ``prob``, as :func:`towerpipe.products.labels.block_labels`
     gives them to the merge step, so the QA does not decode the written LAZ a second time.
     """
-    from towerpipe.products.merge import block_labels
+    from towerpipe.products.labels import block_labels
 
     cache = BlockCache(cache_dir)
     cols: dict[str, Any] = {c: cache.reader(c) for c in ("x", "y", "z")}

@@ -27,7 +27,7 @@ the QA page flags. Model choice (:mod:`towerpipe.model.choice`) uses only valid 
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -118,6 +118,15 @@ def valid_set(attributes: Mapping[str, Mapping[str, Any]] | None) -> set[str]:
     if attributes is None:
         return set()
     return {a for a in ATTRIBUTES if a in attributes and bool(attributes[a].get("valid"))}
+
+
+def valid_everywhere(tile_metas: Sequence[Mapping[str, Any]]) -> list[str] | None:
+    """The attributes valid on the block of every tile (their ``valid_attributes``): what a
+    model trained on them may read. Present is not enough: an intensity all 0 teaches a model
+    nothing it can use. ``None`` when a tile was written before the attributes were recorded."""
+    if not tile_metas or any("valid_attributes" not in m for m in tile_metas):
+        return None
+    return sorted(set.intersection(*(set(m["valid_attributes"]) for m in tile_metas)))
 
 
 def describe(attributes: Mapping[str, Mapping[str, Any]]) -> str:

@@ -9,21 +9,19 @@ For each tile (``towerpipe.io.tiles``) only the ``model_input`` points are used:
   ``positive_shifts`` copies with the centre shifted by up to ``shift_m`` in x and y (the
   paper's augmentation);
 * a *hard negative* per positive: the same window with every tower point removed;
-* negatives: random centres in the tile core, and tall negatives. Half of the tall
-  budget goes to the tallest *objects* of the tile (:func:`tall_objects`: connected
-  groups of tall, HAG >= ``tall_hag_m``, non-tower points), two windows each as for a
-  positive: centred on its highest point and shifted by up to ``shift_m``. These are
-  cranes, masts, turbines, chimneys, the tallest trees: the rare things a classifier
-  confuses with pylons. The rest is centred on tall points drawn at random,
-  at least half a window apart (mostly trees and wires: what the height pre-filter
-  sends to the classifier). A candidate holding a tower is rejected. With
+* negatives: random centres in the tile core, and tall negatives. Half of the tall budget goes to the
+  tallest *objects* of the tile (:func:`tall_objects`: connected groups of tall, HAG >= ``tall_hag_m``,
+  non-tower points), two windows each as for a positive: centred on its highest point and shifted by
+  up to ``shift_m``. These are cranes, masts, turbines, chimneys, the tallest trees: the rare things a
+  classifier confuses with pylons. The rest is centred on tall points drawn at random, at least half a
+  window apart (mostly trees and wires: what the height pre-filter sends to the classifier). A
+  candidate holding a tower is rejected. With
   ``peak_negatives_per_tile``, more tall negatives are centred on the tile's height peaks,
   where candidate windows (:func:`towerpipe.inference.candidates.candidate_windows`) put them at inference.
 
-Variety aimed at real flights (``density_range``, ``occlusion``): each window is thinned
-to its own density, drawn log-uniformly in ``density_range`` (pts/m², all returns; a
-window cannot be denser than its zone), so one tower is seen at 2 and at 30 pts/m²; a
-positive keeps at least ``min_tower_points`` + 10 of its tower's points. With probability
+Variety aimed at real flights (``density_range``, ``occlusion``): each window is thinned to its own
+density, drawn log-uniformly in ``density_range`` (pts/m², all returns; a window cannot be denser than
+its zone), so one tower is seen at 2 and at 30 pts/m²; a positive keeps at least ``min_tower_points`` + 10 of its tower's points. With probability
 ``occlusion`` a positive's tower also loses most of the points of one side (a face in scan
 shadow): those beyond a random vertical plane through its centre are kept with a chance
 drawn in 0-0.4. ``tower_thinning`` (``{"probability": p, "keep": [lo, hi]}``, off by default) keeps, with
@@ -65,6 +63,7 @@ from towerpipe.io.columns import read_meta
 from towerpipe.io.tiles import load_tile
 from towerpipe.model.features import ALL_FEATURES, compute_columns, tile_feature_meta
 from towerpipe.model.sampling import constrained_sample, random_sample
+from towerpipe.preprocess.attributes import valid_everywhere
 from towerpipe.training.windowset import FAMILY_BITS, KINDS, SPLITS, WindowSet, is_windows_file, load_windows, summarise
 
 log = logging.getLogger(__name__)
@@ -186,8 +185,7 @@ def split_blocks(
     if len(tower) < 3:
         raise ConfigError(
             f"dataset: a block split needs >= 3 blocks with towers, got {len(tower)} "
-            f"({tower}); use a larger training zone or name the held-out blocks: "
-            "`training: {dataset: {split: {val: [...], test: [...]}}}` (block ids, quoted)"
+            f"({tower}); use a larger zone or set `training: {{dataset: {{split: {{val: [...], test: [...]}}}}}}`"
         )
     out: dict[str, str] = {}
     for group, need in ((tower, True), (other, False)):
@@ -470,14 +468,7 @@ def build_windows(
             "tiles": paths,
             "has_rgb": all(bool(r["meta"].get("has_rgb", False)) for r in per_tile),
             "has_nir": all(bool(r["meta"].get("has_nir", False)) for r in per_tile),
-            # the attributes valid on every tile's block (towerpipe.preprocess.attributes): present
-            # is not enough, an intensity all 0 teaches a model nothing it can use
-            "valid_attributes": sorted(
-                set.intersection(*(set(r["meta"].get("valid_attributes", ())) for r in per_tile))
-                if per_tile and all("valid_attributes" in r["meta"] for r in per_tile)
-                else ()
-            ),
-            "attributes_known": bool(per_tile) and all("valid_attributes" in r["meta"] for r in per_tile),
+            "valid_attributes": valid_everywhere([r["meta"] for r in per_tile]),
             "towers": int(sum(r["counts"]["towers"] for r in per_tile)),
             "towers_dropped_small": int(sum(r["counts"]["towers_dropped"] for r in per_tile)),
             "tall_objects": int(sum(r["counts"]["tall_objects"] for r in per_tile)),

@@ -393,7 +393,7 @@ def train_bundle(
     ws = load_or_build(dataset_paths, config.get("dataset"))
     config["feature_set"] = feature_set
     cfg = train_config(config)
-    if ws.meta.get("attributes_known"):  # valid on every training block, not only present
+    if ws.meta.get("valid_attributes") is not None:  # valid on every training block, not only present
         lacking = [a for a in required_attributes(feature_set) if a not in ws.meta["valid_attributes"]]
     else:  # windows built before the blocks' attributes were recorded: presence only
         lacking = [
