@@ -21,7 +21,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from towerpipe.config import SCHEMA_FILE, load_config, load_yaml
+from towerpipe.config import SCHEMA_FILE, effective_config, load_yaml
 from towerpipe.errors import ConfigError, TowerpipeError
 
 log = logging.getLogger(__name__)
@@ -118,7 +118,7 @@ def run_zone(
     configfiles = [Path(configfile).resolve()] if configfile else []
     if configfile and not Path(configfile).is_file():
         raise ConfigError(f"--config {configfile}: no such file")
-    config = load_config(configfiles, root=root)
+    config = effective_config(configfiles, root=root)  # what the workflow reads: config/models.yaml too
     check_zone(config, zone)
     prof = profile_settings(root)
     resources = dict(prof["resources"], **({"cores": cores} if cores else {}))
