@@ -60,12 +60,12 @@ MODEL_CHOICE = f"{ZONE_DIR}/model.json"
 
 def log_of(rule, per=""):
     """``log:`` of a rule: per "" (zone), "block", "tile" or "batch"."""
-    return _per_job(f"{ZONE_DIR}/logs", rule, per) + ".log"
+    return _per_job(f"{ZONE_DIR}/{workdir.LOGS}", rule, per) + ".log"
 
 
 def benchmark_of(rule, per=""):
     """``benchmark:`` of a rule: per "" (zone), "block", "tile" or "batch"."""
-    return _per_job(f"{ZONE_DIR}/benchmarks", rule, per) + ".tsv"
+    return _per_job(f"{ZONE_DIR}/{workdir.BENCHMARKS}", rule, per) + ".tsv"
 
 
 def _per_job(base, rule, per):
@@ -564,7 +564,8 @@ def _model_files(zone):
 
 
 #: Where this workflow's training rules put the models they train (rules train_model, model_results).
-_TRAINED_MODEL_DIRS = {os.path.normpath(f"{WORK}/models"), os.path.normpath("results/models")}
+TRAINED_MODELS, PUBLISHED_MODELS = f"{WORK}/models", "results/models"
+_TRAINED_MODEL_DIRS = {os.path.normpath(TRAINED_MODELS), os.path.normpath(PUBLISHED_MODELS)}
 
 
 def verifier_files():

@@ -52,7 +52,7 @@ rule train_model:
         windows=f"{WORK}/models/windows.npz",
         init=lambda wc: init_bundle_files(wc.name),
     output:
-        bundle=directory(f"{WORK}/models/{{name}}"),
+        bundle=directory(f"{TRAINED_MODELS}/{{name}}"),
     log:
         f"{WORK}/models/logs/train_model/{{name}}.log",
     benchmark:
@@ -118,10 +118,10 @@ rule ablation:
 
 rule model_results:
     input:
-        bundle=f"{WORK}/models/{{name}}",
+        bundle=f"{TRAINED_MODELS}/{{name}}",
         ablation=lambda wc: [f"{WORK}/ablation/{wc.name}"] if TRAIN["ablation"] else [],
     output:
-        directory("results/models/{name}/"),
+        directory(f"{PUBLISHED_MODELS}/{{name}}/"),
     log:
         f"{WORK}/models/logs/model_results/{{name}}.log",
     benchmark:

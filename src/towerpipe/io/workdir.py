@@ -43,7 +43,8 @@ BATCH_TIMING = "timings/{block}.{stage}.tsv"
 PER_BLOCK = (CACHE, TILE, DTM, PRED, WIRES, TOWERS_GPKG, TOWERS_NEIGHBOURS, TOWER_MEMBERS, BLOCK_LAZ, QA_HTML, QA_JSON)
 #: The per-job logs and benchmarks of a zone, ``<rule>/<block>.log`` or ``<rule>/<block>/<tile>.log``
 #: under these (``log_of`` and ``benchmark_of`` of ``workflow/rules/common.smk``).
-JOB_RECORDS = ("logs", "benchmarks")
+LOGS, BENCHMARKS = "logs", "benchmarks"
+JOB_RECORDS = (LOGS, BENCHMARKS)
 
 
 def gone_blocks(zone_dir: str | os.PathLike[str], blocks: Iterable[str]) -> dict[str, list[Path]]:
