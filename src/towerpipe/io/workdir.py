@@ -65,7 +65,10 @@ def gone_blocks(zone_dir: str | os.PathLike[str], blocks: Iterable[str]) -> dict
         and is not in ``blocks``.
     """
     root, keep = Path(zone_dir), set(blocks)
-    bases = [root, *sorted((root / "batches").glob("*/*"))]
+    bases = [
+        root,
+        *(d for b in (BATCH_SPLIT, BATCH_INFER, BATCH_PRODUCTS) for d in sorted(root.glob(b.format(batch="*")))),
+    ]
     gone: dict[str, list[Path]] = {}
     for base in bases:
         for pattern in PER_BLOCK:
