@@ -34,3 +34,16 @@ def test_the_table_prints_each_setting_with_the_decimals_it_has():
     assert header.startswith("views  gate") and "z: P / R / IoU" in header
     assert " 0.005 " in a and " 0.01 " in b and " 0.005 " not in b
     assert "1.000 /   -   / 0.7718" in a and a.endswith("| 0.9014 | 0.7718")
+
+
+def test_a_false_tower_is_reported_with_where_it_stands():
+    import geopandas as gpd
+    import shapely
+
+    from towerpipe.evaluation.calibrate import false_tower_rows
+
+    false = gpd.GeoDataFrame(
+        {"height_m": [9.34], "n_points": [23]}, geometry=[shapely.box(487951.0, 6632655.0, 487953.6, 6632657.2)]
+    )
+    assert false_tower_rows(false) == [{"height_m": 9.3, "n_points": 23, "x": 487952.3, "y": 6632656.1}]
+    assert false_tower_rows(false.iloc[:0]) == []

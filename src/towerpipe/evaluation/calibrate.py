@@ -221,7 +221,7 @@ def score_zone(
         ``precision``, ``recall``, ``f1``, ``towers``, ``point_iou``, ``tp``, ``fp``, ``fn``
         (tower points), ``towers_tp``, ``towers_fp``, ``towers_fn``, ``true_towers``,
         ``gate_recall`` (share of the true towers that some window passing the gate
-        covers: they have segmented points) and ``false_towers`` (height, points).
+        covers: they have segmented points) and ``false_towers`` (height, points, footprint centroid).
     """
     from towerpipe.towers.matching import match_towers
 
@@ -263,10 +263,22 @@ def score_zone(
         "towers_fn": m["fn"],
         "true_towers": int(len(truth)),
         "gate_recall": gate_recall(preds, truth),
-        "false_towers": [
-            {"height_m": round(float(r["height_m"]), 1), "n_points": int(r["n_points"])} for _, r in false.iterrows()
-        ],
+        "false_towers": false_tower_rows(false),
     }
+
+
+def false_tower_rows(false) -> list[dict[str, float | int]]:
+    """Height, points and footprint centre (x, y, the zone's CRS) of each false tower, to find it
+    in the zone's blocks."""
+    return [
+        {
+            "height_m": round(float(r["height_m"]), 1),
+            "n_points": int(r["n_points"]),
+            "x": round(float(r.geometry.centroid.x), 1),
+            "y": round(float(r.geometry.centroid.y), 1),
+        }
+        for _, r in false.iterrows()
+    ]
 
 
 def gate_recall(preds: Sequence[Any], truth) -> float | None:
