@@ -12,11 +12,13 @@
 # call retries for a second less than the timeout (9 s a Snakemake start with the default, 1 s
 # with 2 s, none with 1 s; messages on one machine take milliseconds).
 #
-# Exit status 3 with a one-line reason on stderr when SLURM cannot start here.
+# Exit status 3 with a one-line reason on stderr when SLURM cannot run here (not installed, not
+# root); 4 when it is installed and a daemon or the node fails to come up (a fault to look at).
 set -euo pipefail
 state=${SLURM_LOCAL_STATE:-/var/lib/towerpipe-slurm}
 conf=/etc/slurm/slurm.conf
 why() { echo "slurm_local: $*" >&2; exit 3; }
+fail() { echo "slurm_local: $*" >&2; exit 4; }
 alive() { [ -s "$state/$1.pid" ] && kill -0 "$(cat "$state/$1.pid")" 2>/dev/null; }
 ready() { scontrol ping >/dev/null 2>&1 && sinfo -h -o %t 2>/dev/null | grep -qE '^(idle|mix|alloc)'; }
 
@@ -61,16 +63,16 @@ start() {
   chown munge:munge /run/munge /var/log/munge /var/lib/munge
   [ -s /etc/munge/munge.key ] || { mungekey -c -k /etc/munge/munge.key && chown munge:munge /etc/munge/munge.key; }
   if ! pgrep -u munge -x munged >/dev/null; then
-    runuser -u munge -- /usr/sbin/munged || why "munged did not start"
+    runuser -u munge -- /usr/sbin/munged || fail "munged did not start"
   fi
   write_conf
-  alive slurmctld || slurmctld || why "slurmctld did not start (see $state/slurmctld.log)"
-  alive slurmd || slurmd || why "slurmd did not start (see $state/slurmd.log)"
+  alive slurmctld || slurmctld || fail "slurmctld did not start (see $state/slurmctld.log)"
+  alive slurmd || slurmd || fail "slurmd did not start (see $state/slurmd.log)"
   for _ in $(seq 60); do
     if alive slurmd && ready; then return 0; fi
     sleep 1
   done
-  why "the node did not become idle in 60 s: $(sinfo -h -o '%t %E' 2>&1 | head -1)"
+  fail "the node did not become idle in 60 s: $(sinfo -h -o '%t %E' 2>&1 | head -1)"
 }
 
 stop() {

@@ -120,12 +120,17 @@ def test_the_column_takes_no_point_from_a_block_the_tower_does_not_touch():
 
 
 def test_a_clustering_threshold_of_zero_gathers_every_point():
-    xyz, hag, prob, _ = faint_lattice(X0 + 50, Y0 + 50)
+    xyz, hag, prob, n = faint_lattice(X0 + 50, Y0 + 50)
     arrays, meta = pred_pair(xyz, hag, prob, ["b1"])
     arrays["prob_single"] = prob.copy()
     off = {**COLUMN, "threshold": 0.0}
-    # before the column, this setting gathered every point; it still does (the lattice and its crown)
-    assert len(extract([(arrays, meta)], "b1", BOUNDS, zone="z1", threshold=0.0, column=off).towers) >= 1
+    # before the column, this setting gathered every point; it still does (the lattice and its crown),
+    # where the configured threshold (0.0 is not "unset") leaves the lattice's faint points out
+    every = extract([(arrays, meta)], "b1", BOUNDS, zone="z1", threshold=0.0, column=off)
+    lattice = every.towers.sort_values("n_points").iloc[-1]
+    assert lattice["n_points"] == n and every.towers["n_points"].sum() >= n + 0.9 * (len(xyz) - n)
+    default = extract([(arrays, meta)], "b1", BOUNDS, zone="z1", threshold=0.5, column=off)
+    assert default.towers["n_points"].max() < n
 
 
 def test_the_shipped_column_leaves_the_foot_to_the_foot_rule():

@@ -375,6 +375,12 @@ def test_the_support_from_wire_points_judged_in_their_tiles(tmp_path):
     for got in (computed["conductors"], read["conductors"]):
         np.testing.assert_array_equal(got["x"], found["x"])
         np.testing.assert_array_equal(got["direction"], conductor_directions(found["direction_deg"]))
+    # what the job reads is the file, not a new search: a file of the western half gives that half
+    west = {k: v[found["x"] < cx] for k, v in found.items()}
+    assert 0 < len(west["x"]) < len(found["x"])
+    save_conductors(workdir.conductors_of(tile), west, {"block": "b", "tile": "0_0"})
+    half, _ = TileContext([str(tile)])(cx, cy)
+    np.testing.assert_array_equal(half["conductors"]["x"], west["x"])
     c = read["conductors"]
     support = wire_support(c["x"], c["y"], c["z"], c["hag"], cx, cy, directions=c["direction"])
     assert support == wire_support(pts[:, 0], pts[:, 1], pts[:, 2], pts[:, 2], cx, cy) > 0.9

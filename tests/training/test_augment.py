@@ -48,12 +48,22 @@ def test_each_operation(op):
     elif op == "constant":
         assert all(np.unique(x[i, :, 3]).size == 1 for i in range(4))
     elif op == "rescale":
-        assert np.allclose(col / before[..., 3], (col / before[..., 3])[:, :1], atol=1e-5) or (col == 3.0).any()
+        # one factor per window, drawn from 0.3-3 (clipped to the column's range): never the identity
+        ratio = col / before[..., 3]
+        unclipped = col < 3.0
+        assert unclipped.all(axis=1).any()
+        for i in range(4):
+            r = ratio[i][unclipped[i]]
+            assert np.allclose(r, r[0], atol=1e-5) and not np.isclose(r[0], 1.0, atol=1e-3)
+            assert 0.3 - 1e-6 <= r[0] <= 3.0 + 1e-6
     elif op == "bits8":
         np.testing.assert_allclose(x[..., 4], before[..., 4] / 257, rtol=1e-6)
         np.testing.assert_allclose(x[..., 3], before[..., 3] / 256, rtol=1e-6)
     elif op == "permute":
+        # the same values, moved among the points: the tower's bright values leave its 40 points
         np.testing.assert_allclose(np.sort(col, axis=1), np.sort(before[..., 3], axis=1))
+        assert not np.array_equal(col, before[..., 3])
+        assert (np.isclose(col[:, :40], 0.9).sum(axis=1) < 40).all()
     elif op == "swap":
         # the tower's points now carry its surroundings' values: the signature is gone
         assert np.allclose(x[:, :40, 3:], 0.2) and np.allclose(x[:, 40:, 3:], 0.2)

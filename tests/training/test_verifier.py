@@ -80,7 +80,9 @@ def test_train_verifier_writes_a_verifier_and_its_card(tmp_path):
     card = data["card"]
     assert card["name"] == "towerpipe-verifier-v9" and card["descriptor"] == list(DESCRIPTOR_NAMES)
     assert card["objects"]["towers_by_family"] == {"synthetic": 20}  # 10 towers x 2 copies
-    assert card["validation"]["towers"] > 0 and 0.0 <= card["validation"]["tower_recall"] <= 1.0
+    # the held-out block's towers are found, and its other objects are not (measured: 4 of 4, 0 of 53)
+    val = card["validation"]
+    assert val["towers"] >= 3 and val["tower_recall"] >= 0.75 and val["false_positive_rate"] <= 0.05
     assert "Held-out blocks" in (out / "MODEL_CARD.md").read_text()
     v = load_verifier(out)
     assert v.name == "towerpipe-verifier-v9"

@@ -87,7 +87,13 @@ def test_geopackage_and_qa(zone_run):
     info = pyogrio.read_info(out / "towers.gpkg", layer="towers")
     assert "25831" in info["crs"]
     index = (out / "qa" / "index.html").read_text()
-    assert "<img" in index or "data:image/png" in index or "block" in index
+    # the index links every block's page and the zone's GeoPackage, counts the zone's towers and
+    # draws its map
+    blocks = sorted(p.stem for p in (out / "blocks").glob("*.laz"))
+    assert blocks and all(f'href="{b}.html"' in index for b in blocks)
+    assert 'href="../towers.gpkg"' in index and "<svg" in index
+    n_towers = info["features"]
+    assert n_towers > 1 and f"{n_towers} towers found in {len(blocks)} blocks" in index
     for page in (out / "qa").glob("*.html"):
         assert "http://" not in page.read_text() and "https://" not in page.read_text()
 

@@ -74,8 +74,12 @@ def write_config(tmp_path, zone, indir, model, **extra):
 
 
 def planned_jobs(proc):
+    """Jobs a dry run plans: its job table's total, or 0 where Snakemake says so."""
     m = re.search(r"^total\s+(\d+)", proc.stdout, re.M)
-    return int(m.group(1)) if m else 0
+    if m:
+        return int(m.group(1))
+    assert "Nothing to be done" in proc.stdout + proc.stderr, (proc.stdout + proc.stderr)[-3000:]
+    return 0
 
 
 def planned(proc):
