@@ -182,3 +182,18 @@ def test_gate_stats_count_a_window_two_tiles_see_once(tmp_path):
     g = gate_stats(tmp_path)
     assert (g["windows_total"], g["windows_segmented"], g["windows_shape_gated"]) == (7, 3, 4)
     assert (g["windows_distinct"], g["windows_segmented_distinct"]) == (6, 2)
+
+
+@pytest.mark.parametrize(
+    "argv, usage",
+    [
+        (["scale", "--help"], "usage: python -m towerpipe.bench scale "),
+        (["--help"], "usage: python -m towerpipe.bench [-h] BENCH"),
+    ],
+)
+def test_the_usage_reads_as_the_command_is_typed(argv, usage, capsys):
+    from towerpipe.bench import main
+
+    with pytest.raises(SystemExit):
+        main(argv)
+    assert capsys.readouterr().out.startswith(usage)

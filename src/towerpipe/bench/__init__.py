@@ -390,8 +390,12 @@ def bench_blocks(args: argparse.Namespace) -> int:
     return finish(args, tmp, res)
 
 
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("bench", help="benchmarks against a plain `pdal translate` (see towerpipe.bench)")
+def register(sub: argparse._SubParsersAction, prog: str | None = None) -> None:
+    p = sub.add_parser(
+        "bench",
+        help="benchmarks against a plain `pdal translate` (see towerpipe.bench)",
+        **({"prog": prog} if prog else {}),
+    )
     bsub = p.add_subparsers(dest="bench", metavar="BENCH", required=True)
     pp = bsub.add_parser("preprocess", help="tile + ground + HAG + noise through Snakemake vs pdal translate")
     pp.add_argument("--block", nargs="*", help="existing blocks to use instead of generated ones")
@@ -432,6 +436,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m towerpipe.bench")
     sub = parser.add_subparsers(dest="command", required=True)
-    register(sub)
+    # the benchmarks hang under `bench`, as in `towerpipe bench`; their usage reads as typed here
+    register(sub, prog="python -m towerpipe.bench")
     args = parser.parse_args(["bench", *(argv if argv is not None else sys.argv[1:])])
     return args.func(args)
