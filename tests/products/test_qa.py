@@ -710,3 +710,37 @@ def test_tower_numbers_on_the_block_map_stay_inside_its_axes(monkeypatch):
     for t in labels:
         box = t.get_window_extent()
         assert inside.x0 <= box.x0 and box.x1 <= inside.x1 and inside.y0 <= box.y0 and box.y1 <= inside.y1, t.get_text()
+
+
+def test_a_tower_an_analyst_reviewed_no_longer_makes_its_block_need_a_look(tmp_path):
+    """The zone's GeoPackage holds the analysts' reviews: a flag of a confirmed or rejected tower
+    is shown as reviewed on the index, and its block needs a look only for its other flags."""
+    from towerpipe.products.gpkg import write_towers_gpkg
+
+    qa = tmp_path / "qa"
+    pts = make_block()
+    towers = towers_of(pts)
+    towers["prob_mean"] = 0.4  # both towers flagged: a low mean probability
+    d = report(qa, "a", zone="z1", towers=towers, classified=pts)
+    assert d["status"] == "look" and [f["code"] for f in d["flags"]] == ["tower", "tower"]
+    first, second = (str(t) for t in towers["tower_id"])
+    gpkg = tmp_path / "towers.gpkg"
+
+    def index_with(statuses):
+        write_towers_gpkg(gpkg, towers.assign(review_status=statuses), crs_wkt="EPSG:25831")
+        return zone_index(tmp_path / "qa" / "index.html", [qa / "a.json"], zone="z1", gpkg=gpkg)["blocks"][0]
+
+    b = index_with(["unreviewed", "unreviewed"])
+    assert b["status"] == "look" and b["codes"] == ["tower", "tower"]
+    b = index_with(["confirmed", "unreviewed"])
+    assert b["status"] == "look" and b["codes"] == ["tower", "reviewed"]
+    assert b["reasons"][1].startswith(f"tower 1 ({first}): ") and b["reasons"][1].endswith(" (reviewed: confirmed)")
+    b = index_with(["confirmed", "rejected"])
+    assert b["status"] == "ok" and b["codes"] == ["reviewed", "reviewed"]
+    assert f"tower 2 ({second}): " in b["reasons"][1] and "(reviewed: rejected)" in b["reasons"][1]
+    page = (qa / "index.html").read_text()
+    assert "nothing to check" in page and "(reviewed: rejected)" in page
+    # a flag that is not a tower's stays: the block still needs a look for it
+    d = report(qa, "a", zone="z1", towers=towers, classified=pts, warnings=["a warning"])
+    b = index_with(["confirmed", "rejected"])
+    assert b["status"] == "look" and b["codes"] == ["warnings", "reviewed", "reviewed"]

@@ -10,7 +10,7 @@ from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
 
 from conftest import extract
 from towerpipe.products.gpkg import write_towers_gpkg
-from towerpipe.products.registry_file import published_reviews, read_registry, write_registry
+from towerpipe.products.registry_file import published_reviews, read_registry, reviewed_towers, write_registry
 from towerpipe.towers.registry import (
     ACTIVE,
     MATCH_DISTANCE,
@@ -153,6 +153,9 @@ def test_registry_from_the_published_file_and_analyst_reviews(tmp_path):
     seeded = read_registry(tmp_path / "registry.gpkg", published)
     assert list(seeded["tower_id"]) == list(towers["tower_id"]) and seeded.iloc[0]["status"] == ACTIVE
     assert published_reviews(published, reg) == {int(towers.iloc[0]["tower_id"]): "rejected"}
+    # what the QA index reads: the reviewed towers of the file, whatever the registry holds
+    assert reviewed_towers(published) == {int(towers.iloc[0]["tower_id"]): "rejected"}
+    assert reviewed_towers(tmp_path / "nothing.gpkg") == {} and reviewed_towers(None) == {}
     updated = update_registry(reg, towers, run_time=T2, reviews=published_reviews(published, reg))
     assert updated.iloc[0]["review_status"] == "rejected"
     # a file of an older version (text ids) starts an empty registry

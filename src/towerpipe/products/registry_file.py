@@ -90,6 +90,21 @@ def published_reviews(path: str | os.PathLike[str] | None, registry: gpd.GeoData
     return out
 
 
+def reviewed_towers(path: str | os.PathLike[str] | None) -> dict[int, str]:
+    """Tower id -> status of the towers an analyst has reviewed (``confirmed`` or ``rejected``) in
+    a published ``towers.gpkg`` (its ``towers`` layer); empty without the file."""
+    if path is None or not Path(path).is_file() or LAYER_TOWERS not in list_layers(path):
+        return {}
+    gdf = read_towers(path, LAYER_TOWERS)
+    if not len(gdf) or "review_status" not in gdf.columns or not pd.api.types.is_integer_dtype(gdf["tower_id"]):
+        return {}
+    return {
+        int(tid): str(status)
+        for tid, status in zip(gdf["tower_id"].astype("int64"), gdf["review_status"], strict=True)
+        if status in REVIEW_STATUSES and status != REVIEW_DEFAULT
+    }
+
+
 def write_registry(path: str | os.PathLike[str], registry: gpd.GeoDataFrame, crs_wkt: str | None = None) -> Path:
     """Write the registry atomically (GeoPackage, layer ``towers``)."""
     return write_gpkg(

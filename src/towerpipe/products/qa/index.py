@@ -19,6 +19,7 @@ from towerpipe.products import layout
 from towerpipe.products.qa.metrics import jsonable, read_benchmark
 from towerpipe.products.qa.pages import render
 from towerpipe.products.qa.plots import zone_map
+from towerpipe.products.registry_file import reviewed_towers
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +57,25 @@ def _merge_cost(path: str | os.PathLike[str] | None) -> dict[str, float | None]:
     return {"merge_s": b.get("seconds"), "merge_rss_mb": b.get("max_rss_mb")}
 
 
+def reviewed_flags(doc: Mapping[str, Any], reviews: Mapping[str, str]) -> tuple[list[dict[str, str]], dict[str, str]]:
+    """A block QA JSON's flags, without those of the towers an analyst has reviewed.
+
+    Returns
+    -------
+    open, reviewed
+        The flags still to look at, and the reason of each flag of a reviewed tower -> its status.
+    """
+    reviewed = {
+        f"tower {t['n']} ({t['tower_id']}): {reason}": reviews[str(t["tower_id"])]
+        for t in doc.get("towers") or []
+        if str(t["tower_id"]) in reviews
+        for reason in t.get("flags") or []
+    }
+    flags = list(doc.get("flags", []))
+    still = [f for f in flags if not (f["code"] == "tower" and f["reason"] in reviewed)]
+    return still, {f["reason"]: reviewed[f["reason"]] for f in flags if f not in still}
+
+
 def zone_index(
     out_html: str | os.PathLike[str],
     block_jsons: Sequence[str | os.PathLike[str]],
@@ -90,7 +110,10 @@ def zone_index(
     gpkg
         The zone's tower GeoPackage: its ``lines`` layer, when it has one, is drawn on the
         overview map (the towers come from the block JSONs), and the page links it. None (or a
-        missing file: every block failed) leaves both out and says so.
+        missing file: every block failed) leaves both out and says so. Its review statuses are
+        read too: a flag of a tower an analyst has confirmed or rejected there no longer makes its
+        block need a look (the block's page, made when the block last ran, still lists it); the
+        index shows it as reviewed.
     block_bounds
         Block → ``(xmin, ymin, xmax, ymax)``, for the blocks without a QA JSON (failed) on
         the map; the others take theirs from their JSON.
@@ -121,6 +144,7 @@ def zone_index(
     block_bounds = dict(block_bounds or {})
     blocks: list[dict[str, Any]] = []
     block_docs: dict[str, dict[str, Any]] = {}
+    reviews = {str(k): v for k, v in reviewed_towers(gpkg).items()}
     for p in block_jsons:
         p = Path(p)
         try:
@@ -145,14 +169,18 @@ def zone_index(
             {"label": label, "href": layout.link(layout.QA_INDEX, layout.block_product(pattern, name))}
             for label, pattern in (("LAZ", layout.BLOCK_LAZ), ("GeoPackage", layout.BLOCK_GPKG))
         ]
+        still, reviewed = reviewed_flags(d, reviews)
+        status = d.get("status", "look")
+        if status == "look" and reviewed and not still:
+            status = "ok"
         blocks.append(
             {
                 "block": name,
-                "status": d.get("status", "look"),
+                "status": status,
                 "href": href,
                 "products": products,
-                "reasons": [f["reason"] for f in d.get("flags", [])],
-                "codes": [f["code"] for f in d.get("flags", [])],
+                "reasons": [f["reason"] for f in still] + [f"{r} (reviewed: {v})" for r, v in reviewed.items()],
+                "codes": [f["code"] for f in still] + ["reviewed"] * len(reviewed),
                 "n_towers": d.get("n_towers", 0),
                 "points": d.get("points"),
                 "density": (d.get("density") or {}).get("density_median"),
