@@ -354,8 +354,11 @@ def test_zone_index(tmp_path):
         out_json=tmp_path / "index.json",
         # the merge runs beside the block's QA page: the index reports it (b's was not recorded)
         merge_benchmarks={"a": _benchmark(tmp_path / "merge_a.tsv", 3.25, 512.0), "b": tmp_path / "none.tsv"},
+        # each block's input file, also the failed one's (b: none given, none in its QA JSON)
+        sources={"a": "flight 1/a.laz", "c": "flight 1/c.laz"},
     )
     assert [b["block"] for b in doc["blocks"]] == ["c", "b", "a"]
+    assert [b["input"] for b in doc["blocks"]] == ["flight 1/c.laz", None, "flight 1/a.laz"]
     merge = {b["block"]: (b.get("merge_s"), b.get("merge_rss_mb")) for b in doc["blocks"]}
     assert merge == {"a": (3.25, 512.0), "b": (None, None), "c": (None, None)}
     t = doc["totals"]
@@ -363,6 +366,7 @@ def test_zone_index(tmp_path):
     assert t["summary"] == "2 towers found in 3 blocks; 1 failed; 1 needs a look."
     page = (tmp_path / "index.html").read_text()
     assert 'href="qa/a.html"' in page and "merge_block failed" in page and "ground classified" in page
+    assert page.count('<span class="muted">flight 1/') == 2
     assert page.count("LAZ merged in") == 1 and "LAZ merged in 3.2 s, peak memory 512 MB" in page
     assert json.loads((tmp_path / "index.json").read_text())["totals"]["towers"] == 2
     # no zone GeoPackage (every block failed, or none given): no link to it, and the page says so

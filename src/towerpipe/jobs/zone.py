@@ -208,6 +208,7 @@ def zone_step(
             merge_benchmarks=merge_benchmarks,
             n_towers=None if content is None else len(content["towers"]),
             empty=empty,
+            sources=sources,
         )
         if failures:
             (tmp / layout.INCOMPLETE).write_text(

@@ -89,6 +89,7 @@ def zone_index(
     merge_benchmarks: Mapping[str, str | os.PathLike[str]] | None = None,
     n_towers: int | None = None,
     empty: Mapping[str, str] | None = None,
+    sources: Mapping[str, str] | None = None,
 ) -> dict[str, Any]:
     """Write the zone's QA index: every block, totals, a map, and the blocks that need a look.
 
@@ -132,6 +133,9 @@ def zone_index(
     empty
         Block → file, of the zone's files that hold zero points: listed as blocks that need
         a look (:data:`towerpipe.io.inputs.EMPTY_REASON`), not as failures.
+    sources
+        Block → its input file (its path under the zone's ``input``), listed with the block
+        (also a failed one); a block without one takes it from its QA JSON, if there.
 
     Returns
     -------
@@ -176,6 +180,7 @@ def zone_index(
         blocks.append(
             {
                 "block": name,
+                "input": (sources or {}).get(name) or ((d.get("stats") or {}).get("source") or {}).get("relpath"),
                 "status": status,
                 "href": href,
                 "products": products,
@@ -198,6 +203,7 @@ def zone_index(
         blocks.append(
             {
                 "block": b,
+                "input": (sources or {}).get(b),
                 "status": "failed",
                 "reasons": [str(reason)],
                 "codes": ["failed"],
@@ -206,7 +212,14 @@ def zone_index(
         )
     for b, source in (empty or {}).items():
         blocks.append(
-            {"block": b, "status": "look", "reasons": [f"{source}: {EMPTY_REASON}"], "codes": ["empty"], "bounds": None}
+            {
+                "block": b,
+                "input": source,
+                "status": "look",
+                "reasons": [f"{source}: {EMPTY_REASON}"],
+                "codes": ["empty"],
+                "bounds": None,
+            }
         )
     order = {"failed": 0, "look": 1, "ok": 2}
     blocks.sort(key=lambda b: (order.get(b["status"], 1), str(b["block"])))
