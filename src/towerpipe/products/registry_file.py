@@ -71,38 +71,41 @@ def read_registry(*paths: str | os.PathLike[str] | None) -> gpd.GeoDataFrame:
     return empty_registry()
 
 
-def published_reviews(path: str | os.PathLike[str] | None, registry: gpd.GeoDataFrame) -> dict[int, str]:
-    """Review statuses analysts changed in a published ``towers.gpkg`` (vs the registry)."""
-    if path is None or not Path(path).is_file() or not len(registry):
+def _file_reviews(path: str | os.PathLike[str] | None, layers: tuple[str, ...]) -> dict[int, str]:
+    """Tower id -> review status of every tower of ``layers`` of a published ``towers.gpkg`` (a
+    valid status only; a file of an older version, with text ids, holds none)."""
+    if path is None or not Path(path).is_file():
         return {}
-    known = dict(zip(registry["tower_id"].astype("int64"), registry["review_status"]))
     out: dict[int, str] = {}
-    layers = list_layers(path)
-    for layer in (LAYER_TOWERS, LAYER_VANISHED):
-        if layer not in layers:
+    present = list_layers(path)
+    for layer in layers:
+        if layer not in present:
             continue
         gdf = read_towers(path, layer)
         if not len(gdf) or "review_status" not in gdf.columns or not pd.api.types.is_integer_dtype(gdf["tower_id"]):
             continue
-        for tid, status in zip(gdf["tower_id"].astype("int64"), gdf["review_status"]):
-            if status in REVIEW_STATUSES and tid in known and known[tid] != status:
+        for tid, status in zip(gdf["tower_id"].astype("int64"), gdf["review_status"], strict=True):
+            if status in REVIEW_STATUSES:
                 out[int(tid)] = str(status)
     return out
+
+
+def published_reviews(path: str | os.PathLike[str] | None, registry: gpd.GeoDataFrame) -> dict[int, str]:
+    """Review statuses analysts changed in a published ``towers.gpkg`` (vs the registry)."""
+    if not len(registry):
+        return {}
+    known = dict(zip(registry["tower_id"].astype("int64"), registry["review_status"]))
+    return {
+        tid: status
+        for tid, status in _file_reviews(path, (LAYER_TOWERS, LAYER_VANISHED)).items()
+        if tid in known and known[tid] != status
+    }
 
 
 def reviewed_towers(path: str | os.PathLike[str] | None) -> dict[int, str]:
     """Tower id -> status of the towers an analyst has reviewed (``confirmed`` or ``rejected``) in
     a published ``towers.gpkg`` (its ``towers`` layer); empty without the file."""
-    if path is None or not Path(path).is_file() or LAYER_TOWERS not in list_layers(path):
-        return {}
-    gdf = read_towers(path, LAYER_TOWERS)
-    if not len(gdf) or "review_status" not in gdf.columns or not pd.api.types.is_integer_dtype(gdf["tower_id"]):
-        return {}
-    return {
-        int(tid): str(status)
-        for tid, status in zip(gdf["tower_id"].astype("int64"), gdf["review_status"], strict=True)
-        if status in REVIEW_STATUSES and status != REVIEW_DEFAULT
-    }
+    return {tid: status for tid, status in _file_reviews(path, (LAYER_TOWERS,)).items() if status != REVIEW_DEFAULT}
 
 
 def write_registry(path: str | os.PathLike[str], registry: gpd.GeoDataFrame, crs_wkt: str | None = None) -> Path:
