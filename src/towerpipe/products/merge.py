@@ -293,16 +293,12 @@ def merge_block(
                     ob[:, prob_off : prob_off + 4] = p.view(np.uint8).reshape(m, 4)
                     ob[:, id_off : id_off + 8] = tower_ids[start : start + m].view(np.uint8).reshape(m, 8)
                     raw_cls = out[cls_field].copy()
-                    if pf_id >= 6:  # withheld: bit 2 of the classification flags
-                        cls = raw_cls
-                        withheld = (out["classification_flags"] & 0x04) > 0
-                        new = labels.classes(cls, threshold, start, withheld=withheld)
-                        out[cls_field] = new
-                    else:  # withheld: bit 7 of the classification byte
-                        cls = raw_cls & 0x1F
-                        withheld = (raw_cls & 0x80) > 0
-                        new = labels.classes(cls, threshold, start, withheld=withheld)
-                        out[cls_field] = (raw_cls & 0xE0) | new
+                    if pf_id >= 6:  # the whole byte; withheld: bit 2 of the classification flags
+                        cls, withheld = raw_cls, (out["classification_flags"] & 0x04) > 0
+                    else:  # the low 5 bits; withheld: bit 7 of the classification byte
+                        cls, withheld = raw_cls & 0x1F, (raw_cls & 0x80) > 0
+                    new = labels.classes(cls, threshold, start, withheld=withheld)
+                    out[cls_field] = new if pf_id >= 6 else (raw_cls & 0xE0) | new
                     n_in15 += int((cls == classes.TOWER).sum())
                     n_tower += int(((new == classes.TOWER) & ~withheld).sum())
                     n_above += int((p >= threshold).sum())
