@@ -302,6 +302,37 @@ def extract(preds, block_name, block_bounds, *, point_threshold=None, **kw):
     )
 
 
+def write_pred(
+    path: Path,
+    block: str,
+    point_index,
+    prob,
+    blocks: list[str] | None = None,
+    block_id=None,
+) -> Path:
+    """A prediction file (:mod:`towerpipe.io.predictions`) holding ``prob`` for the points
+    ``point_index`` of ``block`` (or, with ``block_id``, of ``blocks[block_id]`` row by row)."""
+    import numpy as np
+
+    from towerpipe.io.predictions import PRED_META_KEYS, save_pred
+
+    blocks = blocks or [block]
+    n = len(point_index)
+    arrays = {
+        "block_id": np.full(n, blocks.index(block), np.int32) if block_id is None else np.asarray(block_id, np.int32),
+        "point_index": np.asarray(point_index, np.int64),
+        "x": np.zeros(n),
+        "y": np.zeros(n),
+        "z": np.zeros(n),
+        "hag": np.zeros(n, np.float32),
+        "prob": np.asarray(prob, np.float32),
+    }
+    meta = {k: None for k in PRED_META_KEYS}
+    meta.update(block=block, blocks=blocks, tile=Path(path).stem, zone="z")
+    save_pred(path, arrays, meta)
+    return Path(path)
+
+
 def model_card(feature_set: str = "full") -> dict:
     """A minimal valid model card of ``feature_set`` (for bundles the tests write)."""
     from towerpipe.model.cards import code_version, config_hash

@@ -303,6 +303,9 @@ class TowersConfig(Section):
     #: A split's parts with fewer points (at least ``min_points``) are not clusters: a part cut from a
     #: crown at a higher probability is mostly its top.
     min_split_points: int
+    #: Rule 9's last step: a dropped cluster that no split threshold parts is linked again from its own
+    #: points at this linkage (m, 3-D) and each part is judged (0: never).
+    split_linkage: float
     #: Rule 12: a cluster the shape check drops and no split replaces is kept when the conductors
     #: pointing at it lie at least this far (m, median) below its top (0: never).
     vouch_height: float

@@ -10,39 +10,12 @@ import pytest
 from laspy.vlrs.known import ExtraBytesVlr, LasZipVlr
 from laspy.vlrs.vlrlist import VLRList
 
-from conftest import BACKGROUNDS, preprocess_settings
+from conftest import BACKGROUNDS, preprocess_settings, write_pred
 from towerpipe.errors import InputError, TowerpipeError
 from towerpipe.io.lasformat import OWN_DIMENSIONS, PROB_DIMENSION, TOWER_ID_DIMENSION, own_dimensions
-from towerpipe.io.predictions import PRED_META_KEYS, save_pred
-from towerpipe.products.labels import block_probabilities, relabel
 from towerpipe.products.merge import merge_block
 
 # ----------------------------------------------------------------------------- helpers
-
-
-def write_pred(
-    path: Path,
-    block: str,
-    point_index: np.ndarray,
-    prob: np.ndarray,
-    blocks: list[str] | None = None,
-    block_id: np.ndarray | None = None,
-) -> Path:
-    blocks = blocks or [block]
-    n = len(point_index)
-    arrays = {
-        "block_id": np.full(n, blocks.index(block), np.int32) if block_id is None else block_id,
-        "point_index": np.asarray(point_index, np.int64),
-        "x": np.zeros(n),
-        "y": np.zeros(n),
-        "z": np.zeros(n),
-        "hag": np.zeros(n, np.float32),
-        "prob": np.asarray(prob, np.float32),
-    }
-    meta = {k: None for k in PRED_META_KEYS}
-    meta.update(block=block, blocks=blocks, tile="t0", zone="z")
-    save_pred(path, arrays, meta)
-    return path
 
 
 def raw_bytes(las: laspy.LasData) -> np.ndarray:
@@ -182,34 +155,6 @@ def make_las(
         las.evlrs = VLRList([laspy.VLR("towerpipe", 42, "test evlr", b"\x01\x02\x03payload" * 10)])
     las.write(path)
     return path
-
-
-# ----------------------------------------------------------------------------- unit
-
-
-def test_relabel_rules():
-    cls = np.array([1, 2, 15, 15, 6, 65, 2], np.uint8)
-    prob = np.array([0.0, 0.7, 0.9, 0.2, 0.5, 0.0, 0.49], np.float32)
-    np.testing.assert_array_equal(relabel(cls, prob, 0.5), [1, 15, 15, 1, 15, 65, 2])
-    withheld = np.array([0, 0, 0, 1, 0, 0, 0], bool)  # a withheld 15 is never taken back
-    np.testing.assert_array_equal(relabel(cls, prob, 0.5, withheld=withheld), [1, 15, 15, 15, 15, 65, 2])
-
-
-def test_block_probabilities_filters_block_and_checks_range(tmp_path):
-    blocks = ["a", "b"]
-    p1 = write_pred(
-        tmp_path / "t1.npz",
-        "a",
-        np.array([0, 5, 9]),
-        np.array([0.1, 0.9, 0.6]),
-        blocks=blocks,
-        block_id=np.array([0, 0, 1], np.int32),
-    )
-    prob, info = block_probabilities([p1], 10, block="a")
-    np.testing.assert_array_equal(prob, np.array([0.1, 0, 0, 0, 0, 0.9, 0, 0, 0, 0], np.float32))
-    assert info["pred_points"] == 2
-    with pytest.raises(InputError, match="out of range"):
-        block_probabilities([p1], 5, block="a")
 
 
 # ----------------------------------------------------------------------------- files

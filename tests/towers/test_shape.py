@@ -173,8 +173,8 @@ class _NarrowVerifier:
 def test_a_tower_among_painted_crowns_is_split_from_them(monkeypatch):
     """A crown touching a tower, painted at 0.6 by the segmenter, makes one cluster with it and the
     object under that cluster is rejected; clustered again from its points at or above 0.7, the
-    tower stands alone and passes. Without split thresholds (no part to judge) the core of the
-    object around the cluster's top passes the whole cluster."""
+    tower stands alone and passes. Without a split (no part to judge) the core of the object
+    around the cluster's top passes the whole cluster."""
     import towerpipe.towers.extract as ex
 
     monkeypatch.setattr(ex, "load_verifier", lambda spec: _NarrowVerifier())
@@ -189,7 +189,8 @@ def test_a_tower_among_painted_crowns_is_split_from_them(monkeypatch):
     def context(cx, cy):
         return ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)
 
-    whole = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_shape_score=0.5, split_thresholds=[])
+    no_split = {"split_thresholds": [], "split_linkage": 0}
+    whole = extract([pair], "b1", BOUNDS, zone="z1", context=context, min_shape_score=0.5, **no_split)
     ((_, idx),) = whole.members.values()
     assert len(whole.towers) == 1 and set(range(len(t_xyz))) <= set(idx.tolist())
     assert whole.towers["shape_view"].tolist() == ["core"]  # its record says which view passed it
@@ -198,6 +199,41 @@ def test_a_tower_among_painted_crowns_is_split_from_them(monkeypatch):
     ((blocks, idx),) = found.members.values()
     assert set(idx.tolist()) == set(range(len(t_xyz)))  # the tower's points, none of the crown's
     assert found.towers["shape_score"].iloc[0] == 1.0 and found.towers["shape_view"].tolist() == ["object"]
+
+
+@pytest.mark.parametrize("split_linkage", [0.0, 1.5])
+@pytest.mark.parametrize("prob", [0.95, 0.2])
+def test_a_tower_painted_like_the_crown_beside_it_is_parted_by_a_tighter_linkage(monkeypatch, split_linkage, prob):
+    """A crown 2 m from a tower (within ``towers.linkage``, 2.5 m, and beyond 1.5 m), painted as
+    the tower is: no split threshold parts them, the object under the cluster is rejected. Linked
+    again at ``split_linkage`` the tower stands alone and passes with exactly its own points;
+    without that step the core view passes the tower with the crown. The same when both are
+    painted faintly and the rescue (rule 10) finds them."""
+    from scipy.spatial import cKDTree
+
+    import towerpipe.towers.extract as ex
+
+    monkeypatch.setattr(ex, "load_verifier", lambda spec: _NarrowVerifier())
+    t_xyz, t_hag = synthetic_tower(X0 + 50, Y0 + 50, seed=2)
+    cx, cy, ch = tree(X0 + 50, Y0 + 50 + 7.5, height=14.0, seed=3)
+    c_xyz = np.c_[cx, cy, 100.0 + ch]
+    gap = cKDTree(t_xyz).query(c_xyz)[0].min()
+    assert 1.5 < gap < 2.5 and cKDTree(t_xyz[:, :2]).query(c_xyz[:, :2])[0].min() > 1.0  # no footprint merge
+    xyz, hag = np.r_[t_xyz, c_xyz], np.r_[t_hag, ch].astype(np.float32)
+    pair = pred_pair(xyz, hag, prob, ["b1"])
+    ctx = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "hag": hag.astype(np.float64)}
+
+    def context(x, y):
+        return ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)
+
+    kw = {"zone": "z1", "context": context, "min_shape_score": 0.5, "split_thresholds": [0.5, 0.7]}
+    kw |= {"threshold": 0.3, "rescue_threshold": 0.1}  # 0.2: the rescue's
+    found = extract([pair], "b1", BOUNDS, **kw, split_linkage=split_linkage)
+    ((_, idx),) = found.members.values()
+    if split_linkage:
+        assert set(idx.tolist()) == set(range(len(t_xyz))) and found.towers["shape_view"].tolist() == ["object"]
+    else:
+        assert len(idx) > len(t_xyz) and found.towers["shape_view"].tolist() == ["core"]
 
 
 def _pole(cx: float, cy: float, n: int, seed: int = 5) -> tuple[np.ndarray, np.ndarray]:

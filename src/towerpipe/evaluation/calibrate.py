@@ -31,17 +31,16 @@ from typing import Any
 
 import numpy as np
 
-from towerpipe import classes
 from towerpipe.config import InferenceConfig
 from towerpipe.errors import InputError
 from towerpipe.evaluation.predcache import zone_predictions, zone_tiles
+from towerpipe.evaluation.truth import zone_labels
 
 __all__ = [
     "Candidate",
     "score_zone",
     "sweep",
     "sweep_table",
-    "tower_labels",
     "zone_model",
     "zone_survey",
     "zone_towers",
@@ -64,82 +63,6 @@ def zone_survey(work: str | os.PathLike[str], zone: str) -> list[list[float]]:
         raise InputError(plan, f"zone {zone!r} has no plan yet; run `snakemake --cores 2 results/{zone}/` first")
     blocks = json.loads(plan.read_text())["blocks"]
     return [list(map(float, b["bounds"])) for b in blocks.values() if b.get("bounds")]
-
-
-#: The file of a zone's true towers in its input directory (``towerpipe synth`` writes it).
-TRUTH_FILE = "towers_truth.gpkg"
-
-
-def zone_truth(
-    input_dir: str | os.PathLike[str], truth_file: str | os.PathLike[str] | None = None, *, min_points: int = 1
-):
-    """The true towers of a zone: its truth file, else the towers its blocks label 15.
-
-    A synthetic zone has :data:`TRUTH_FILE`; an agency's own labelled blocks have only their
-    class 15, whose points are clustered into towers as the QA pages cluster them
-    (:func:`towerpipe.towers.matching.towers_from_labels`, every labelled point, all blocks
-    together so that a tower across an edge is one; towers whose crossarms touch stay one).
-
-    Parameters
-    ----------
-    input_dir
-        The zone's input directory.
-    truth_file
-        A truth GeoPackage (layer ``towers``) to use instead; it must exist.
-    min_points
-        Labelled clusters with fewer points are no towers (as the QA pages take
-        ``towers.min_points``): a stray labelled point beside a tower is not a tower of its own
-        that a prediction could match. Not applied to a truth file.
-
-    Returns
-    -------
-    geopandas.GeoDataFrame
-        ``tower_id``, ``n_points`` and the footprint of each true tower (a truth file's own columns).
-    """
-    import geopandas as gpd
-    import laspy
-
-    from towerpipe.io.inputs import find_blocks
-    from towerpipe.io.las import laz_backend
-    from towerpipe.towers.matching import towers_from_labels
-
-    path = Path(truth_file) if truth_file else Path(input_dir) / TRUTH_FILE
-    if path.exists():
-        return gpd.read_file(path, layer="towers")
-    if truth_file:
-        raise InputError(path, "no such truth file")
-    parts: dict[str, list[np.ndarray]] = {"x": [], "y": [], "z": []}
-    crs = None
-    for block in find_blocks(input_dir).values():
-        with laspy.open(block, laz_backend=laz_backend()) as f:
-            crs = crs or f.header.parse_crs()
-            for chunk in f.chunk_iterator(2_000_000):
-                tower = np.asarray(chunk.classification) == classes.TOWER
-                for k in parts:
-                    parts[k].append(np.asarray(getattr(chunk, k))[tower])
-    xyz = {k: np.concatenate(v) if v else np.empty(0) for k, v in parts.items()}
-    if not len(xyz["x"]):
-        raise InputError(
-            input_dir,
-            f"no {TRUTH_FILE} and no point labelled {classes.TOWER} in any block: nothing to score against",
-        )
-    ones = np.ones(len(xyz["x"]), bool)
-    return towers_from_labels(xyz["x"], xyz["y"], xyz["z"], None, ones, min_points=int(min_points), crs=crs)
-
-
-def tower_labels(input_dir: Path) -> dict[str, np.ndarray]:
-    """Block name -> indices of its points labelled 15 in the input."""
-    import laspy
-
-    from towerpipe.io.inputs import find_blocks
-    from towerpipe.io.las import laz_backend
-
-    out = {}
-    for name, path in find_blocks(input_dir).items():
-        with laspy.open(path, laz_backend=laz_backend()) as f:
-            cls = np.asarray(f.read().classification)
-        out[name] = np.flatnonzero(cls == classes.TOWER)
-    return out
 
 
 def zone_towers(
@@ -330,8 +253,7 @@ def sweep(
     data = {}
     for zone, input_dir in zones.items():
         data[zone] = (
-            zone_truth(input_dir),
-            tower_labels(Path(input_dir)),
+            *zone_labels(input_dir),
             [str(p) for p in zone_tiles(work, zone)],
             zone_survey(work, zone),
         )

@@ -159,13 +159,13 @@ def evaluate_zone(
         ``results/<zone>/``.
     truth_gpkg
         True tower footprints (default: ``input_dir/towers_truth.gpkg``, else the towers the
-        blocks label 15: :func:`towerpipe.evaluation.calibrate.zone_truth`).
+        blocks label 15: :func:`towerpipe.evaluation.truth.zone_truth`).
     min_truth_points
         True towers with fewer points (``n_points`` of the truth file) are left out of
         the tower figures, and a prediction matching one is not counted as false: the
         paper drops towers under 20 points from its data. 0 evaluates every tower.
     """
-    from towerpipe.evaluation.calibrate import zone_truth
+    from towerpipe.evaluation.truth import zone_truth
     from towerpipe.products.gpkg_read import read_towers
     from towerpipe.towers.matching import match_towers
 

@@ -84,21 +84,22 @@ def evaluate_model(
     Predictions are cached per model weights, inference settings and shape-gate verifier
     (``towers["verifier"]``: :func:`towerpipe.evaluation.predcache.zone_predictions`).
     """
-    import geopandas as gpd
 
     from towerpipe.config import InferenceConfig
-    from towerpipe.evaluation.calibrate import score_zone, tower_labels, zone_survey
+    from towerpipe.evaluation.calibrate import score_zone, zone_survey
     from towerpipe.evaluation.predcache import zone_predictions, zone_tiles
+    from towerpipe.evaluation.truth import zone_labels
     from towerpipe.io.predictions import load_pred
+    from towerpipe.synth.truth import TRUTH_GPKG
 
     settings = InferenceConfig.from_config({"inference": inference})
     preds = [load_pred(p) for p in zone_predictions(work, zone, model, settings, towers["verifier"])]
-    truth = gpd.read_file(Path(input_dir) / "towers_truth.gpkg", layer="towers")
+    truth, labels = zone_labels(input_dir, Path(input_dir) / TRUTH_GPKG)
     return score_zone(
         preds,
         [str(p) for p in zone_tiles(work, zone)],
         truth,
-        tower_labels(Path(input_dir)),
+        labels,
         threshold=float(towers["threshold"]),
         point_threshold=float(inference["threshold"]),
         min_core_prob=float(towers["min_core_prob"]),

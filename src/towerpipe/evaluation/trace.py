@@ -114,8 +114,9 @@ def trace_zone(
     import shapely
 
     from towerpipe.config import TowersConfig
-    from towerpipe.evaluation.calibrate import NEAR_TOWER_M, tower_labels, zone_survey, zone_towers, zone_truth
+    from towerpipe.evaluation.calibrate import NEAR_TOWER_M, zone_survey, zone_towers
     from towerpipe.evaluation.predcache import zone_tiles
+    from towerpipe.evaluation.truth import zone_labels
     from towerpipe.io import workdir
     from towerpipe.io.predictions import load_pred
     from towerpipe.towers.matching import match_towers
@@ -128,7 +129,7 @@ def trace_zone(
             Path(work, zone, "pred"),
             f"no predictions of zone {zone!r}; run `snakemake --cores 2 results/{zone}/` first",
         )
-    truth = zone_truth(input_dir, truth_file)
+    truth, labels = zone_labels(input_dir, truth_file)
     rules = TowersConfig.from_config({"towers": dict(towers)})
     preds = [load_pred(p) for p in pred_files]
     trace: list[dict[str, Any]] = []
@@ -143,7 +144,6 @@ def trace_zone(
         trace=trace,
     )
     matched = {str(m["truth"]): m["pred"] for m in match_towers(found.towers, truth, max_dist=5.0)["matches"]}
-    labels = tower_labels(Path(input_dir)) if matched else {}
     x = np.concatenate([np.asarray(p.arrays["x"], np.float64) for p in preds])
     y = np.concatenate([np.asarray(p.arrays["y"], np.float64) for p in preds])
     prob = np.concatenate([np.asarray(p.arrays["prob_single"], np.float64) for p in preds])

@@ -37,13 +37,14 @@ crowns beside it that ``rules.crowns`` leaves out (:mod:`towerpipe.towers.crown`
    paints, roofs, cranes.
    This check runs before rule 7 (it is cheap and drops most clusters). A cluster it drops
    is clustered again from its points at or above each of ``split_thresholds`` in turn
-   (until one gives clusters of at least ``min_split_points``) and each part judged by rules
-   4-8: a tower standing among the crowns that the segmenter paints with it.
+   (until one gives clusters of at least ``min_split_points``), and then, once none does, its own
+   points are linked again at ``split_linkage`` (tighter than ``linkage``); each part is judged by
+   rules 4-8: a tower standing among the crowns that the segmenter paints with it.
 
 The split is rule 9. Rule 10, the rescue (``rescue_threshold``, with the shape check only):
 after the other rules, the points at or above ``rescue_threshold`` that no accepted tower
-holds are clustered and each cluster is judged by rules 4-8 (its highest probability, not its
-90th percentile, must reach ``min_core_prob``), its points those at or above
+holds are clustered and each cluster is judged by rules 4-8 (of rule 9 only the tighter linkage;
+its highest probability, not its 90th percentile, must reach ``min_core_prob``), its points those at or above
 ``rescue_threshold``: a thin pole or a sparse real lattice that the segmenter paints mostly
 at 0.1-0.3 is found and outlined when its object is shaped like a tower.
 
@@ -110,6 +111,7 @@ from towerpipe.towers.records import empty_towers, tower_record, towers_frame
 from towerpipe.towers.registry import assign_ids
 from towerpipe.towers.shape import load_verifier, object_points
 from towerpipe.towers.shape_check import shape_check
+from towerpipe.towers.split import RELINK, split_parts
 
 #: What decided a cluster in a ``trace`` of :func:`extract_towers`: its core probability (rule 6),
 #: floating (7), nothing standing (16), too few points to report, a crane's jib (15), no context for a
@@ -149,22 +151,6 @@ def _decided(trace: list[dict[str, Any]], xyz: np.ndarray, rescue: bool, rule: s
 
 def _not_traced(rule: str, value: float) -> None:
     """No trace asked for."""
-
-
-def _split_by_confidence(
-    g: np.ndarray,
-    prob: np.ndarray,
-    cluster: Callable[[np.ndarray], np.ndarray],
-    thresholds: Sequence[float],
-) -> list[tuple[np.ndarray, tuple[float, ...]]]:
-    """The clusters of ``g``'s points at or above the first of ``thresholds`` that makes any,
-    each with the thresholds left after it (``cluster(idx)`` labels the points ``idx``)."""
-    for i, t in enumerate(thresholds):
-        sub = g[prob[g] >= t]
-        lab = cluster(sub)
-        if (lab >= 0).any():
-            return [(sub[lab == k], tuple(thresholds[i + 1 :])) for k in range(int(lab.max()) + 1)]
-    return []
 
 
 def extract_towers(
@@ -220,9 +206,10 @@ def extract_towers(
         - ``tall_shape_score``: rule 13, the shape score a cluster at least ``wire_min_height`` high
           needs instead of ``min_shape_score`` (``None``: ``min_shape_score``); the conductor rule
           judges it next;
-        - ``split_thresholds``, ``min_split_points``: a cluster the shape check drops is clustered
-          again from its points at or above each of these in turn, and each part of at least
-          ``min_split_points`` points (and ``min_points``) is judged (``()``: never);
+        - ``split_thresholds``, ``min_split_points``, ``split_linkage``: a cluster the shape check
+          drops is clustered again from its points at or above each of these in turn, then (once
+          none parts it) from all its points at ``split_linkage`` (0: not), and each part of at
+          least ``min_split_points`` points (and ``min_points``) is judged (``()`` and 0: never);
         - ``rescue_threshold``: rule 10 (module docstring; 0 never rescues);
         - ``vouch_height``: rule 12 (module docstring; 0 never vouches);
         - ``min_conductor_balance``, ``max_arm_reach``, ``min_stand``, ``max_line_share``, ``min_bare_score``,
@@ -303,12 +290,12 @@ def extract_towers(
     pts = gather_points(preds, column_t if 0 < column_t < floor else floor)
     xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
 
-    def cluster(idx: np.ndarray, min_points: int = rules.min_points) -> np.ndarray:
+    def cluster(idx: np.ndarray, min_points: int = rules.min_points, linkage: float = rules.linkage) -> np.ndarray:
         """Tower labels of the points ``idx`` (the clustering of rules 1-4)."""
         return cluster_towers(
             xyz[idx],
             pts["hag"][idx],
-            linkage=rules.linkage,
+            linkage=linkage,
             merge_gap=merge_gap,
             mast_prominence=rules.mast_prominence,
             max_extent=max_extent,
@@ -319,6 +306,10 @@ def extract_towers(
     # a split's parts (rule 9) need min_split_points too, more than a cluster of the main pass when
     # min_points is lowered: cut from a crown at a higher probability, a small part is mostly its top
     cluster_part = partial(cluster, min_points=max(rules.min_points, rules.min_split_points))
+    relink_part = partial(cluster_part, linkage=rules.split_linkage) if rules.split_linkage > 0 else None
+    # a rescue's cluster (rule 10) is parted by the tighter linkage only: its points are the faint ones
+    relink_steps = (RELINK,) if relink_part else ()
+    split_steps = (*(float(t) for t in rules.split_thresholds), *relink_steps)
 
     def groups(idx: np.ndarray) -> list[np.ndarray]:
         """The clusters of the points ``idx``, each as indices into ``pts``."""
@@ -341,18 +332,20 @@ def extract_towers(
     # found it (rule 10)
     rows, geoms, rescued = [], [], False
     cranes = np.zeros(len(pts["x"]), bool)  # the points of the clusters rule 15 dropped
-    queue = deque((g, tuple(float(t) for t in rules.split_thresholds), False) for g in groups(main))
+    queue = deque((g, split_steps, False) for g in groups(main))
     while queue or (rescue and not rescued):
         if not queue:
             # rule 10, the rescue: what the segmenter painted faintly (a thin pole, a sparse
             # lattice) and no accepted tower holds, clustered from the points at or above
-            # towers.rescue_threshold and judged by the same rules (no split; its highest
-            # probability, not its 90th percentile, must reach min_core_prob, and the shape check
-            # must have judged it), its points those at or above that threshold
+            # towers.rescue_threshold and judged by the same rules (of the split only the tighter
+            # linkage; its highest probability, not its 90th percentile, must reach min_core_prob,
+            # and the shape check must have judged it), its points those at or above that threshold
             rescued = True
             held = held_by_clusters() | cranes  # a crane rule 15 dropped is not found again, wider
             queue.extend(
-                (g, (), True) for g in groups(np.flatnonzero(pts["prob_single"] >= rescue)) if not held[g].any()
+                (g, relink_steps, True)
+                for g in groups(np.flatnonzero(pts["prob_single"] >= rescue))
+                if not held[g].any()
             )
             continue
         g, splits, is_rescue = queue.popleft()
@@ -407,7 +400,7 @@ def extract_towers(
             vouch = obj = None  # rule 12's conductor support when it keeps a cluster; the object judged
             # the shape check first (rules 9, 12, 13 and 18): it is cheap, and it drops most clusters (crowns)
             if verifier is not None:
-                split = partial(_split_by_confidence, g, pts["prob_single"], cluster_part, splits)
+                split = partial(split_parts, g, pts["prob_single"], cluster_part, splits, relink_part)
                 top, kw = xy[int(np.argmax(hag))], {"tall": tall, "is_rescue": is_rescue, "split": split}
                 verdict = shape_check(verifier, rules, footprint, arr, extent, hag, (bx, by), top=tuple(top), **kw)
                 shape, vouch, obj, view = verdict.shape, verdict.vouch, verdict.obj, verdict.view
