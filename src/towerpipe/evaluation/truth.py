@@ -28,8 +28,8 @@ def zone_truth(
     """The true towers of a zone: its truth file, else the towers its blocks label 15.
 
     A generated zone has :data:`towerpipe.synth.truth.TRUTH_GPKG`; an agency's own labelled
-    blocks have only their class 15, whose points are clustered into towers as the QA pages cluster them
-    (:func:`towerpipe.towers.matching.towers_from_labels`, every labelled point, all blocks
+    blocks have only their class 15, whose points are clustered into towers as the QA pages
+    cluster them (:func:`towerpipe.towers.matching.towers_from_labels`, every labelled point, all blocks
     together so that a tower across an edge is one; towers whose crossarms touch stay one).
 
     Parameters
@@ -61,8 +61,8 @@ def zone_labels(
     input_dir: str | os.PathLike[str], truth_file: str | os.PathLike[str] | None = None, *, min_points: int = 1
 ) -> tuple[Any, dict[str, np.ndarray]]:
     """:func:`zone_truth` and :func:`tower_labels` of a zone, its blocks read once for both."""
-    labelled = _read_labelled(input_dir)
     truth = _truth_file(input_dir, truth_file)
+    labelled = _read_labelled(input_dir)
     if truth is None:
         truth = _truth_from_labels(input_dir, labelled, min_points)
     return truth, {name: idx for name, (idx, _) in labelled["blocks"].items()}
