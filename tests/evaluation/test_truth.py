@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from towerpipe.errors import InputError
-from towerpipe.evaluation.truth import tower_labels, zone_labels, zone_truth
+from towerpipe.evaluation.truth import zone_labels, zone_truth
 
 
 def test_labelled_blocks_without_a_truth_file_are_scored_by_their_class_15(tmp_path):
@@ -51,7 +51,6 @@ def test_labelled_blocks_without_a_truth_file_are_scored_by_their_class_15(tmp_p
     assert both["n_points"].tolist() == truth["n_points"].tolist()
     for name, idx in labels.items():
         np.testing.assert_array_equal(idx, np.flatnonzero(laspy.read(d / f"{name}.laz").classification == 15))
-        np.testing.assert_array_equal(idx, tower_labels(d)[name])
     assert sorted(labels) == ["a", "b"]
     for f in d.glob("*.laz"):
         las = laspy.read(f)

@@ -1,9 +1,9 @@
 """What a labelled zone's towers truly are: its truth file, or the points its blocks label 15.
 
 :func:`zone_truth` gives the true towers (a generated zone's
-:data:`towerpipe.synth.truth.TRUTH_GPKG`, else the towers an agency's own labelled blocks make),
-:func:`tower_labels` each block's labelled points, and :func:`zone_labels` both from one read of the
-blocks; :mod:`towerpipe.evaluation.calibrate`, :mod:`~towerpipe.evaluation.trace`,
+:data:`towerpipe.synth.truth.TRUTH_GPKG`, else the towers an agency's own labelled blocks make), and
+:func:`zone_labels` them and each block's labelled points from one read of the blocks;
+:mod:`towerpipe.evaluation.calibrate`, :mod:`~towerpipe.evaluation.trace`,
 :mod:`~towerpipe.evaluation.evaluate` and :mod:`~towerpipe.evaluation.realshape` score against them.
 """
 
@@ -19,7 +19,7 @@ import numpy as np
 from towerpipe import classes
 from towerpipe.errors import InputError
 
-__all__ = ["tower_labels", "zone_labels", "zone_truth"]
+__all__ = ["zone_labels", "zone_truth"]
 
 
 def zone_truth(
@@ -52,15 +52,11 @@ def zone_truth(
     return truth if truth is not None else _truth_from_labels(input_dir, _read_labelled(input_dir), min_points)
 
 
-def tower_labels(input_dir: str | os.PathLike[str]) -> dict[str, np.ndarray]:
-    """Block name -> indices of its points labelled 15 in the input."""
-    return {name: idx for name, (idx, _) in _read_labelled(input_dir)["blocks"].items()}
-
-
 def zone_labels(
     input_dir: str | os.PathLike[str], truth_file: str | os.PathLike[str] | None = None, *, min_points: int = 1
 ) -> tuple[Any, dict[str, np.ndarray]]:
-    """:func:`zone_truth` and :func:`tower_labels` of a zone, its blocks read once for both."""
+    """:func:`zone_truth` of a zone and, by block name, the indices of its points labelled 15 in the
+    input, the blocks read once for both."""
     truth = _truth_file(input_dir, truth_file)
     labelled = _read_labelled(input_dir)
     if truth is None:
