@@ -41,6 +41,7 @@ from towerpipe.products.qa.metrics import (
     read_benchmark,
     read_towers,
     sum_dicts,
+    tower_flag_reason,
 )
 from towerpipe.products.qa.pages import render
 from towerpipe.products.qa.plots import block_map, density_map, hag_histogram, max_z_grid, raster_grid, tower_elevations
@@ -344,7 +345,7 @@ def block_report(
         support = float(getattr(r, "wire_support", float("nan")))
         tflags = limits.tower_flags(r, to_edge, support_measured="wire_support" in gdf.columns)
         for t in tflags:
-            flag("tower", f"tower {i} ({r.tower_id}): {t}")
+            flag("tower", tower_flag_reason(i, r.tower_id, t))
         tower_rows.append(
             {
                 "n": i,

@@ -16,7 +16,7 @@ from markupsafe import Markup
 from towerpipe.io.atomic import write_text_atomic
 from towerpipe.io.inputs import EMPTY_REASON
 from towerpipe.products import layout
-from towerpipe.products.qa.metrics import jsonable, read_benchmark
+from towerpipe.products.qa.metrics import jsonable, read_benchmark, tower_flag_reason
 from towerpipe.products.qa.pages import render
 from towerpipe.products.qa.plots import zone_map
 from towerpipe.products.registry_file import reviewed_towers
@@ -66,7 +66,7 @@ def reviewed_flags(doc: Mapping[str, Any], reviews: Mapping[str, str]) -> tuple[
         The flags still to look at, and the reason of each flag of a reviewed tower -> its status.
     """
     reviewed = {
-        f"tower {t['n']} ({t['tower_id']}): {reason}": reviews[str(t["tower_id"])]
+        tower_flag_reason(t["n"], t["tower_id"], reason): reviews[str(t["tower_id"])]
         for t in doc.get("towers") or []
         if str(t["tower_id"]) in reviews
         for reason in t.get("flags") or []

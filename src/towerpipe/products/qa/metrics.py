@@ -140,6 +140,12 @@ def point_chunks(n: int, size: int = CHUNK_POINTS) -> Iterable[slice]:
 SEAM_TOLERANCE_M = 1.0
 
 
+def tower_flag_reason(n: int, tower_id: Any, reason: str) -> str:
+    """The text of a tower's flag on a block's QA page (``tower`` code): its number on the page, its
+    id and why it needs a look; the QA index reads the reviewed ones back by it."""
+    return f"tower {n} ({tower_id}): {reason}"
+
+
 def jsonable(obj: Any) -> Any:
     """``obj`` with numpy scalars/arrays, paths and non-finite floats made JSON-ready."""
     if isinstance(obj, Mapping):
