@@ -1,8 +1,9 @@
 """Real airborne tiles run exactly as a user runs them: a zone with `input` only, every other setting
 at its default (``inference.model: auto``).
 
-The zone is a public-derivative-like re-export of a real IGN tile (RGB kept, NIR all 0, intensity,
-return numbers, scan angle and GPS time all 0) with real lattice towers on lines with conductors.
+The corridor zone is a public-derivative-like re-export of a real IGN tile (RGB kept, NIR all 0,
+intensity, return numbers, scan angle and GPS time all 0) with real lattice towers on lines with
+conductors. The background zone is the real IGN tiles as delivered, which hold no pylon.
 """
 
 from __future__ import annotations
@@ -16,12 +17,23 @@ import pyogrio
 import pytest
 import yaml
 
-from conftest import REPO, real_tile_zone
+from conftest import BACKGROUNDS, REPO, real_tile_zone
 from towerpipe.towers.shape import VERIFIER_RELEASE
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow, pytest.mark.shared]
 
 ZONE = "realdata_corridor"
+
+
+def run_zones(cfg, zones):
+    """``snakemake --cores 2 results/<zone>/ ...`` with the zones' config file, as a user runs it."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "snakemake", "--cores", "2", *(f"results/{z}/" for z in zones), f"--configfile={cfg}"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
 
 
 @pytest.fixture(scope="module")
@@ -43,13 +55,7 @@ def corridor(tmp_path_factory):
     )
     cfg = tmp / "zones.yaml"
     cfg.write_text(yaml.safe_dump({"zones": {ZONE: {"input": str(tmp / "in")}}, "workdir": str(tmp / "work")}))
-    proc = subprocess.run(
-        [sys.executable, "-m", "snakemake", "--cores", "2", f"results/{ZONE}/", f"--configfile={cfg}"],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-    )
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    run_zones(cfg, [ZONE])
     yield tmp, truth, REPO / "results" / ZONE
     shutil.rmtree(REPO / "results" / ZONE, ignore_errors=True)
 
@@ -99,3 +105,30 @@ def test_no_tree_reported(corridor):
     tmp, _, out = corridor
     rep = evaluate_zone(tmp / "in", out)
     assert rep["tower_precision"] == 1.0, rep["false_towers"]
+
+
+def test_real_tiles_without_a_pylon_report_no_tower(tmp_path):
+    """The five real IGN tiles of ``../shared`` as delivered (none holds a pylon; trees, roofs, a
+    bridge, noise 1,360 m up, an all-zero NIR, point formats 6 and 8), one zone with its ``input``
+    only, as the config's ``realbg`` zone: no tower in its GeoPackage, no point classified as tower,
+    and a QA index that says so."""
+    import laspy
+    import numpy as np
+
+    from towerpipe import classes
+
+    zone = "realdata_backgrounds"
+    cfg = tmp_path / "zones.yaml"
+    cfg.write_text(yaml.safe_dump({"zones": {zone: {"input": str(BACKGROUNDS)}}, "workdir": str(tmp_path / "work")}))
+    out = REPO / "results" / zone
+    try:
+        run_zones(cfg, [zone])
+        assert len(pyogrio.read_dataframe(out / "towers.gpkg", layer="towers")) == 0
+        blocks = sorted((out / "blocks").glob("*.laz"))
+        assert [b.stem for b in blocks] == sorted(t.stem for t in BACKGROUNDS.glob("*.laz"))
+        for block in blocks:
+            assert not np.isin(laspy.read(block).classification, classes.TOWER).any(), block
+        totals = json.loads((out / "qa" / "index.json").read_text())["totals"]
+        assert totals["towers"] == 0 and totals["failed"] == 0, totals
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
