@@ -6,7 +6,17 @@ from __future__ import annotations
 import pytest
 
 from towerpipe.errors import InputError
-from towerpipe.evaluation.trace import GATE_STAGES, RULE_NAMES, _gate_stage, _reported, trace_table, trace_zone
+from towerpipe.evaluation.trace import (
+    GATE_STAGES,
+    MERGED,
+    RULE_NAMES,
+    STAGE_NAMES,
+    _gate_stage,
+    _merged_with,
+    _reported,
+    trace_table,
+    trace_zone,
+)
 from towerpipe.towers.extract import TRACE_RULES
 
 
@@ -68,6 +78,29 @@ def test_a_tower_never_segmented_is_told_which_gate_refused_it():
     rows = [_row("3", "shape gate", 0.002), _row("4", "no window")]
     table = trace_table(rows)
     assert GATE_STAGES["shape gate"] in table and "0.002" in table and GATE_STAGES["no window"] in table
+
+
+def test_a_tower_reported_as_one_with_the_tower_beside_it_is_told_so():
+    """A true tower whose accepted cluster also holds another true tower, which the report matched (two
+    lines side by side), is ``merged``, at the distance between the two; a cluster holding no other
+    matched tower leaves it ``accepted`` (reported more than 5 m away)."""
+    import geopandas as gpd
+    import numpy as np
+    import shapely
+
+    truth = gpd.GeoDataFrame(
+        {"tower_id": ["1", "2", "3"]},
+        geometry=[shapely.box(0, 0, 4, 4), shapely.box(12, 0, 16, 4), shapely.box(100, 0, 104, 4)],
+    )
+    xs, ys = np.meshgrid(np.arange(0.0, 16.5, 0.5), np.arange(0.0, 4.5, 0.5))  # one cluster over 1 and 2
+    entry = {"x": xs.ravel(), "y": ys.ravel()}
+    assert _merged_with(entry, truth.geometry[0], truth, {"2": 5}) == 12.0
+    assert np.isnan(_merged_with(entry, truth.geometry[0], truth, {"3": 5}))  # 3 matched, not in the cluster
+    assert np.isnan(_merged_with(entry, truth.geometry[0], truth, {}))  # 2 in it, but not reported
+    assert np.isnan(_merged_with({"x": xs.ravel()[:20], "y": ys.ravel()[:20]}, truth.geometry[0], truth, {"2": 5}))
+    assert MERGED in STAGE_NAMES and MERGED not in RULE_NAMES  # a reading of the match, not a rule
+    table = trace_table([_row("1", MERGED, 12.0, 900)])
+    assert STAGE_NAMES[MERGED] in table and "12.000" in table
 
 
 def test_a_zone_never_run_names_the_run_to_do(tmp_path):

@@ -25,8 +25,9 @@ run under ``<workdir>/<zone>/``, or with ``--cached`` those of today's inference
 - ``no cluster``: its points made no cluster of ``towers.min_points`` points and
   ``towers.min_height`` m;
 - else the rule that dropped the cluster holding most of its points (:data:`RULE_NAMES`),
-  with what that rule measured; ``accepted`` when that cluster was reported but matched
-  another tower (it took in a neighbour) or lies more than 5 m from it.
+  with what that rule measured; ``merged`` when that cluster was reported as one tower with a
+  true tower beside it, which it matched (two lines side by side: the value is the distance
+  between the two, m); ``accepted`` when it was reported and lies more than 5 m from it.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ import numpy as np
 
 from towerpipe.inference.windows import classifier_pass
 
-__all__ = ["GATE_STAGES", "RULE_NAMES", "trace_zone", "trace_table"]
+__all__ = ["GATE_STAGES", "MERGED", "RULE_NAMES", "STAGE_NAMES", "trace_zone", "trace_table"]
 
 #: What each rule of a trace means to a reader (:data:`towerpipe.towers.extract.TRACE_RULES`).
 RULE_NAMES = {
@@ -59,14 +60,22 @@ RULE_NAMES = {
     "wires": "conductor support (towers.min_wire_support), the conductors near it not keeping it (towers.min_near_balance)",
     "sides": "every conductor on one side of it (towers.min_conductor_balance)",
     "near": "its ring outside the data, the conductors near it on one side or passing by (towers.min_near_balance)",
-    "accepted": "reported, matched to another tower or more than 5 m away",
+    "accepted": "reported, more than 5 m away",
 }
+#: The stage of a tower reported as one with a true tower beside it (:func:`trace_zone`).
+MERGED = "merged"
 #: What each gate stage of a tower never segmented means to a reader.
 GATE_STAGES = {
     "no window": "not segmented: no window on it (no height peak)",
     "shape gate": "not segmented: shape gate (inference.shape_gate)",
     "classifier gate": "not segmented: classifier gate (inference.gate)",
     "unsure gate": "not segmented: classifier unsure and shape low (inference.gate_sure, inference.unsure_shape)",
+}
+#: Every stage of a missed tower, as a reader reads it.
+STAGE_NAMES = {
+    **RULE_NAMES,
+    **GATE_STAGES,
+    MERGED: "reported as one tower with the true tower beside it (value: the distance between them, m)",
 }
 
 
@@ -187,8 +196,23 @@ def trace_zone(
                 row["stage"] = "no cluster"
             else:
                 row.update(stage=best["rule"], value=best["value"], cluster_points=len(best["x"]))
+                if best["rule"] == "accepted" and np.isfinite(beside := _merged_with(best, t.geometry, truth, matched)):
+                    row.update(stage=MERGED, value=beside)
         rows.append(row)
     return rows
+
+
+def _merged_with(entry: Mapping[str, Any], footprint: Any, truth: Any, matched: Mapping[str, Any]) -> float:
+    """The distance (m) from a true tower's ``footprint`` to the nearest other true tower that a
+    reported tower matched and whose footprint centroid lies among the points of ``entry`` (the
+    accepted cluster holding the tower: reported as one with it); ``nan`` when there is none."""
+    import shapely
+
+    hull = shapely.buffer(shapely.convex_hull(shapely.multipoints(np.c_[entry["x"], entry["y"]])), 1.0)
+    others = truth[truth["tower_id"].astype(str).isin(list(matched)) & ~truth.geometry.geom_equals(footprint)]
+    c = others.geometry.centroid
+    d = c[shapely.contains_xy(hull, c.x.to_numpy(), c.y.to_numpy())].distance(footprint.centroid)
+    return float(d.min()) if len(d) else float("nan")
 
 
 def _reported(members: Mapping[Any, Any], tower_id: Any, labels: Mapping[str, np.ndarray]) -> dict[str, int]:
@@ -267,7 +291,7 @@ def trace_table(rows: Sequence[Mapping[str, Any]]) -> str:
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in order:
-        stage = RULE_NAMES.get(r["stage"]) or GATE_STAGES.get(r["stage"], r["stage"])
+        stage = STAGE_NAMES.get(r["stage"], r["stage"])
         value = "" if not np.isfinite(r["value"]) else f"{r['value']:.3f}"
         lines.append(
             f"| {r['tower_id']} | {r['design']} | {r['height_m']:.1f} | {r['n_points']} | {r['max_prob']:.2f} | "
