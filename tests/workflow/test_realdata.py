@@ -10,14 +10,11 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
-import sys
 
 import pyogrio
 import pytest
-import yaml
 
-from conftest import BACKGROUNDS, REPO, real_tile_zone
+from conftest import BACKGROUNDS, REPO, real_tile_zone, snakemake_run, write_zone_config
 from towerpipe.towers.shape import VERIFIER_RELEASE
 
 pytestmark = [pytest.mark.usefixtures("pdal_cli"), pytest.mark.slow, pytest.mark.shared]
@@ -27,12 +24,7 @@ ZONE = "realdata_corridor"
 
 def run_zones(cfg, zones):
     """``snakemake --cores 2 results/<zone>/ ...`` with the zones' config file, as a user runs it."""
-    proc = subprocess.run(
-        [sys.executable, "-m", "snakemake", "--cores", "2", *(f"results/{z}/" for z in zones), f"--configfile={cfg}"],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-    )
+    proc = snakemake_run("--cores", "2", *(f"results/{z}/" for z in zones), f"--configfile={cfg}")
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
 
 
@@ -53,9 +45,7 @@ def corridor(tmp_path_factory):
             variant=["no_intensity", "no_nir"],
         ),
     )
-    cfg = tmp / "zones.yaml"
-    cfg.write_text(yaml.safe_dump({"zones": {ZONE: {"input": str(tmp / "in")}}, "workdir": str(tmp / "work")}))
-    run_zones(cfg, [ZONE])
+    run_zones(write_zone_config(tmp / "zones.yaml", {ZONE: {"input": str(tmp / "in")}}, tmp / "work"), [ZONE])
     yield tmp, truth, REPO / "results" / ZONE
     shutil.rmtree(REPO / "results" / ZONE, ignore_errors=True)
 
@@ -118,8 +108,7 @@ def test_real_tiles_without_a_pylon_report_no_tower(tmp_path):
     from towerpipe import classes
 
     zone = "realdata_backgrounds"
-    cfg = tmp_path / "zones.yaml"
-    cfg.write_text(yaml.safe_dump({"zones": {zone: {"input": str(BACKGROUNDS)}}, "workdir": str(tmp_path / "work")}))
+    cfg = write_zone_config(tmp_path / "zones.yaml", {zone: {"input": str(BACKGROUNDS)}}, tmp_path / "work")
     out = REPO / "results" / zone
     try:
         run_zones(cfg, [zone])
