@@ -336,6 +336,10 @@ class TowersConfig(Section):
     #: fewer at or below it, is dropped, a crown under a line (0: never;
     #: :func:`towerpipe.towers.conductor_rules.under_line`).
     under_line: int
+    #: Rule 22: a cluster lower than ``max_height`` m near whose base fewer than ``conductors`` conductor
+    #: points hang (rule 20's count), standing less than ``clearance`` m over what stands around it, is
+    #: dropped, a crown (``conductors`` 0: never; :func:`towerpipe.towers.conductor_rules.canopy_clearance`).
+    canopy: Mapping[str, float | int]
     #: Rule 10: clusters no accepted tower holds, from the points at or above this
     #: probability, are judged again (0: never; see :func:`towerpipe.towers.extract.extract_towers`).
     rescue_threshold: float

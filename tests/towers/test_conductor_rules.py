@@ -1,5 +1,6 @@
 """What a cluster's conductors say about it: the sides of rule 14 (towers.min_conductor_balance), the
-conductor's line of rule 17 (towers.max_line_share) and a line over a crown (rule 20, towers.under_line)."""
+conductor's line of rule 17 (towers.max_line_share), a line over a crown (rule 20, towers.under_line) and a
+crown in the canopy (rule 22, towers.canopy)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,9 @@ from test_wires import conductor, spans
 from conftest import extract
 from towerpipe.towers.conductor_rules import (
     BALANCE_MIN_POINTS,
+    CANOPY_RING_M,
     UNDER_LINE_GAP_M,
+    canopy_clearance,
     conductor_balance,
     line_share,
     near_balance,
@@ -338,3 +341,56 @@ def test_rule_20_drops_a_crown_under_a_line_not_a_tower_under_a_crossing_line(un
     )
     assert sorted(found.towers["height_m"].round().tolist()) == heights
     assert ("under" in {t["rule"] for t in trace}) == (under_line_points > 0)
+
+
+def _wood(cx: float, cy: float, rng: np.random.Generator, top: float = 14.0, radius: float = 60.0) -> np.ndarray:
+    """A wood around ``(cx, cy)``: crowns' points 8 m up to about ``top`` m, 2 a square metre."""
+    n = int(2.0 * np.pi * radius**2)
+    r, a = radius * np.sqrt(rng.random(n)), 2 * np.pi * rng.random(n)
+    h = top - 6.0 * rng.random(n) ** 2  # most points near the canopy's top
+    return np.c_[cx + r * np.cos(a), cy + r * np.sin(a), BASE_Z + h]
+
+
+def _crown(cx: float, cy: float, top: float, rng: np.random.Generator) -> np.ndarray:
+    u = rng.normal(size=(300, 3))
+    crown = u / np.linalg.norm(u, axis=1, keepdims=True) * rng.random((300, 1)) ** (1 / 3) * [3.0, 3.0, 3.0]
+    return crown + [cx, cy, BASE_Z + top - 3.0]
+
+
+def test_the_canopy_around_a_base_is_its_ring_s_90th_percentile():
+    rng = np.random.default_rng(10)
+    cx, cy = X0 + 250, Y0 + 250
+    wood = _wood(cx, cy, rng)
+    ctx = context(wood)
+    d = np.hypot(wood[:, 0] - cx, wood[:, 1] - cy)
+    ring = (d >= CANOPY_RING_M[0]) & (d < CANOPY_RING_M[1])
+    assert canopy_clearance(ctx, cx, cy, 20.0) == pytest.approx(20.0 - np.percentile(ctx["hag"][ring], 90))
+    assert 5.5 < canopy_clearance(ctx, cx, cy, 20.0) < 6.5  # a 20 m tower over a wood of 14 m
+    assert np.isnan(canopy_clearance(ctx, cx + 500.0, cy, 20.0))  # nothing around: nothing to compare with
+
+
+@pytest.mark.parametrize(("conductors", "heights"), [(0, [14.0, 14.0, 20.0]), (12, [14.0, 20.0])])
+def test_rule_22_drops_a_crown_in_the_wood_not_a_tower_over_it_nor_one_holding_conductors(conductors, heights):
+    """Three clusters pass every other rule (the shape check off) in a wood of 14 m: a 14 m crown, a 20 m
+    tower standing over the wood, both with no conductor near them, and a 14 m tower in the wood whose
+    line's conductors hang from it. Rule 22 drops the crown alone: nothing hangs from it and it does not
+    rise over the wood."""
+    rng = np.random.default_rng(11)
+    cx, cy = X0 + 250, Y0 + 250
+    crown = _crown(cx, cy, 14.0, rng)
+    t1, h1 = synthetic_tower(cx + 120.0, cy, height=20.0, base_z=BASE_Z)
+    t2, h2 = synthetic_tower(cx, cy + 150.0, height=14.0, arm=4.0, base_z=BASE_Z, seed=1)
+    wires = _three_wires(cx - 300, cx + 300, cy + 150.0, BASE_Z + 13.0, 3.0, rng)
+    wood = np.concatenate([_wood(x, y, rng) for x, y in ((cx, cy), (cx + 120.0, cy), (cx, cy + 150.0))])
+    ctx = context(crown, t1, t2, wood, wires)
+    ctx["conductors"] = detected(wires)
+    xyz = np.r_[crown, t1, t2]
+    preds = [pred_pair(xyz, np.r_[crown[:, 2] - BASE_Z, h1, h2], 0.95, ["b1"])]
+    canopy = {"conductors": conductors, "clearance": 3.0, "max_height": 25.0}
+    rules = {"max_base_ratio": 1.0, "min_stand": 0.0, "max_arm_reach": 0.0, "under_line": 5, "canopy": canopy}
+    trace = []
+    found = extract(
+        preds, "b1", BOUNDS, zone="z1", context=lambda x, y: (ctx, EXTENT), verifier="none", trace=trace, **rules
+    )
+    assert sorted(found.towers["height_m"].round().tolist()) == heights
+    assert ("canopy" in {t["rule"] for t in trace}) == (conductors > 0)

@@ -57,6 +57,7 @@ RULE_NAMES = {
     "shape": "shape check (towers.min_shape_score)",
     "bare": "without the conductors through it, a crown (towers.min_bare_score)",
     "under": "a line's conductors over it and none at or below its top, a crown (towers.under_line)",
+    "canopy": "few conductors near it and hardly over the wood around it, a crown (towers.canopy)",
     "wires": "conductor support (towers.min_wire_support), the conductors near it not keeping it (towers.min_near_balance)",
     "sides": "every conductor on one side of it (towers.min_conductor_balance)",
     "near": "its ring outside the data, the conductors near it on one side or passing by (towers.min_near_balance)",

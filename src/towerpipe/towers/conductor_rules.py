@@ -57,7 +57,9 @@ __all__ = [
     "on_conductor_lines",
     "UNDER_LINE_CLEARANCE_M",
     "UNDER_LINE_GAP_M",
+    "CANOPY_RING_M",
     "UNDER_LINE_RADIUS_M",
+    "canopy_clearance",
     "support",
     "under_line",
     "vouching_support",
@@ -84,6 +86,11 @@ BARE_MIN_POINTS = 10
 #: crown under a line has the line's only over it, clear of it by more than :data:`UNDER_LINE_GAP_M` m
 #: of empty height (docs/model.md, "Rule 20").
 UNDER_LINE_RADIUS_M, UNDER_LINE_CLEARANCE_M, UNDER_LINE_GAP_M = 25.0, 2.0, 4.0
+#: Rule 22 measures what stands around a base in this ring (m, in plan): beyond a tower's crossarms and
+#: the crowns at its foot, within the canopy of the wood it stands in (docs/model.md, "Rule 22").
+CANOPY_RING_M = (20.0, 40.0)
+#: ... by this percentile of the heights above ground there (the canopy's top, not its tallest tree).
+CANOPY_PERCENTILE = 90.0
 
 
 def _conductors(arr: Mapping[str, Any]) -> tuple[Mapping[str, Any], Any]:
@@ -216,6 +223,19 @@ def under_line(arr: Mapping[str, Any], bx: float, by: float, top: float, obj: np
         top = float(zs[reach - 1]) if reach else top
     over = int((np.asarray(c["z"])[idx] > top + UNDER_LINE_CLEARANCE_M).sum())
     return over, len(idx) - over
+
+
+def canopy_clearance(arr: Mapping[str, Any], bx: float, by: float, height: float) -> float:
+    """Rule 22: how far (m) a cluster whose highest point stands ``height`` m above the ground rises over
+    what stands around its base ``(bx, by)``: over the :data:`CANOPY_PERCENTILE` th percentile of the
+    heights above ground of the context's points (``arr``: ``x``, ``y``, ``hag``) in the ring
+    :data:`CANOPY_RING_M`; ``nan`` where none stands there (nothing to compare with)."""
+    x, y = np.asarray(arr["x"], np.float64) - bx, np.asarray(arr["y"], np.float64) - by
+    d2 = x * x + y * y
+    ring = (d2 >= CANOPY_RING_M[0] ** 2) & (d2 < CANOPY_RING_M[1] ** 2)
+    if not ring.any():
+        return float("nan")
+    return float(height - np.percentile(np.asarray(arr["hag"])[ring], CANOPY_PERCENTILE))
 
 
 def on_conductor_lines(arr: Mapping[str, Any], x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:

@@ -75,13 +75,14 @@ Rules 12-21 (docs/products.md tells each with its measurements; 0 turns each off
     pointing at it more than 2 m over its top, and fewer at or below, is dropped: a crown under a line
     (:func:`towerpipe.towers.conductor_rules.under_line`);
 21. a tall cluster's core (``tall_core_prob``, ``None``: off): one at least ``wire_min_height`` high needs
-    this core probability (rule 4, the rescue's too) instead of ``min_core_prob``.
+    this core probability (rule 4, the rescue's too) instead of ``min_core_prob``;
+22. a crown in the canopy (``canopy``): a low cluster with few conductors near it that hardly rises over
+    what stands 20-40 m around it is dropped (:func:`towerpipe.towers.conductor_rules.canopy_clearance`).
 
 A tower's id is the zone registry's when it matches a registered tower, else made from
-the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the
-tower's points and the registry, never on file or processing order nor on the zone's
-name. The clustering is :mod:`towerpipe.towers.cluster`'s; :func:`towerpipe.towers.matching.match_towers`
-compares towers with ground truth (synthetic sidecar or towers built from class-15 labels).
+the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the tower's
+points and the registry, never on file or processing order nor on the zone's name. The clustering is
+:mod:`towerpipe.towers.cluster`'s.
 """
 
 from __future__ import annotations
@@ -102,7 +103,7 @@ from towerpipe.config import TowersConfig
 from towerpipe.io.fields import GEOMETRY_GRID, join_values
 from towerpipe.towers.cluster import _as_pred, _footprint, cluster_towers, gather_points
 from towerpipe.towers.column import column_mask
-from towerpipe.towers.conductor_rules import conductor_balance, line_share, near_balance, under_line
+from towerpipe.towers.conductor_rules import canopy_clearance, conductor_balance, line_share, near_balance, under_line
 from towerpipe.towers.conductor_rules import support as conductor_support
 from towerpipe.towers.crown import crown_mask
 from towerpipe.towers.foot import foot_mask
@@ -113,12 +114,13 @@ from towerpipe.towers.shape import load_verifier, object_points
 from towerpipe.towers.shape_check import shape_check
 from towerpipe.towers.split import RELINK, split_parts
 
-#: What decided a cluster in a ``trace`` of :func:`extract_towers`: its core probability (rule 6),
-#: floating (7), nothing standing (16), too few points to report, a crane's jib (15), no context for a
-#: rescue, on a conductor's line (17), the shape check (9), a crown under conductors (18), the conductor
-#: support (8), the conductors on one side (14), the conductors near it on one side (19), a line over
-#: it (20), or accepted.
-TRACE_RULES = tuple("core floating stands points jib context line shape bare under wires sides near accepted".split())
+#: What decided a cluster in a ``trace`` of :func:`extract_towers`: its core probability (rule 6), floating
+#: (7), nothing standing (16), too few points to report, a crane's jib (15), no context for a rescue, on a
+#: conductor's line (17), the shape check (9), a crown under conductors (18), a line over it (20), a crown in
+#: the canopy (22), the conductor support (8), the conductors on one side (14) or near it (19), or accepted.
+TRACE_RULES = tuple(
+    "core floating stands points jib context line shape bare under canopy wires sides near accepted".split()
+)
 
 
 @dataclass
@@ -408,12 +410,17 @@ def extract_towers(
                     decided(verdict.failed, verdict.value)
                     queue.extend((part, rest, is_rescue) for part, rest in verdict.parts)
                     continue
-            if rules.under_line > 0:
+            canopy = rules.canopy["conductors"] > 0 and hag.max() < rules.canopy["max_height"]
+            if rules.under_line > 0 or canopy:
                 obj = object_points(footprint, arr["x"], arr["y"]) if obj is None else obj
                 over, under = under_line(arr, bx, by, float(xyz[g, 2].max()), obj)
-                if over >= rules.under_line and under < rules.under_line:
+                if over >= rules.under_line and under < rules.under_line:  # never with under_line 0
                     decided("under", under)
                     continue  # rule 20: a line's conductors pass over it and none hangs from it, a crown
+                rise = canopy_clearance(arr, bx, by, float(hag.max())) if canopy else np.nan
+                if over + under < rules.canopy["conductors"] and rise < rules.canopy["clearance"]:
+                    decided("canopy", rise)
+                    continue  # rule 22: no conductor hangs near it and it hardly rises over the wood
             support = conductor_support(arr, extent, bx, by) if vouch is None else vouch
             # rule 19: where the ring says nothing (unknown) or too little (a tall cluster under
             # min_wire_support), the conductors nearer than the ring decide
