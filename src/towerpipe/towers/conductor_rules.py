@@ -57,6 +57,7 @@ __all__ = [
     "on_conductor_lines",
     "UNDER_LINE_CLEARANCE_M",
     "UNDER_LINE_GAP_M",
+    "CANOPY_PERCENTILE",
     "CANOPY_RING_M",
     "UNDER_LINE_RADIUS_M",
     "canopy_clearance",
@@ -89,7 +90,8 @@ UNDER_LINE_RADIUS_M, UNDER_LINE_CLEARANCE_M, UNDER_LINE_GAP_M = 25.0, 2.0, 4.0
 #: Rule 22 measures what stands around a base in this ring (m, in plan): beyond a tower's crossarms and
 #: the crowns at its foot, within the canopy of the wood it stands in (docs/model.md, "Rule 22").
 CANOPY_RING_M = (20.0, 40.0)
-#: ... by this percentile of the heights above ground there (the canopy's top, not its tallest tree).
+#: Rule 22 takes this percentile of the heights above ground in :data:`CANOPY_RING_M` as the canopy's top
+#: (not its tallest tree).
 CANOPY_PERCENTILE = 90.0
 
 

@@ -48,7 +48,7 @@ its highest probability, not its 90th percentile, must reach ``min_core_prob``),
 ``rescue_threshold``: a thin pole or a sparse real lattice that the segmenter paints mostly
 at 0.1-0.3 is found and outlined when its object is shaped like a tower.
 
-Rules 12-21 (docs/products.md tells each with its measurements; 0 turns each off):
+Rules 12-22 (docs/products.md tells each with its measurements; 0 turns each off):
 
 12. the conductors' vouch (``vouch_height``): a cluster the shape check drops, with no split part to
     judge instead, is kept when conductors point at it and its top stands ``vouch_height`` m above them
