@@ -417,8 +417,8 @@ def extract_towers(
                 if over >= rules.under_line and under < rules.under_line:  # never with under_line 0
                     decided("under", under)
                     continue  # rule 20: a line's conductors pass over it and none hangs from it, a crown
-                rise = canopy_clearance(arr, bx, by, float(hag.max())) if canopy else np.nan
-                if over + under < rules.canopy["conductors"] and rise < rules.canopy["clearance"]:
+                few = canopy and over + under < rules.canopy["conductors"]  # only then is the wood measured
+                if few and (rise := canopy_clearance(arr, bx, by, float(hag.max()))) < rules.canopy["clearance"]:
                     decided("canopy", rise)
                     continue  # rule 22: no conductor hangs near it and it hardly rises over the wood
             support = conductor_support(arr, extent, bx, by) if vouch is None else vouch
