@@ -26,6 +26,13 @@ def test_the_table_prints_each_setting_with_the_decimals_it_has():
     """A gate of 0.005 and one of 0.01 are two rows that must not read alike."""
     zone = {"precision": 1.0, "recall": None, "point_iou": 0.7718}
     common = {"tta": 2, "threshold": 0.3, "point_threshold": 0.3, "min_core_prob": 0.3, "min_wire_support": 0.5}
+    common.update(
+        total_towers_tp=350,
+        total_true_towers=424,
+        total_towers_tp_min_points=341,
+        total_true_towers_min_points=383,
+        total_towers_fp=6,
+    )
     rows = [
         {**common, "gate": g, "rescue_threshold": 0.1, "z": zone, "mean_f1": 0.9014, "mean_point_iou": 0.7718}
         for g in (0.005, 0.01)
@@ -33,7 +40,10 @@ def test_the_table_prints_each_setting_with_the_decimals_it_has():
     header, a, b = sweep_table(rows, ["z"])
     assert header.startswith("views  gate") and "z: P / R / IoU" in header
     assert " 0.005 " in a and " 0.01 " in b and " 0.005 " not in b
-    assert "1.000 /   -   / 0.7718" in a and a.endswith("| 0.9014 | 0.7718")
+    assert "1.000 /   -   / 0.7718" in a and "| 0.9014 | 0.7718 |" in a
+    # the towers found of all true towers, of those of towers.min_points points or more, and the false ones
+    assert header.endswith("| found / true (of min_points or more) / false")
+    assert a.endswith("| 350 / 424 (341 / 383) / 6")
 
 
 def test_a_false_tower_is_reported_with_where_it_stands():

@@ -137,6 +137,15 @@ def test_calibration_sweep_reproduces_the_pipeline(zone_run):
     assert got["precision"] == pytest.approx(res["tower_precision"])
     assert got["recall"] == pytest.approx(res["tower_recall"])
     assert (got["tp"], got["fp"], got["fn"]) == tuple(res["points"][k] for k in ("tp", "fp", "fn"))
+    # the zone's totals, and its true towers of towers.min_points points or more as the evaluation counts them
+    assert [rows[0][f"total_{k}"] for k in ("towers_tp", "towers_fp", "true_towers")] == [
+        got["towers_tp"],
+        got["towers_fp"],
+        got["true_towers"],
+    ]
+    big = evaluate_zone(data, out, min_truth_points=tow["min_points"])
+    assert got["true_towers_min_points"] == big["towers_true"] <= got["true_towers"]
+    assert got["towers_tp_min_points"] == round(big["tower_recall"] * big["towers_true"]) <= got["towers_tp"]
     # one view: the predictions are computed (and cached) for it, the same towers are found
     one = rows[1][ZONE]
     assert one["towers"] == got["towers"] and one["tp"] + one["fn"] == got["tp"] + got["fn"]

@@ -143,10 +143,13 @@ def score_zone(
     dict
         ``precision``, ``recall``, ``f1``, ``towers``, ``point_iou``, ``tp``, ``fp``, ``fn``
         (tower points), ``towers_tp``, ``towers_fp``, ``towers_fn``, ``true_towers``,
+        ``towers_tp_min_points`` and ``true_towers_min_points`` (the true towers of
+        ``towers.min_points`` points or more, found and in all: the paper's floor, as
+        ``towerpipe trace`` lists them; the scores above count every true tower),
         ``gate_recall`` (share of the true towers that some window passing the gate
         covers: they have segmented points) and ``false_towers`` (height, points, footprint centroid).
     """
-    from towerpipe.towers.matching import match_towers
+    from towerpipe.towers.matching import match_towers, tower_ids
 
     rules = {**towers, "threshold": threshold, "min_core_prob": min_core_prob}
     found = zone_towers(
@@ -172,6 +175,11 @@ def score_zone(
         truth = truth[~small]
     m = match_towers(gdf, truth, max_dist=5.0)
     false = gdf[gdf["tower_id"].astype(str).isin([str(i) for i in m["unmatched_pred"]])] if len(gdf) else gdf
+    # the towers of towers.min_points points or more (the paper's floor: 20), as `towerpipe trace` counts them
+    big = np.ones(len(truth), bool)
+    if "n_points" in truth.columns:
+        big = truth["n_points"].to_numpy() >= int(towers["min_points"])
+    matched = {h["truth"] for h in m["matches"]}
     return {
         "precision": m["precision"],
         "recall": m["recall"],
@@ -185,6 +193,8 @@ def score_zone(
         "towers_fp": m["fp"],
         "towers_fn": m["fn"],
         "true_towers": int(len(truth)),
+        "towers_tp_min_points": int(sum(t in matched for t in np.asarray(tower_ids(truth), dtype=object)[big])),
+        "true_towers_min_points": int(big.sum()),
         "gate_recall": gate_recall(preds, truth),
         "false_towers": false_tower_rows(false),
     }
@@ -219,6 +229,12 @@ def gate_recall(preds: Sequence[Any], truth) -> float | None:
     return float(np.mean(hit))
 
 
+#: The tower counts of :func:`score_zone` that :func:`sweep` sums over the zones of a candidate
+#: (``total_<key>``): found, false and true towers, and found and true among those of
+#: ``towers.min_points`` points or more.
+TOTALS = ("towers_tp", "towers_fp", "true_towers", "towers_tp_min_points", "true_towers_min_points")
+
+
 def sweep(
     zones: Mapping[str, str | os.PathLike[str]],
     candidates: Sequence[Candidate],
@@ -244,8 +260,9 @@ def sweep(
     Returns
     -------
     list of dict
-        One row per candidate: the candidate, per-zone :func:`score_zone` figures,
-        ``mean_point_iou`` and ``mean_f1`` (tower F1, 0 where a zone has none) over the zones.
+        One row per candidate: the candidate, per-zone :func:`score_zone` figures, their
+        :data:`TOTALS` summed over the zones (``total_towers_tp``, ...), ``mean_point_iou`` and
+        ``mean_f1`` (tower F1, 0 where a zone has none) over the zones.
     """
 
     from towerpipe.io.predictions import load_pred
@@ -294,6 +311,8 @@ def sweep(
                 zone=zone,
                 survey=survey,
             )
+        for key in TOTALS:
+            row[f"total_{key}"] = int(sum(row[z][key] for z in data))
         row["mean_point_iou"] = float(np.mean([row[z]["point_iou"] for z in data]))
         row["mean_f1"] = float(np.mean([row[z]["f1"] or 0.0 for z in data]))
         rows.append(row)
@@ -367,14 +386,15 @@ def sweep_table(rows: Sequence[Mapping[str, Any]], zones: Sequence[str]) -> list
     lines = [
         "views  gate  threshold  points  min_core  wire  rescue | "
         + " | ".join(f"{z}: P / R / IoU" for z in zones)
-        + " | mean F1 | mean IoU"
+        + " | mean F1 | mean IoU | found / true (of min_points or more) / false"
     ]
     for r in rows:
         cells = " | ".join(f"{f(r[z]['precision'])} / {f(r[z]['recall'])} / {r[z]['point_iou']:.4f}" for z in zones)
         lines.append(
             f"{r['tta']:5d}  {r['gate']:4g}  {r['threshold']:9g}  {r['point_threshold']:6g}  "
             f"{r['min_core_prob']:8g}  {r['min_wire_support']:4g}  {r['rescue_threshold']:6g} | {cells} | "
-            f"{r['mean_f1']:.4f} | {r['mean_point_iou']:.4f}"
+            f"{r['mean_f1']:.4f} | {r['mean_point_iou']:.4f} | {r['total_towers_tp']} / {r['total_true_towers']} "
+            f"({r['total_towers_tp_min_points']} / {r['total_true_towers_min_points']}) / {r['total_towers_fp']}"
         )
     return lines
 

@@ -66,7 +66,8 @@ def towers_from_labels(
     return gpd.GeoDataFrame(rows, geometry=geoms, crs=crs)
 
 
-def _ids(gdf: gpd.GeoDataFrame) -> list[str]:
+def tower_ids(gdf: gpd.GeoDataFrame) -> list[str]:
+    """The ids :func:`match_towers` names towers by: ``tower_id`` (or ``id``, or the index), as text."""
     for col in ("tower_id", "id"):
         if col in gdf.columns:
             return [str(v) for v in gdf[col]]
@@ -101,7 +102,7 @@ def match_towers(pred: gpd.GeoDataFrame, truth: gpd.GeoDataFrame, max_dist: floa
         side), ``tp``, ``fp``, ``fn``, ``matches`` (list of ``{"pred", "truth",
         "distance_m"}``), ``unmatched_pred``, ``unmatched_truth`` (id lists).
     """
-    pid, tid = _ids(pred), _ids(truth)
+    pid, tid = tower_ids(pred), tower_ids(truth)
     pg = np.asarray(pred.geometry.values, dtype=object) if len(pred) else np.empty(0, dtype=object)
     tg = np.asarray(truth.geometry.values, dtype=object) if len(truth) else np.empty(0, dtype=object)
     matches: list[dict[str, Any]] = []
