@@ -95,6 +95,37 @@ def test_candidate_windows_need_core_points_and_keep_canonical_order():
     assert len(cw.select(np.array([True]))) == 1
 
 
+def test_window_counts_and_points_are_those_of_the_square_around_each_centre():
+    """The counts are taken without listing any window's points, and a window's points are found
+    when asked for: both are those of the square of side ``window`` around its centre (edges
+    included), core points counted apart, in the canonical order."""
+    rng = np.random.default_rng(7)
+    n = 20_000
+    x, y = rng.uniform(0, 300, n), rng.uniform(0, 300, n)
+    h = rng.uniform(0, 12, n)
+    tops = rng.choice(n, 40, replace=False)
+    h[tops] = rng.uniform(15, 40, 40)
+    x[:50] = np.round(x[:50])  # points on a window's edge (centres lie on a 1 m raster's cell centres)
+    core = (x > 40) & (x < 260) & (y > 40) & (y < 260)
+    canon = rng.permutation(n)
+    cw = candidate_windows(x, y, h, core, window=40.0, min_height=10.0, min_points=5, canonical_order=canon)
+    assert len(cw) > 10
+    rank = np.empty(n, np.int64)
+    rank[canon] = np.arange(n)
+    for i in range(len(cw)):
+        cx, cy = cw.center(i)
+        inside = np.flatnonzero((np.abs(x - cx) <= 20.0) & (np.abs(y - cy) <= 20.0))
+        want = inside[np.argsort(rank[inside], kind="stable")]
+        np.testing.assert_array_equal(cw.indices(i), want)
+        assert cw.counts[i] == len(inside) and cw.core_counts[i] == core[inside].sum() > 0
+    # the peaks whose square holds too few points or no core point have no window
+    _, centers, _ = height_peaks(x, y, h, min_height=10.0, radius=PEAK_RADIUS)
+    square = (np.abs(x[None] - centers[:, :1]) <= 20.0) & (np.abs(y[None] - centers[:, 1:]) <= 20.0)
+    has_window = (square.sum(1) >= 5) & (square & core[None]).any(1)
+    assert 0 < has_window.sum() < len(centers)
+    np.testing.assert_array_equal(cw.centers, centers[has_window])
+
+
 def test_a_tower_hidden_by_crowns_gets_a_secondary_window_of_limited_reach():
     """The hidden tower's peak within the secondary radius becomes a window whose segmentation
     counts near its centre only; the primary peaks keep an unlimited reach; without secondary

@@ -209,7 +209,9 @@ def _merged_with(entry: Mapping[str, Any], footprint: Any, truth: Any, matched: 
     accepted cluster holding the tower: reported as one with it); ``nan`` when there is none."""
     import shapely
 
-    hull = shapely.buffer(shapely.convex_hull(shapely.multipoints(np.c_[entry["x"], entry["y"]])), 1.0)
+    from towerpipe.towers.hull import plan_hull
+
+    hull = shapely.buffer(plan_hull(np.c_[entry["x"], entry["y"]]), 1.0)
     others = truth[truth["tower_id"].astype(str).isin(list(matched)) & ~truth.geometry.geom_equals(footprint)]
     c = others.geometry.centroid
     d = c[shapely.contains_xy(hull, c.x.to_numpy(), c.y.to_numpy())].distance(footprint.centroid)

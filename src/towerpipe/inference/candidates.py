@@ -80,6 +80,20 @@ STEM_CELL, STEM_FLOOR, STEM_BIN, STEM_OCCUPANCY = 1.5, 4.0, 2.0, 0.6
 STEM_PAINTED = (20, 0.5)
 
 
+class _WindowPoints:
+    """The points a tile's candidate windows are cut from: a plan tree of them and their canonical
+    order. A window's indices are found when asked for (the gates read only a few windows of a
+    tile; keeping every window's indices took 0.5 s and hundreds of MB on a dense tile)."""
+
+    def __init__(self, tree: Any, rank: np.ndarray | None) -> None:
+        self.tree, self.rank = tree, rank
+
+    def indices(self, center: np.ndarray, half: float) -> np.ndarray:
+        idx = np.asarray(self.tree.query_ball_point(center, half, p=np.inf), np.int64)
+        # a tile's points are gathered in their canonical order (rank None): their indices, sorted, are in it
+        return np.sort(idx) if self.rank is None else idx[np.argsort(self.rank[idx], kind="stable")]
+
+
 @dataclass(frozen=True)
 class CandidateWindows:
     """Windows centred on the candidates of one tile (:func:`candidate_windows`).
@@ -109,10 +123,9 @@ class CandidateWindows:
     heights: np.ndarray
     counts: np.ndarray
     core_counts: np.ndarray
-    _ptr: np.ndarray
-    _idx: np.ndarray
     reach: np.ndarray
     stem: np.ndarray
+    _points: _WindowPoints
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -123,14 +136,11 @@ class CandidateWindows:
 
     def indices(self, i: int) -> np.ndarray:
         """Indices of window ``i``'s points, in the canonical order given at construction."""
-        return self._idx[self._ptr[i] : self._ptr[i + 1]]
+        return self._points.indices(self.centers[i], self.window / 2.0)
 
     def select(self, mask_or_index: np.ndarray) -> CandidateWindows:
         """The selected windows."""
         sel = np.arange(len(self))[mask_or_index]
-        parts = [self.indices(int(i)) for i in sel]
-        ptr = np.concatenate([[0], np.cumsum([len(p) for p in parts])]).astype(np.int64)
-        idx = np.concatenate(parts) if parts else np.empty(0, np.int64)
         return CandidateWindows(
             self.window,
             self.keys[sel],
@@ -138,10 +148,9 @@ class CandidateWindows:
             self.heights[sel],
             self.counts[sel],
             self.core_counts[sel],
-            ptr,
-            idx,
             self.reach[sel],
             self.stem[sel],
+            self._points,
         )
 
 
@@ -352,28 +361,35 @@ def candidate_windows(
         stem = np.concatenate([stem, np.ones(len(cols), bool)])
     n = len(x)
     order = np.arange(n) if canonical_order is None else np.asarray(canonical_order)
-    # a tile's points are gathered in their canonical order: their indices, sorted, are then in it
-    in_order = bool(np.array_equal(order, np.arange(n)))
-    rank = np.empty(n, np.int64)
-    rank[order] = np.arange(n)
+    rank = None
+    if not np.array_equal(order, np.arange(n)):
+        rank = np.empty(n, np.int64)
+        rank[order] = np.arange(n)
     if tree is None and len(keys):
         tree = cKDTree(np.c_[x, y])
-    keep, parts = [], []
-    for i, c in enumerate(centers):
-        # one window at a time: the lists of Python ints of every window at once took
-        # hundreds of MB on a dense tile; a window's order comes from ``rank`` below
-        idx = np.asarray(tree.query_ball_point(c, window / 2.0, p=np.inf), np.int64)
-        if len(idx) < max(int(min_points), 1) or not core[idx].any():
-            continue
-        keep.append(i)
-        parts.append(np.sort(idx) if in_order else idx[np.argsort(rank[idx], kind="stable")])
-    keep = np.asarray(keep, np.int64)
-    ptr = np.concatenate([[0], np.cumsum([len(p) for p in parts])]).astype(np.int64)
-    idx = np.concatenate(parts) if parts else np.empty(0, np.int64)
-    counts = np.diff(ptr)
-    core_counts = np.array([int(core[p].sum()) for p in parts], np.int64)
+    half = window / 2.0
+    counts = core_counts = np.zeros(len(keys), np.int64)
+    if len(keys) and n:
+        counts = np.asarray(tree.query_ball_point(centers, half, p=np.inf, return_length=True), np.int64)
+        # the core points of a window: its points less those of the buffer (a tree of the buffer's
+        # points is a fraction of a tree of the core's)
+        core_counts = counts.copy()
+        if not core.all():
+            buffer_tree = cKDTree(np.c_[x[~core], y[~core]], balanced_tree=False)
+            core_counts -= np.asarray(
+                buffer_tree.query_ball_point(centers, half, p=np.inf, return_length=True), np.int64
+            )
+    keep = np.flatnonzero((counts >= max(int(min_points), 1)) & (core_counts > 0))
     return CandidateWindows(
-        float(window), keys[keep], centers[keep], heights[keep], counts, core_counts, ptr, idx, reach[keep], stem[keep]
+        float(window),
+        keys[keep],
+        centers[keep],
+        heights[keep],
+        counts[keep],
+        core_counts[keep],
+        reach[keep],
+        stem[keep],
+        _WindowPoints(tree, rank),
     )
 
 

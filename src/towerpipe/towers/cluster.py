@@ -17,6 +17,7 @@ from scipy.spatial import cKDTree
 
 from towerpipe.errors import InputError
 from towerpipe.towers.graph import components, nearest_seed
+from towerpipe.towers.hull import plan_hull
 from towerpipe.towers.masts import split_masts
 
 _PRED_NAMES = ("block_id", "point_index", "x", "y", "z", "hag", "prob")
@@ -139,8 +140,7 @@ def _split_wide(
 
 def _footprint(xy: np.ndarray, min_width: float) -> shapely.Polygon:
     """xy convex hull (oriented rectangle for < 5 points), buffered when degenerate."""
-    mp = shapely.multipoints(xy)
-    geom = shapely.oriented_envelope(mp) if len(xy) < 5 else shapely.convex_hull(mp)
+    geom = shapely.oriented_envelope(shapely.multipoints(xy)) if len(xy) < 5 else plan_hull(xy)
     if not isinstance(geom, shapely.Polygon) or geom.area < min_width * min_width:
         geom = shapely.convex_hull(shapely.buffer(geom, min_width / 2.0, quad_segs=4))
     return geom
@@ -215,7 +215,7 @@ def cluster_towers(
         order = np.argsort(labels[valid], kind="stable")
         vidx = np.flatnonzero(valid)[order]
         splits = np.flatnonzero(np.diff(labels[vidx])) + 1
-        hulls = [shapely.convex_hull(shapely.multipoints(xyz[g, :2])) for g in np.split(vidx, splits)]
+        hulls = [plan_hull(xyz[g, :2]) for g in np.split(vidx, splits)]
         tree = shapely.STRtree(hulls)
         a, b = tree.query(hulls, predicate="dwithin", distance=merge_gap)
         merged = components(k, np.stack([a, b], axis=1))

@@ -24,6 +24,8 @@ from collections.abc import Mapping
 import numpy as np
 import shapely
 
+from towerpipe.towers.hull import plan_hull
+
 __all__ = ["crown_mask"]
 
 
@@ -62,7 +64,7 @@ def crown_mask(x: np.ndarray, y: np.ndarray, hag: np.ndarray, crowns: Mapping[st
         above = known & (hag >= floor + height)
         if above.sum() < need:
             break  # the floors ascend: none higher has enough points above it either
-        tower = shapely.convex_hull(shapely.multipoints(np.column_stack([x[above], y[above]])))
+        tower = plan_hull(np.column_stack([x[above], y[above]]))
         here = np.flatnonzero(judged & (level == floor))
         keep[here] = shapely.distance(tower, shapely.points(x[here], y[here])) <= beyond
     return keep

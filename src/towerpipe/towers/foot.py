@@ -26,13 +26,15 @@ from collections.abc import Mapping
 import numpy as np
 import shapely
 
+from towerpipe.towers.hull import plan_hull
+
 __all__ = ["foot_mask", "outline"]
 
 
 def outline(x: np.ndarray, y: np.ndarray) -> shapely.Polygon | None:
     """The outline (convex hull) of points in plan; ``None`` where they outline nothing (fewer
     than three, or all on a line or at a point)."""
-    hull = shapely.convex_hull(shapely.multipoints(np.column_stack([x, y]).astype(np.float64)))
+    hull = plan_hull(np.column_stack([x, y]))
     return hull if isinstance(hull, shapely.Polygon) else None
 
 

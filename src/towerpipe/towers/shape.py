@@ -31,6 +31,8 @@ from typing import Any
 import numpy as np
 import shapely
 
+from towerpipe.towers.hull import plan_hull
+
 __all__ = [
     "DESCRIPTOR_NAMES",
     "OBJECT_BUFFER_M",
@@ -165,7 +167,7 @@ def shape_descriptor(x: np.ndarray, y: np.ndarray, hag: np.ndarray) -> np.ndarra
     gaps = np.diff(np.sort(np.r_[0.0, q[:, 2], height]))
     columns = unique_rows(vox[:, :2])
     # the plan hull of the voxels is that of their columns (a column's voxels share its centre)
-    hull = shapely.convex_hull(shapely.multipoints((columns + 0.5) * VOXEL_M))
+    hull = plan_hull((columns + 0.5) * VOXEL_M)
     area = max(float(hull.area), VOXEL_M * VOXEL_M)
     top, middle = rel >= 0.8, (rel >= 0.3) & (rel < 0.7)
     r_top = np.sqrt(np.mean(radius[top] ** 2)) if top.any() else 0.0
@@ -259,7 +261,7 @@ def peak_objects(
         near = local[keep[local] & (d <= radius)]
         if len(near) < 5:
             continue
-        hull = shapely.convex_hull(shapely.multipoints(np.c_[x[near], y[near]]))
+        hull = plan_hull(np.c_[x[near], y[near]])
         out[i] = local[object_points(hull, x[local], y[local])]
     return out
 

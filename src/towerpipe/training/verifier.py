@@ -109,13 +109,13 @@ def occlude(x: np.ndarray, y: np.ndarray, hag: np.ndarray, rng: np.random.Genera
 
 def _tile_objects(path: str, truth: Any, cfg: Mapping[str, Any], seed: Sequence[int]) -> list[dict[str, Any]]:
     """The objects of one tile: ``{"label", "kind", "view", "block", "descriptor"}`` dicts."""
-    import shapely
     from scipy.spatial import cKDTree
 
     from towerpipe import classes
     from towerpipe.inference.candidates import height_peaks
     from towerpipe.io.tiles import load_tile
     from towerpipe.towers.coverage import tile_density
+    from towerpipe.towers.hull import plan_hull
     from towerpipe.training.dataset import nearest_families, tower_instances
 
     rng = np.random.default_rng(list(seed))
@@ -144,7 +144,7 @@ def _tile_objects(path: str, truth: Any, cfg: Mapping[str, Any], seed: Sequence[
             out.append({"label": label, "kind": kind, "view": view, "block": block, "descriptor": desc})
 
     def add(label: int, kind: str, region_xy: np.ndarray) -> None:
-        idx = object_points(shapely.convex_hull(shapely.multipoints(region_xy)), x, y)
+        idx = object_points(plan_hull(region_xy), x, y)
         add_points(label, kind, "footprint", x[idx], y[idx], hag[idx])
 
     def in_core(cx: float, cy: float) -> bool:
