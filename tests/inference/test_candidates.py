@@ -105,13 +105,14 @@ def test_window_counts_and_points_are_those_of_the_square_around_each_centre():
     h = rng.uniform(0, 12, n)
     tops = rng.choice(n, 40, replace=False)
     h[tops] = rng.uniform(15, 40, 40)
-    x[:50] = np.round(x[:50])  # points on a window's edge (centres lie on a 1 m raster's cell centres)
+    x[:2000] = np.floor(x[:2000]) + 0.5  # on a window's edge: the centres are a 1 m raster's cell centres
     core = (x > 40) & (x < 260) & (y > 40) & (y < 260)
     canon = rng.permutation(n)
     cw = candidate_windows(x, y, h, core, window=40.0, min_height=10.0, min_points=5, canonical_order=canon)
     assert len(cw) > 10
     rank = np.empty(n, np.int64)
     rank[canon] = np.arange(n)
+    assert any(((np.abs(x - cx) == 20.0) & (np.abs(y - cy) <= 20.0)).any() for cx, cy in cw.centers)  # on an edge
     for i in range(len(cw)):
         cx, cy = cw.center(i)
         inside = np.flatnonzero((np.abs(x - cx) <= 20.0) & (np.abs(y - cy) <= 20.0))
