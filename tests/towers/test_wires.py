@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from towerpipe.towers.wires import conductor_directions, conductor_heights, wire_points, wire_support
 
@@ -143,10 +144,15 @@ def test_stacked_points_have_a_neighbour_in_the_gap():
         assert not (got & ~gap).any()
 
 
-def test_clearance_is_the_brute_force_one():
-    """The cell pre-filter of the vegetation drops no point within the radius (negative coordinates too)."""
+@pytest.mark.parametrize("grid", [True, False], ids=["grid-of-cells", "sorted-keys"])
+def test_clearance_is_the_brute_force_one(grid, monkeypatch):
+    """The cell pre-filter of the vegetation drops no point within the radius (negative coordinates
+    too), whether the cells beside the points are marked on a grid or kept as sorted keys."""
+    from towerpipe.towers import wires
     from towerpipe.towers.wires import _clearance
 
+    if not grid:
+        monkeypatch.setattr(wires, "_CLEARANCE_GRID_MAX", 0)
     rng = np.random.default_rng(4)
     for off in (0.0, -1e4, 4e6):
         x, y, z = rng.uniform(-30, 30, (3, 400)) + np.array([[off], [off], [20.0]])

@@ -23,14 +23,15 @@ __all__ = ["INFERENCE_PACKAGES", "NOT_INFERENCE", "inference_code", "zone_predic
 #: The subpackages and modules whose code makes a tile's predictions: all of their modules
 #: are part of the key of the cached predictions (:func:`zone_predictions`). Of the tower
 #: code the wire detector (the peaks leave overhead wires out), the shape module (the
-#: shape gate cuts and scores the object at each peak) and the plan hull it cuts objects with:
-#: the tower rules run after the predictions and never invalidate them.
+#: shape gate cuts and scores the object at each peak), the plan hull it cuts objects with and the
+#: k-d trees they query: the tower rules run after the predictions and never invalidate them.
 INFERENCE_PACKAGES = (
     "towerpipe.inference",
     "towerpipe.model",
     "towerpipe.towers.wires",
     "towerpipe.towers.shape",
     "towerpipe.towers.hull",
+    "towerpipe.towers.kdtree",
 )
 #: Modules of those packages that make no prediction: a zone's model choice (the calibration
 #: names the model, whose weights' checksums are in the key). A new module is part of the key

@@ -327,6 +327,8 @@ def candidate_windows(
     """
     from scipy.spatial import cKDTree
 
+    from towerpipe.towers.kdtree import tile_tree
+
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     core = np.asarray(core, dtype=bool)
@@ -366,7 +368,7 @@ def candidate_windows(
         rank = np.empty(n, np.int64)
         rank[order] = np.arange(n)
     if tree is None and len(keys):
-        tree = cKDTree(np.c_[x, y])
+        tree = tile_tree(np.c_[x, y])
     half = window / 2.0
     counts = core_counts = np.zeros(len(keys), np.int64)
     if len(keys) and n:
@@ -375,7 +377,7 @@ def candidate_windows(
         # points is a fraction of a tree of the core's)
         core_counts = counts.copy()
         if not core.all():
-            buffer_tree = cKDTree(np.c_[x[~core], y[~core]], balanced_tree=False)
+            buffer_tree = tile_tree(np.c_[x[~core], y[~core]])
             core_counts -= np.asarray(
                 buffer_tree.query_ball_point(centers, half, p=np.inf, return_length=True), np.int64
             )

@@ -167,12 +167,12 @@ def predict_tile(
     hag = arrays["hag"]
     wires = tree = None
     if windows == "candidates":
-        from scipy.spatial import cKDTree
+        from towerpipe.towers.kdtree import tile_tree
 
         floor = 0.0 if min_height is None else min_height
         wires = overhead_wires(arrays, mi, floor)
-        # the windows' and the shape gate's; unbalanced, built in half the time (both sort what it finds)
-        tree = cKDTree(np.c_[arrays["x"][mi], arrays["y"][mi]], balanced_tree=False)
+        # the windows' and the shape gate's (both count or sort what it finds)
+        tree = tile_tree(np.c_[arrays["x"][mi], arrays["y"][mi]])
         ws: TileWindows | CandidateWindows = candidate_windows(
             arrays["x"][mi],
             arrays["y"][mi],
