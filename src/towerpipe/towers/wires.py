@@ -43,11 +43,11 @@ from collections.abc import Sequence
 
 import numpy as np
 from scipy import sparse
-from scipy.spatial import cKDTree
 
 from towerpipe import classes
 from towerpipe.io.conductors import CONDUCTOR_ARRAYS
 from towerpipe.io.fields import Field
+from towerpipe.towers.clearance import wire_clearance
 from towerpipe.towers.coverage import Coverage
 from towerpipe.towers.kdtree import tile_tree
 
@@ -374,49 +374,6 @@ def conductor_heights(
     return np.asarray(hag, dtype=np.float64)[idx]
 
 
-#: The most cells of the grid :func:`_clearance` marks the cells beside its points on (64 MB of bools).
-_CLEARANCE_GRID_MAX = 1 << 26
-
-
-def _clearance(
-    x: np.ndarray, y: np.ndarray, z: np.ndarray, vx: np.ndarray, vy: np.ndarray, vz: np.ndarray, radius: float
-) -> np.ndarray:
-    """Per point, ``z`` minus the highest of the ``v`` points below it within ``radius`` in plan (nan: none)."""
-    out = np.full(len(x), np.nan)
-    if len(x) == 0 or len(vx) == 0:
-        return out
-    # only v points in a radius-sized cell beside a point's own cell can be within radius: the cells
-    # beside the points are marked on a grid over their box, which the v points look up (a sorted
-    # set of cell keys and np.isin over a tile's vegetation took 0.12 s a bench tile, this 0.01 s)
-    kx, ky, kvx, kvy = (np.floor(a / radius).astype(np.int64) for a in (x, y, vx, vy))
-    x0, y0 = int(kx.min()) - 1, int(ky.min()) - 1
-    nx, ny = int(kx.max()) + 2 - x0, int(ky.max()) + 2 - y0
-    close = np.zeros(len(vx), dtype=bool)
-    if nx * ny <= _CLEARANCE_GRID_MAX:
-        beside = np.zeros((nx, ny), dtype=bool)
-        for dx in (0, 1, 2):
-            for dy in (0, 1, 2):
-                beside[kx - x0 - 1 + dx, ky - y0 - 1 + dy] = True
-        inside = np.flatnonzero((kvx > x0 - 1) & (kvx < x0 + nx) & (kvy > y0 - 1) & (kvy < y0 + ny))
-        close[inside] = beside[kvx[inside] - x0, kvy[inside] - y0]
-    else:  # points spread over more cells than a grid should hold: the sorted keys
-        ring = np.array([(dx << 32) + dy for dx in (-1, 0, 1) for dy in (-1, 0, 1)], np.int64)
-        close = np.isin((kvx << 32) + kvy, np.unique(((kx << 32) + ky)[:, None] + ring))
-    if not close.any():
-        return out
-    vx, vy, vz = vx[close], vy[close], vz[close]
-    near = cKDTree(np.c_[x, y]).sparse_distance_matrix(cKDTree(np.c_[vx, vy]), radius, output_type="coo_matrix")
-    rows, cols = np.r_[near.row], np.r_[near.col]
-    below = vz[cols] < z[rows]
-    rows, top = rows[below], vz[cols[below]]
-    if len(rows):
-        highest = np.full(len(x), -np.inf)
-        np.maximum.at(highest, rows, top)
-        ok = np.isfinite(highest)
-        out[ok] = z[ok] - highest[ok]
-    return out
-
-
 def conductor_directions(direction_deg: np.ndarray) -> np.ndarray:
     """``(n, 2)`` unit plan directions ``(dx, dy)`` of wires given as bearings in degrees
     (``direction_deg`` of :func:`tile_conductor_points`: clockwise from north, in [0, 180))."""
@@ -471,7 +428,7 @@ def tile_conductor_points(
         "z": z[idx],
         "hag": t["hag"][idx],
         "direction_deg": np.degrees(np.arctan2(u[:, 0], u[:, 1])) % 180.0,
-        "clearance_m": _clearance(x[idx], y[idx], z[idx], x[veg], y[veg], z[veg], clearance_radius),
+        "clearance_m": wire_clearance(x[idx], y[idx], z[idx], x[veg], y[veg], z[veg], clearance_radius),
     }
     return {k: np.asarray(out[k], dtype=np.float64) for k in CONDUCTOR_ARRAYS}
 
