@@ -29,13 +29,13 @@ def wire_clearance(
     kx, ky, kvx, kvy = (np.floor(a / radius).astype(np.int64) for a in (x, y, vx, vy))
     x0, y0 = int(kx.min()) - 1, int(ky.min()) - 1
     nx, ny = int(kx.max()) + 2 - x0, int(ky.max()) + 2 - y0
-    close = np.zeros(len(vx), dtype=bool)
     if nx * ny <= _GRID_MAX:
         beside = np.zeros((nx, ny), dtype=bool)
-        for dx in (0, 1, 2):
-            for dy in (0, 1, 2):
-                beside[kx - x0 - 1 + dx, ky - y0 - 1 + dy] = True
-        inside = np.flatnonzero((kvx > x0 - 1) & (kvx < x0 + nx) & (kvy > y0 - 1) & (kvy < y0 + ny))
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                beside[kx - x0 + dx, ky - y0 + dy] = True
+        inside = np.flatnonzero((kvx >= x0) & (kvx < x0 + nx) & (kvy >= y0) & (kvy < y0 + ny))
+        close = np.zeros(len(vx), dtype=bool)
         close[inside] = beside[kvx[inside] - x0, kvy[inside] - y0]
     else:  # points spread over more cells than a grid should hold: the sorted keys
         ring = np.array([(dx << 32) + dy for dx in (-1, 0, 1) for dy in (-1, 0, 1)], np.int64)
