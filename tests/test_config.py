@@ -176,7 +176,7 @@ def test_defaults_live_only_in_the_schema_and_towerpipe_config_prints_them(tmp_p
     cfg = yaml.safe_load(capsys.readouterr().out)
     # the shipped, calibrated values, and the file given merged over them
     assert cfg["inference"]["gate"] == 0.2 and cfg["inference"]["tta"] == 2 and cfg["inference"]["threshold"] == 0.3
-    assert cfg["towers"]["min_core_prob"] == 0.3 and cfg["towers"]["max_base_ratio"] == 0.7
+    assert cfg["towers"]["min_core_prob"] == 0.25 and cfg["towers"]["max_base_ratio"] == 0.7
     assert cfg["qa"]["min_density"] == 2.0 and cfg["qa"]["max_gate_ratio"] == 0.25  # the QA limits
     assert "demo" in cfg["zones"] and cfg["training"]["models"]  # config/models.yaml too, as the workflow loads it
 
