@@ -20,6 +20,10 @@ WIRE_GUARD, WIRE_CONDUCTOR = 13, 14
 TOWER = 15
 HIGH_NOISE = 18
 
+#: The first class LAS 1.4 leaves to the delivery (64-255; 23-63 are reserved): towerpipe takes such a
+#: point as a point of the scene unless ``preprocess.extra_noise_classes`` lists its class.
+USER_DEFINED_MIN = 64
+
 #: Low, medium and high vegetation.
 VEGETATION = (LOW_VEGETATION, MEDIUM_VEGETATION, HIGH_VEGETATION)
 #: Low and high noise: dropped before the model.

@@ -297,6 +297,25 @@ def test_histogram_counts_are_labelled_as_short_plain_text():
     assert got == ["1", "10", "100", "1k", "10k", "100k", "1M", "2.5M"]  # no 10^n: no mathematical text
 
 
+def test_the_delivery_own_classes_are_listed_with_their_heights(tmp_path):
+    # LiDAR HD's artefacts (class 65) as a curtain up to 80 m above the ground beside a tower: points
+    # of the scene for the model, listed on the page (the noise classes were taken out by the split)
+    pts = make_block()
+    h = np.linspace(0.0, 80.0, 60)
+    curtain = {"x": np.full(60, X0 + 64.0), "y": np.full(60, Y0 + 60.0), "hag": h.astype(np.float32)}
+    curtain["z"] = ground_z(curtain["x"], curtain["y"]) + h
+    extra = {**curtain, "classification": np.full(60, 65, np.uint8), "prob": np.zeros(60, np.float32)}
+    pts = {k: np.concatenate([pts[k], extra[k]]) for k in pts}
+    doc = report(tmp_path, "b", zone="z1", towers=towers_of(pts), classified=pts)
+    assert doc["user_classes"] == {"65": {"points": 60, "hag_max": 80.0}}  # as in the JSON
+    row = "input: class 65, the delivery's own, taken as any point (up to 80.0 m above the ground)"
+    assert doc["stage_counts"][row] == 60
+    assert "class 65, the delivery&#39;s own" in (tmp_path / "b.html").read_text()
+    assert (
+        report(tmp_path, "c", zone="z1", towers=towers_of(make_block()), classified=make_block())["user_classes"] == {}
+    )
+
+
 def test_block_report_from_files_and_no_towers(tmp_path):
     import laspy
 

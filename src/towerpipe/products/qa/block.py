@@ -29,6 +29,7 @@ import numpy as np
 from towerpipe import classes
 from towerpipe.io.atomic import write_text_atomic
 from towerpipe.products import layout
+from towerpipe.products.qa.delivery_classes import user_class_rows, user_classes
 from towerpipe.products.qa.metrics import (
     Limits,
     data_extent,
@@ -267,6 +268,7 @@ def block_report(
             (f"input: noise classes ({noise_classes}) or withheld, left out", int(stats["noise_points"])),
             ("… of them withheld (LAS flag)", int(stats.get("withheld_points") or 0)),
         ]
+    input_rows = len(stage_counts)  # the delivery's own classes go after them, once heights are known
     stage_counts += [(f"tiles: {k.replace('_', ' ')}", int(v)) for k, v in tile_counts.items()]
     if pred_metas:
         stage_counts.append(("model input (core points)", points_model_input))
@@ -316,6 +318,8 @@ def block_report(
             rows = np.clip(np.floor(inv.d * x + inv.e * y + inv.f), 0, dtm.shape[0] - 1).astype(np.int64)
             cols = np.clip(np.floor(inv.a * x + inv.b * y + inv.c), 0, dtm.shape[1] - 1).astype(np.int64)
             hag[s] = pts["z"][s] - dtm[rows, cols]
+    user = user_classes(cls, hag) if cls is not None else {}
+    stage_counts[input_rows:input_rows] = user_class_rows(user)
     if hag is not None:
         figures.append(
             {
@@ -456,6 +460,7 @@ def block_report(
         "wire_sources": wire_sources,
         "density": density,
         "stage_counts": dict(stage_counts),
+        "user_classes": user,
         "tile_counts": tile_counts,
         "attributes": attributes,
         "degenerate_attributes": degenerate,

@@ -1,0 +1,61 @@
+"""The delivery's own point classes, for the QA page: :func:`user_classes`.
+
+LAS 1.4 defines the classes up to 22 and leaves 64-255 to whoever classified the delivery
+(:data:`towerpipe.classes.USER_DEFINED_MIN`). towerpipe cannot know what such a class holds, so
+its points are points of the scene: they reach the model and the tower search unless
+``preprocess.extra_noise_classes`` lists the class. Most are objects (LiDAR HD of IGN files its
+permanent structures and miscellaneous buildings there), but not all: LiDAR HD's class 65, its
+artefacts, stands on the real tiles of ``../shared`` as curtains of points from the ground to 84 m
+above it, and such a curtain in a tower's window lowers what the segmenter paints on the tower
+(docs/model.md, "The artefacts of a real tile left in the model's input"). The block's QA page
+lists each such class, its points and how high above the ground they reach, so that an operator
+can tell which of them to list as noise.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from towerpipe.classes import USER_DEFINED_MIN
+
+__all__ = ["user_class_rows", "user_classes"]
+
+
+def user_classes(cls: np.ndarray, hag: np.ndarray | None) -> dict[int, dict[str, float | int | None]]:
+    """Each class of the delivery's own (:data:`~towerpipe.classes.USER_DEFINED_MIN` or above) among
+    the block's points.
+
+    Parameters
+    ----------
+    cls
+        The points' classes as the pipeline keeps them (the delivery's noise classes already
+        out: the block cache's column).
+    hag
+        Their heights above ground, or ``None`` when unknown.
+
+    Returns
+    -------
+    dict
+        Class -> ``points`` and ``hag_max`` (the highest of them above the ground, m; ``None``
+        when ``hag`` is), in class order; empty when the block has none.
+    """
+    cls = np.asarray(cls)
+    counts = np.bincount(cls.astype(np.int64), minlength=256)
+    out: dict[int, dict[str, float | int | None]] = {}
+    for c in np.flatnonzero(counts[USER_DEFINED_MIN:]) + USER_DEFINED_MIN:
+        h = np.asarray(hag, np.float64)[cls == c] if hag is not None else np.empty(0)
+        top = float(np.nanmax(h)) if np.isfinite(h).any() else None  # unknown: no height, or none known
+        out[int(c)] = {"points": int(counts[c]), "hag_max": top}
+    return out
+
+
+def user_class_rows(user: dict[int, dict[str, float | int | None]]) -> list[tuple[str, int]]:
+    """The rows of the QA page's table of points for :func:`user_classes`' answer."""
+    return [
+        (
+            f"input: class {c}, the delivery's own, taken as any point"
+            + (f" (up to {u['hag_max']:.1f} m above the ground)" if u["hag_max"] is not None else ""),
+            int(u["points"] or 0),
+        )
+        for c, u in user.items()
+    ]
