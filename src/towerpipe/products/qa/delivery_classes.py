@@ -3,9 +3,9 @@
 LAS 1.4 defines the classes up to 22 and leaves 64-255 to whoever classified the delivery
 (:data:`towerpipe.classes.USER_DEFINED_MIN`). towerpipe cannot know what such a class holds, so
 its points are points of the scene: they reach the model and the tower search unless
-``preprocess.extra_noise_classes`` lists the class. Most are objects (LiDAR HD of IGN files its
-permanent structures and miscellaneous buildings there), but not all: LiDAR HD's class 65, its
-artefacts, stands on the real tiles of ``../shared`` as curtains of points from the ground to 84 m
+``preprocess.extra_noise_classes`` lists the class. Most are objects of the scene (a producer's
+own subclasses), but not all: LiDAR HD's class 65, its artefacts (the README of ``../shared``),
+stands on the real tiles of ``../shared`` as curtains of points from the ground to 84 m
 above it, and such a curtain in a tower's window lowers what the segmenter paints on the tower
 (docs/model.md, "The artefacts of a real tile left in the model's input"). The block's QA page
 lists each such class, its points and how high above the ground they reach, so that an operator
