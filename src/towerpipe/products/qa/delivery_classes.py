@@ -28,8 +28,9 @@ def user_classes(cls: np.ndarray, hag: np.ndarray | None) -> dict[int, dict[str,
     Parameters
     ----------
     cls
-        The points' classes as the pipeline keeps them (the delivery's noise classes already
-        out: the block cache's column).
+        The points' classes as the QA page reads them: the classified block, whose points of
+        the delivery's noise classes are already out and whose reported towers' points are
+        15 (a class's points in a tower are counted as the tower's).
     hag
         Their heights above ground, or ``None`` when unknown.
 
