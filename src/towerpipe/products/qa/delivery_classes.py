@@ -29,8 +29,8 @@ def user_classes(cls: np.ndarray, hag: np.ndarray | None) -> dict[int, dict[str,
     ----------
     cls
         The points' classes as the QA page reads them: the classified block, whose points of
-        the delivery's noise classes are already out and whose reported towers' points are
-        15 (a class's points in a tower are counted as the tower's).
+        the delivery's noise classes read 7 and whose reported towers' points read 15 (a
+        class's points in a tower are counted as the tower's).
     hag
         Their heights above ground, or ``None`` when unknown.
 
