@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from towerpipe.classes import USER_DEFINED_MIN
-from towerpipe.products.qa.delivery_classes import user_class_rows, user_classes
+from towerpipe.products.qa.delivery_classes import user_class_rows, user_classes, zone_user_classes
 
 
 def test_each_class_of_the_delivery_own_with_its_points_and_highest_point():
@@ -30,3 +30,17 @@ def test_rows_name_the_class_and_how_high_it_reaches():
         ("input: class 65, the delivery's own, taken as any point (up to 83.5 m above the ground)", 412),
         ("input: class 66, the delivery's own, taken as any point", 3),
     ]
+
+
+def test_the_zone_sums_its_blocks_classes():
+    docs = [
+        {"user_classes": {"65": {"points": 3, "hag_max": 80.0}, "208": {"points": 7, "hag_max": None}}},
+        {"user_classes": {"65": {"points": 2, "hag_max": 12.5}}},
+        {"user_classes": {}},
+        {},  # a page of a version before the rows
+    ]
+    assert zone_user_classes(docs) == [
+        {"class": 65, "blocks": 2, "points": 5, "hag_max": 80.0},
+        {"class": 208, "blocks": 1, "points": 7, "hag_max": None},
+    ]
+    assert zone_user_classes([]) == []

@@ -314,6 +314,12 @@ def test_the_delivery_own_classes_are_listed_with_their_heights(tmp_path):
     assert (
         report(tmp_path, "c", zone="z1", towers=towers_of(make_block()), classified=make_block())["user_classes"] == {}
     )
+    # the zone's index sums them over its blocks, in a section of its own only when there are some
+    index = zone_index(tmp_path / "index.html", [tmp_path / "b.json", tmp_path / "c.json"], zone="z1")
+    assert index["user_classes"] == [{"class": 65, "blocks": 1, "points": 60, "hag_max": 80.0}]
+    assert "Classes of the delivery's own" in (tmp_path / "index.html").read_text()
+    zone_index(tmp_path / "index_c.html", [tmp_path / "c.json"], zone="z1")
+    assert "Classes of the delivery" not in (tmp_path / "index_c.html").read_text()
 
 
 def test_block_report_from_files_and_no_towers(tmp_path):

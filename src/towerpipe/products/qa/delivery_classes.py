@@ -1,4 +1,4 @@
-"""The delivery's own point classes, for the QA page: :func:`user_classes`.
+"""The delivery's own point classes, for the QA pages: :func:`user_classes`, :func:`zone_user_classes`.
 
 LAS 1.4 defines the classes up to 22 and leaves 64-255 to whoever classified the delivery
 (:data:`towerpipe.classes.USER_DEFINED_MIN`). towerpipe cannot know what such a class holds, so
@@ -8,17 +8,20 @@ own subclasses), but not all: LiDAR HD's class 65, its artefacts (the README of 
 stands on the real tiles of ``../shared`` as curtains of points from the ground to 84 m
 above it, and such a curtain in a tower's window lowers what the segmenter paints on the tower
 (docs/model.md, "The artefacts of a real tile left in the model's input"). The block's QA page
-lists each such class, its points and how high above the ground they reach, so that an operator
-can tell which of them to list as noise.
+lists each such class, its points and how high above the ground they reach, and the zone's index
+sums them over its blocks, so that an operator can tell which of them to list as noise.
 """
 
 from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from typing import Any
 
 import numpy as np
 
 from towerpipe.classes import USER_DEFINED_MIN
 
-__all__ = ["user_class_rows", "user_classes"]
+__all__ = ["user_class_rows", "user_classes", "zone_user_classes"]
 
 
 def user_classes(cls: np.ndarray, hag: np.ndarray | None) -> dict[int, dict[str, float | int | None]]:
@@ -60,3 +63,23 @@ def user_class_rows(user: dict[int, dict[str, float | int | None]]) -> list[tupl
         )
         for c, u in user.items()
     ]
+
+
+def zone_user_classes(block_docs: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The delivery's own classes over a zone, from its blocks' QA JSONs (their ``user_classes``).
+
+    Returns
+    -------
+    list of dict
+        One per class, in class order: ``class``, ``blocks`` (holding it), ``points`` and
+        ``hag_max`` (the highest over the blocks that know it, else ``None``).
+    """
+    out: dict[int, dict[str, Any]] = {}
+    for doc in block_docs:
+        for c, u in (doc.get("user_classes") or {}).items():
+            row = out.setdefault(int(c), {"class": int(c), "blocks": 0, "points": 0, "hag_max": None})
+            row["blocks"] += 1
+            row["points"] += int(u.get("points") or 0)
+            if u.get("hag_max") is not None:
+                row["hag_max"] = max(float(u["hag_max"]), row["hag_max"] if row["hag_max"] is not None else -np.inf)
+    return [out[c] for c in sorted(out)]

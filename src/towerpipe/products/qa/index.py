@@ -16,6 +16,7 @@ from markupsafe import Markup
 from towerpipe.io.atomic import write_text_atomic
 from towerpipe.io.inputs import EMPTY_REASON
 from towerpipe.products import layout
+from towerpipe.products.qa.delivery_classes import zone_user_classes
 from towerpipe.products.qa.metrics import jsonable, read_benchmark, tower_flag_reason
 from towerpipe.products.qa.pages import render
 from towerpipe.products.qa.plots import zone_map
@@ -262,6 +263,7 @@ def zone_index(
             "totals": totals,
             "n_lines": len(lines),
             "vanished_towers": list(vanished),
+            "user_classes": zone_user_classes(block_docs.values()),
             "generated_at": datetime.now(UTC).replace(microsecond=0).isoformat(),
         }
     )
