@@ -80,6 +80,7 @@ def zone_user_classes(block_docs: Iterable[Mapping[str, Any]]) -> list[dict[str,
             row = out.setdefault(int(c), {"class": int(c), "blocks": 0, "points": 0, "hag_max": None})
             row["blocks"] += 1
             row["points"] += int(u.get("points") or 0)
-            if u.get("hag_max") is not None:
-                row["hag_max"] = max(float(u["hag_max"]), row["hag_max"] if row["hag_max"] is not None else -np.inf)
+            top = u.get("hag_max")
+            if top is not None and (row["hag_max"] is None or top > row["hag_max"]):
+                row["hag_max"] = float(top)
     return [out[c] for c in sorted(out)]
