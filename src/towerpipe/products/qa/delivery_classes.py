@@ -44,10 +44,11 @@ def user_classes(cls: np.ndarray, hag: np.ndarray | None) -> dict[int, dict[str,
         when ``hag`` is), in class order; empty when the block has none.
     """
     cls = np.asarray(cls)
+    hag = np.asarray(hag, np.float64) if hag is not None else None  # once, not once a class
     counts = np.bincount(cls.astype(np.int64), minlength=256)
     out: dict[int, dict[str, float | int | None]] = {}
     for c in np.flatnonzero(counts[USER_DEFINED_MIN:]) + USER_DEFINED_MIN:
-        h = np.asarray(hag, np.float64)[cls == c] if hag is not None else np.empty(0)
+        h = hag[cls == c] if hag is not None else np.empty(0)
         top = float(np.nanmax(h)) if np.isfinite(h).any() else None  # unknown: no height, or none known
         out[int(c)] = {"points": int(counts[c]), "hag_max": top}
     return out
