@@ -12,8 +12,9 @@ import shapely
 from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
 from test_wires import spans
 
-from conftest import UAV_TOWERS, extract
+from conftest import UAV_TOWERS, extract, tower_rules
 from towerpipe.errors import ModelError
+from towerpipe.towers.conductor_rules import needed_vouch_height
 from towerpipe.towers.shape import (
     DESCRIPTOR_NAMES,
     PEAK_CORE_RADIUS,
@@ -508,6 +509,61 @@ def test_conductors_vouch_for_a_tower_the_shape_check_drops(monkeypatch, vouch_h
         assert found.towers["wire_support"].iloc[0] == 1.0
 
 
+@pytest.mark.parametrize(
+    ("score", "vouch_low_height", "kept"), [(0.8, 5.0, 1), (0.7, 5.0, 0), (0.8, 0.0, 0), (0.8, 12.0, 0)]
+)
+def test_conductors_vouch_a_few_metres_under_the_top_of_a_cluster_shaped_almost_as_a_tower(
+    monkeypatch, score, vouch_low_height, kept
+):
+    """The same tower, about 8 m over the wires in its ring (under rule 12's 15 m), scored ``score``
+    (under the shape check's 0.95): kept when it scores at least ``vouch_low_score`` (0.75) and
+    stands ``vouch_low_height`` m over the wires; dropped scored 0.7, with the second height off (0),
+    or with one higher than its top stands."""
+    import towerpipe.towers.extract as ex
+
+    monkeypatch.setattr(ex, "load_verifier", lambda spec: _Scores(score))
+    rng = np.random.default_rng(2)
+    cx, cy = X0 + 250, Y0 + 250
+    t_xyz, t_hag = synthetic_tower(cx, cy, base_z=BASE_Z, seed=3)
+    wires = spans(cx, cy, BASE_Z + 28.0, rng)
+    ctx = {
+        "x": np.r_[t_xyz[:, 0], wires[:, 0]],
+        "y": np.r_[t_xyz[:, 1], wires[:, 1]],
+        "z": np.r_[t_xyz[:, 2], wires[:, 2]],
+        "hag": np.r_[t_hag, wires[:, 2] - BASE_Z].astype(np.float64),
+    }
+    rules = {
+        "min_shape_score": 0.95,
+        "tall_shape_score": None,
+        "split_thresholds": [],
+        "vouch_height": 15.0,
+        "vouch_low_height": vouch_low_height,
+        "vouch_low_score": 0.75,
+    }
+    found = extract(
+        [pred_pair(t_xyz, t_hag, 0.95, ["b1"])],
+        "b1",
+        BOUNDS,
+        zone="z1",
+        context=lambda x, y: (ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)),
+        **rules,
+    )
+    assert len(found.towers) == kept
+    if kept:
+        assert found.towers["shape_score"].iloc[0] == pytest.approx(score)
+        assert found.towers["wire_support"].iloc[0] == 1.0
+
+
+def test_the_vouch_height_a_cluster_needs_by_its_shape_score():
+    """Rule 12's height: the second one from ``vouch_low_score`` up (never above the first), the first
+    under it or without a score; nothing when rule 12 is off."""
+    rules = tower_rules(vouch_height=15.0, vouch_low_height=5.0, vouch_low_score=0.75)
+    assert [needed_vouch_height(rules, s) for s in (0.75, 0.9, 0.74, float("nan"))] == [5.0, 5.0, 15.0, 15.0]
+    assert needed_vouch_height(tower_rules(vouch_height=4.0, vouch_low_height=5.0, vouch_low_score=0.75), 0.9) == 4.0
+    assert needed_vouch_height(tower_rules(vouch_height=15.0, vouch_low_height=0.0), 0.99) == 15.0
+    assert needed_vouch_height(tower_rules(vouch_height=0.0, vouch_low_height=5.0, vouch_low_score=0.0), 0.99) == 0.0
+
+
 def test_conductors_do_not_vouch_for_a_crown_under_them_or_for_unknown_support(monkeypatch):
     """A 14 m crown 40 m along the line, under conductors 20 m up, is not vouched for; nor is a
     tower whose ring lies outside the data (unknown support)."""
@@ -576,6 +632,7 @@ def test_a_tall_cluster_passes_the_shape_check_lower_with_conductors(monkeypatch
     }
     rules = {"min_shape_score": 0.95, "split_thresholds": [], "tall_shape_score": tall_shape_score}
     rules["min_wire_support"] = 0.5  # the schema's: the conductor rule judges the tall cluster
+    rules["vouch_low_height"] = 0.0  # rule 13 alone: rule 12 would vouch for a tower scored 0.92
     found = extract(
         [pred_pair(t_xyz, t_hag, 0.95, ["b1"])],
         "b1",

@@ -79,7 +79,7 @@ def test_a_rescue_without_an_object_fails_an_ordinary_cluster_passes():
     ("parts", "is_rescue", "vouch"), [((), False, 0.8), (("part",), False, None), ((), True, None)]
 )
 def test_rule_12_conductors_vouch_only_for_a_cluster_with_no_part_to_judge(monkeypatch, parts, is_rescue, vouch):
-    monkeypatch.setattr(sc, "vouching_support", lambda *a: 0.8)
+    monkeypatch.setattr(sc, "vouching_support", lambda *a, **kw: 0.8)
     v, _ = judge(_ByCount(0.1), parts=parts, is_rescue=is_rescue)
     assert v.vouch == vouch
     assert v.failed == (None if vouch else "shape")

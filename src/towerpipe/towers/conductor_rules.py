@@ -4,7 +4,9 @@
 - **Support** (rule 7, :func:`support`): the share of the 80-160 m ring reached by a conductor
   pointing at the cluster's base (:func:`towerpipe.towers.wires.wire_support`).
 - **Vouch** (rule 12, :func:`vouching_support`): conductors pointing at a cluster the shape check
-  drops, its top well above them, keep it.
+  drops, its top well above them, keep it; a few metres above them do for a cluster that scores
+  almost as a tower (:func:`needed_vouch_height`): a small tower carries its conductors close under
+  its top.
 - **Sides** (rule 14, :func:`conductor_balance`): a tower carries its conductors on both sides of
   its body, or over it; a crane, a mast or a tree *beside* a line has every conductor pointing at
   it on one side. The balance is the share of the conductor points counted by the support that lie
@@ -54,6 +56,7 @@ __all__ = [
     "conductor_balance",
     "line_share",
     "near_balance",
+    "needed_vouch_height",
     "on_conductor_lines",
     "UNDER_LINE_CLEARANCE_M",
     "UNDER_LINE_GAP_M",
@@ -110,20 +113,38 @@ def support(arr: Mapping[str, Any], extent: Any, bx: float, by: float, **kw: Any
     return wire_support(c["x"], c["y"], c["z"], c["hag"], bx, by, extent=extent, directions=directions, **kw)
 
 
+def needed_vouch_height(rules: TowersConfig, shape: float) -> float:
+    """How far (m) rule 12 needs a cluster's top over its conductors, by its shape score ``shape``:
+    ``vouch_low_height`` when it scores at least ``vouch_low_score`` (a small tower carries its
+    conductors a few metres under its top), else ``vouch_height``; 0: rule 12 keeps nothing."""
+    if rules.vouch_height <= 0:
+        return 0.0
+    if rules.vouch_low_height > 0 and shape >= rules.vouch_low_score:  # NaN (no object) is not
+        return min(rules.vouch_height, rules.vouch_low_height)
+    return rules.vouch_height
+
+
 def vouching_support(
-    rules: TowersConfig, arr: Mapping[str, np.ndarray], extent: Any, hag: np.ndarray, bx: float, by: float
+    rules: TowersConfig,
+    arr: Mapping[str, np.ndarray],
+    extent: Any,
+    hag: np.ndarray,
+    bx: float,
+    by: float,
+    shape: float = float("nan"),
 ) -> float | None:
     """Rule 12: the conductor support of a cluster the shape check dropped, when its conductors
     vouch for it (a known support of at least ``min_wire_support``, and its top ``hag.max()``
-    ``vouch_height`` m or more above their median height in its ring,
+    :func:`needed_vouch_height` m or more above their median height in its ring,
     :func:`towerpipe.towers.wires.conductor_heights`, from the support's own search); else ``None``.
-    ``(bx, by)``: its base."""
-    if rules.vouch_height <= 0:
+    ``(bx, by)``: its base; ``shape``: its shape score (NaN: none)."""
+    needed = needed_vouch_height(rules, shape)
+    if needed <= 0:
         return None
     found, heights = support(arr, extent, bx, by, return_heights=True)
     if not found >= rules.min_wire_support:  # NaN (unknown) never vouches
         return None
-    if len(heights) == 0 or float(hag.max()) - float(np.median(heights)) < rules.vouch_height:
+    if len(heights) == 0 or float(hag.max()) - float(np.median(heights)) < needed:
         return None
     return found
 

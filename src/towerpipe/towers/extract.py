@@ -51,8 +51,8 @@ at 0.1-0.3 is found and outlined when its object is shaped like a tower.
 Rules 12-22 (docs/products.md tells each with its measurements; 0 turns each off):
 
 12. the conductors' vouch (``vouch_height``): a cluster the shape check drops, with no split part to
-    judge instead, is kept when conductors point at it and its top stands ``vouch_height`` m above them
-    (:func:`towerpipe.towers.conductor_rules.vouching_support`);
+    judge instead, is kept when conductors point at it and its top stands ``vouch_height`` m above them, or
+    ``vouch_low_height`` m if it scores ``vouch_low_score`` (:func:`~towerpipe.towers.conductor_rules.vouching_support`);
 13. tall clusters (``tall_shape_score``, ``None``: off): a cluster at least ``wire_min_height`` high
     passes the shape check at this lower score, rule 7 judging it next;
 14. the conductors' sides (``min_conductor_balance``): a cluster whose shape is in doubt is dropped
@@ -213,7 +213,7 @@ def extract_towers(
           none parts it) from all its points at ``split_linkage`` (0: not), and each part of at
           least ``min_split_points`` points (and ``min_points``) is judged (``()`` and 0: never);
         - ``rescue_threshold``: rule 10 (module docstring; 0 never rescues);
-        - ``vouch_height``: rule 12 (module docstring; 0 never vouches);
+        - ``vouch_height``, ``vouch_low_height``, ``vouch_low_score``: rule 12 (module docstring);
         - ``min_conductor_balance``, ``max_arm_reach``, ``min_stand``, ``max_line_share``, ``min_bare_score``,
           ``min_near_balance``: rules 14-19 (module docstring; 0, or 1 for ``max_line_share``: off);
         - ``foot``, ``column``, ``crowns``: which of a tower's points are reported

@@ -103,7 +103,7 @@ def shape_check(
     verifier
         The shape verifier (:func:`towerpipe.towers.shape.load_verifier`).
     rules
-        The tower rules: ``min_shape_score``, ``tall_shape_score``, ``vouch_height``,
+        The tower rules: ``min_shape_score``, ``tall_shape_score``, ``vouch_height``, ``vouch_low_height``, ``vouch_low_score``,
         ``min_wire_support``, ``min_bare_score``, ``verifier_density``.
     footprint
         The cluster's xy footprint.
@@ -152,7 +152,7 @@ def shape_check(
                 shape, seen, fails, view = score, core, False, SHAPE_VIEWS[1]
     if fails:
         if not parts and not is_rescue:
-            vouch = vouching_support(rules, arr, extent, hag, *base)
+            vouch = vouching_support(rules, arr, extent, hag, *base, shape=shape)
         if vouch is None:
             return ShapeVerdict(shape, failed="shape", value=shape, parts=parts)
     elif rules.min_bare_score > 0 and shape >= needed:
