@@ -309,8 +309,8 @@ class TowersConfig(Section):
     #: Rule 12: a cluster the shape check drops and no split replaces is kept when the conductors
     #: pointing at it lie at least this far (m, median) below its top (0: never).
     vouch_height: float
-    #: Rule 12 for a cluster whose shape score is at least ``vouch_low_score``: the conductors need lie
-    #: only this far (m) below its top (0: never).
+    #: Rule 12 for a cluster whose shape score is at least ``vouch_low_score``: the conductors need only
+    #: lie this far (m, median) below its top (0: never).
     vouch_low_height: float
     #: The shape score a cluster needs for ``vouch_low_height`` to apply to it.
     vouch_low_score: float

@@ -51,8 +51,8 @@ at 0.1-0.3 is found and outlined when its object is shaped like a tower.
 Rules 12-22 (docs/products.md tells each with its measurements; 0 turns each off):
 
 12. the conductors' vouch (``vouch_height``): a cluster the shape check drops, with no split part to
-    judge instead, is kept when conductors point at it and its top stands ``vouch_height`` m above them, or
-    ``vouch_low_height`` m if it scores ``vouch_low_score`` (:func:`~towerpipe.towers.conductor_rules.vouching_support`);
+    judge instead, is kept when conductors point at it and its top stands ``vouch_height`` m above them
+    (``vouch_low_height`` m from a score of ``vouch_low_score``; :mod:`towerpipe.towers.conductor_rules`);
 13. tall clusters (``tall_shape_score``, ``None``: off): a cluster at least ``wire_min_height`` high
     passes the shape check at this lower score, rule 7 judging it next;
 14. the conductors' sides (``min_conductor_balance``): a cluster whose shape is in doubt is dropped

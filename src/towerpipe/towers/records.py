@@ -64,9 +64,8 @@ TOWER_FIELDS: dict[str, Field] = {
         "How much the object under the footprint, or its core around the top when that passed it "
         "(rule 9), looks like a tower and not a tree, roof or crane (0-1, towerpipe.towers.shape); "
         "a tower below towers.min_shape_score is reported only when rule 12 (towers.vouch_height, "
-        "towers.vouch_low_height) "
-        "or rule 13 (towers.tall_shape_score) keeps it, both on by default; NULL without the shape "
-        "check",
+        "towers.vouch_low_height) or rule 13 (towers.tall_shape_score) keeps it, both on by default; "
+        "NULL without the shape check",
         3,
     ),
     "shape_view": Field(

@@ -103,8 +103,9 @@ def shape_check(
     verifier
         The shape verifier (:func:`towerpipe.towers.shape.load_verifier`).
     rules
-        The tower rules: ``min_shape_score``, ``tall_shape_score``, ``vouch_height``, ``vouch_low_height``, ``vouch_low_score``,
-        ``min_wire_support``, ``min_bare_score``, ``verifier_density``.
+        The tower rules: ``min_shape_score``, ``tall_shape_score``, ``vouch_height``,
+        ``vouch_low_height``, ``vouch_low_score``, ``min_wire_support``, ``min_bare_score``,
+        ``verifier_density``.
     footprint
         The cluster's xy footprint.
     arr, extent
