@@ -480,6 +480,22 @@ class _Rejects:
         return 0.0
 
 
+def strung_tower(wire_z: float | None = 28.0):
+    """A 30 m tower at the block's centre with conductors strung through it ``wire_z`` m up (``None``:
+    none): its points and heights, and the towers step's context of it and its wires."""
+    rng = np.random.default_rng(2)
+    cx, cy = X0 + 250, Y0 + 250
+    t_xyz, t_hag = synthetic_tower(cx, cy, base_z=BASE_Z, seed=3)
+    wires = spans(cx, cy, BASE_Z + wire_z, rng) if wire_z is not None else np.empty((0, 3))
+    ctx = {
+        "x": np.r_[t_xyz[:, 0], wires[:, 0]],
+        "y": np.r_[t_xyz[:, 1], wires[:, 1]],
+        "z": np.r_[t_xyz[:, 2], wires[:, 2]],
+        "hag": np.r_[t_hag, wires[:, 2] - BASE_Z].astype(np.float64),
+    }
+    return t_xyz, t_hag, lambda x, y: (ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700))
+
+
 @pytest.mark.parametrize(("vouch_height", "kept"), [(0.0, 0), (5.0, 1), (12.0, 0)])
 def test_conductors_vouch_for_a_tower_the_shape_check_drops(monkeypatch, vouch_height, kept):
     """A 30 m tower carrying conductors at 28 m, scored as a tree by the verifier: kept when its top
@@ -487,20 +503,7 @@ def test_conductors_vouch_for_a_tower_the_shape_check_drops(monkeypatch, vouch_h
     import towerpipe.towers.extract as ex
 
     monkeypatch.setattr(ex, "load_verifier", lambda spec: _Rejects())
-    rng = np.random.default_rng(2)
-    cx, cy = X0 + 250, Y0 + 250
-    t_xyz, t_hag = synthetic_tower(cx, cy, base_z=BASE_Z, seed=3)
-    wires = spans(cx, cy, BASE_Z + 28.0, rng)
-    ctx = {
-        "x": np.r_[t_xyz[:, 0], wires[:, 0]],
-        "y": np.r_[t_xyz[:, 1], wires[:, 1]],
-        "z": np.r_[t_xyz[:, 2], wires[:, 2]],
-        "hag": np.r_[t_hag, wires[:, 2] - BASE_Z].astype(np.float64),
-    }
-
-    def context(x, y):
-        return ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)
-
+    t_xyz, t_hag, context = strung_tower()
     rules = {"min_shape_score": 0.5, "split_thresholds": [], "vouch_height": vouch_height}
     found = extract([pred_pair(t_xyz, t_hag, 0.95, ["b1"])], "b1", BOUNDS, zone="z1", context=context, **rules)
     assert len(found.towers) == kept
@@ -522,16 +525,7 @@ def test_conductors_vouch_a_few_metres_under_the_top_of_a_cluster_shaped_almost_
     import towerpipe.towers.extract as ex
 
     monkeypatch.setattr(ex, "load_verifier", lambda spec: _Scores(score))
-    rng = np.random.default_rng(2)
-    cx, cy = X0 + 250, Y0 + 250
-    t_xyz, t_hag = synthetic_tower(cx, cy, base_z=BASE_Z, seed=3)
-    wires = spans(cx, cy, BASE_Z + 28.0, rng)
-    ctx = {
-        "x": np.r_[t_xyz[:, 0], wires[:, 0]],
-        "y": np.r_[t_xyz[:, 1], wires[:, 1]],
-        "z": np.r_[t_xyz[:, 2], wires[:, 2]],
-        "hag": np.r_[t_hag, wires[:, 2] - BASE_Z].astype(np.float64),
-    }
+    t_xyz, t_hag, context = strung_tower()
     rules = {
         "min_shape_score": 0.95,
         "tall_shape_score": None,
@@ -540,14 +534,7 @@ def test_conductors_vouch_a_few_metres_under_the_top_of_a_cluster_shaped_almost_
         "vouch_low_height": vouch_low_height,
         "vouch_low_score": 0.75,
     }
-    found = extract(
-        [pred_pair(t_xyz, t_hag, 0.95, ["b1"])],
-        "b1",
-        BOUNDS,
-        zone="z1",
-        context=lambda x, y: (ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)),
-        **rules,
-    )
+    found = extract([pred_pair(t_xyz, t_hag, 0.95, ["b1"])], "b1", BOUNDS, zone="z1", context=context, **rules)
     assert len(found.towers) == kept
     if kept:
         assert found.towers["shape_score"].iloc[0] == pytest.approx(score)
@@ -619,28 +606,12 @@ def test_a_tall_cluster_passes_the_shape_check_lower_with_conductors(monkeypatch
     import towerpipe.towers.extract as ex
 
     monkeypatch.setattr(ex, "load_verifier", lambda spec: _Scores(0.92))
-    rng = np.random.default_rng(2)
-    cx, cy = X0 + 250, Y0 + 250
-    t_xyz, t_hag = synthetic_tower(cx, cy, base_z=BASE_Z, seed=3)
+    t_xyz, t_hag, context = strung_tower(wire_z)
     assert t_hag.max() >= 20.0  # the conductor rule's height (towers.wire_min_height)
-    wires = spans(cx, cy, BASE_Z + wire_z, rng) if wire_z is not None else np.empty((0, 3))
-    ctx = {
-        "x": np.r_[t_xyz[:, 0], wires[:, 0]],
-        "y": np.r_[t_xyz[:, 1], wires[:, 1]],
-        "z": np.r_[t_xyz[:, 2], wires[:, 2]],
-        "hag": np.r_[t_hag, wires[:, 2] - BASE_Z].astype(np.float64),
-    }
     rules = {"min_shape_score": 0.95, "split_thresholds": [], "tall_shape_score": tall_shape_score}
     rules["min_wire_support"] = 0.5  # the schema's: the conductor rule judges the tall cluster
     rules["vouch_low_height"] = 0.0  # rule 13 alone: rule 12 would vouch for a tower scored 0.92
-    found = extract(
-        [pred_pair(t_xyz, t_hag, 0.95, ["b1"])],
-        "b1",
-        BOUNDS,
-        zone="z1",
-        context=lambda x, y: (ctx, (X0 - 200, Y0 - 200, X0 + 700, Y0 + 700)),
-        **rules,
-    )
+    found = extract([pred_pair(t_xyz, t_hag, 0.95, ["b1"])], "b1", BOUNDS, zone="z1", context=context, **rules)
     assert len(found.towers) == kept
     if kept:
         assert found.towers["shape_score"].iloc[0] == pytest.approx(0.92)
