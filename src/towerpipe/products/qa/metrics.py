@@ -52,7 +52,7 @@ class Limits:
     #: Labelled clusters standing on two towers' masts are two towers (``towers.mast_prominence``).
     mast_prominence: float
     #: Shape score of a tower below this: flagged (``towers.min_shape_score``); only rule 12 (the
-    #: conductors' vouch, ``towers.vouch_height``) or rule 13 (tall clusters,
+    #: conductors' vouch, ``towers.vouch_height``, ``vouch_low_height``) or rule 13 (tall clusters,
     #: ``towers.tall_shape_score``) report a tower with such a score.
     min_shape_score: float
 
