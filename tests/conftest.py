@@ -368,3 +368,18 @@ def trained_like(model, seed: int = 0):
         model.train()
         model(torch.randn(4, 512, model.hparams["in_channels"], generator=g))
     return model.eval()
+
+
+def tower_returns(design: str, x: float, rot: float, seed: int, height: float | None = None, density: float = 10.0):
+    """Airborne returns on one generated tower of ``design`` standing at (x, 0) on flat ground,
+    ``height`` m high (default: the middle of the design's range): (xyz, hag)."""
+    import numpy as np
+
+    from towerpipe.synth.primitives import sample_segments
+    from towerpipe.synth.towers import HEIGHTS, place_tower
+
+    lo, hi = HEIGHTS[design]
+    rng = np.random.default_rng(seed)
+    tower = place_tower(1, design, x, 0.0, rot, height or (lo + hi) / 2, lambda gx, gy: np.zeros(len(gx)), rng)
+    xyz, _ = sample_segments(tower.prim, density, rng, beam=0.12, vertical_factor=0.25)
+    return xyz, xyz[:, 2].copy()

@@ -9,7 +9,7 @@ the positive ones. The package holds all the logic; the Snakemake workflow in
 
 from towerpipe.errors import ConfigError, DiskSpaceError, InputError, ModelError, PdalError, TowerpipeError
 
-__version__ = "0.43.0"
+__version__ = "0.44.0"
 
 __all__ = [
     "__version__",

@@ -272,6 +272,10 @@ class TowersConfig(Section):
     #: A cluster standing on the masts of towers whose tops stand this far (m) over the saddle
     #: between them is split into one tower each (0: never; :mod:`towerpipe.towers.masts`).
     mast_prominence: float
+    #: Rule 23: an accepted cluster whose lower peak stands this share of its height over the saddle
+    #: to a higher one, over a body of its own, is parted and each part judged (0: never;
+    #: :mod:`towerpipe.towers.peaks`).
+    peak_share: float
     #: Towers with fewer points are dropped.
     min_points: int
     #: Towers lower than this (m, max HAG) are dropped.

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from towerpipe.synth.primitives import sample_segments
-from towerpipe.synth.towers import DESIGNS, HEIGHTS, UTILITY, place_tower
+from conftest import tower_returns
+from towerpipe.synth.towers import DESIGNS, HEIGHTS, UTILITY
 from towerpipe.towers.cluster import cluster_towers
 from towerpipe.towers.masts import mast_bodies, split_masts
 
@@ -15,24 +15,11 @@ LINKAGE = 2.5
 PROMINENCE = 2.0
 
 
-def _flat(x, y):
-    return np.zeros(len(x))
-
-
-def _points(design, x, rot, seed, height=None, density=10.0):
-    """Airborne returns on one tower of ``design`` standing at (x, 0): (xyz, hag)."""
-    lo, hi = HEIGHTS[design]
-    rng = np.random.default_rng(seed)
-    t = place_tower(1, design, x, 0.0, rot, height or (lo + hi) / 2, _flat, rng)
-    xyz, _ = sample_segments(t.prim, density, rng, beam=0.12, vertical_factor=0.25)
-    return xyz, xyz[:, 2].copy()
-
-
 @pytest.mark.parametrize("seed", [1, 2, 3])
 @pytest.mark.parametrize("design", DESIGNS + UTILITY)
 def test_one_tower_is_never_split(design, seed):
     """Every design, a portal's two columns and an H-frame's two poles included, stays one tower."""
-    xyz, hag = _points(design, 0.0, 0.4 * seed, seed)
+    xyz, hag = tower_returns(design, 0.0, 0.4 * seed, seed)
     assert (split_masts(xyz, hag, linkage=LINKAGE, prominence=PROMINENCE) == 0).all()
 
 
@@ -43,8 +30,8 @@ def test_one_tower_is_never_split(design, seed):
 def test_two_towers_whose_crossarms_link_are_split(design, gap, rot):
     """Two towers of a double line or of two lines crossing, a smaller one beside a larger one, their
     crossarms linked: one cluster without the split, one tower each with it."""
-    a, ha = _points(design, 0.0, rot, 1)
-    b, hb = _points(design, gap, rot, 2, height=HEIGHTS[design][0] + 2.0)
+    a, ha = tower_returns(design, 0.0, rot, 1)
+    b, hb = tower_returns(design, gap, rot, 2, height=HEIGHTS[design][0] + 2.0)
     xyz, hag = np.r_[a, b], np.r_[ha, hb]
     whole = cluster_towers(xyz, hag, linkage=LINKAGE, min_points=20, min_height=9.0)
     assert whole.max() == 0, "the two towers must make one cluster for the split to matter"
@@ -63,8 +50,8 @@ def test_two_towers_whose_crossarms_link_are_split(design, gap, rot):
 @pytest.mark.parametrize("gap", [10.0, 14.0])
 def test_a_portal_beside_a_tower_keeps_its_beam(gap, rot):
     """A portal's two columns are never cut apart, whatever stands beside it."""
-    p, hp = _points("portal", 0.0, rot, 4)
-    t, ht = _points("delta", gap, rot, 5)
+    p, hp = tower_returns("portal", 0.0, rot, 4)
+    t, ht = tower_returns("delta", gap, rot, 5)
     labels = split_masts(np.r_[p, t], np.r_[hp, ht], linkage=LINKAGE, prominence=PROMINENCE, min_points=20)
     assert len(np.unique(labels[: len(p)])) == 1
 
@@ -72,8 +59,8 @@ def test_a_portal_beside_a_tower_keeps_its_beam(gap, rot):
 def test_a_split_needs_towers_standing_on_the_ground():
     """A part that does not reach the ground (a crown painted with a tower, a piece of crossarm)
     or holds fewer than ``min_points`` points is no tower: the cluster stays whole."""
-    a, ha = _points("donau", 0.0, 0.8, 1)
-    b, hb = _points("donau", 12.0, 0.8, 2, height=HEIGHTS["donau"][0] + 2.0)
+    a, ha = tower_returns("donau", 0.0, 0.8, 1)
+    b, hb = tower_returns("donau", 12.0, 0.8, 2, height=HEIGHTS["donau"][0] + 2.0)
     xyz, hag = np.r_[a, b], np.r_[ha, hb]
     assert split_masts(xyz, hag, linkage=LINKAGE, prominence=PROMINENCE, min_points=20).max() == 1
     lifted = np.r_[ha, hb + np.where(hb < 6.0, 50.0, 0.0)]  # the second tower's foot gone
@@ -83,15 +70,15 @@ def test_a_split_needs_towers_standing_on_the_ground():
 
 
 def test_prominence_zero_never_splits():
-    a, ha = _points("donau", 0.0, 0.8, 1)
-    b, hb = _points("donau", 12.0, 0.8, 2, height=HEIGHTS["donau"][0] + 2.0)
+    a, ha = tower_returns("donau", 0.0, 0.8, 1)
+    b, hb = tower_returns("donau", 12.0, 0.8, 2, height=HEIGHTS["donau"][0] + 2.0)
     labels = split_masts(np.r_[a, b], np.r_[ha, hb], linkage=LINKAGE, prominence=0.0)
     assert (labels == 0).all()
 
 
 def test_a_shrub_or_a_stray_point_is_no_mast():
     """Points under a tower's band, or too few or too short in it, make no mast."""
-    xyz, hag = _points("small_lattice", 0.0, 0.0, 1)
+    xyz, hag = tower_returns("small_lattice", 0.0, 0.0, 1)
     assert len(mast_bodies(xyz, hag, LINKAGE)) == 1
     shrub = np.c_[np.full(6, 8.0), np.zeros(6), np.linspace(1.5, 2.5, 6)]
     stray = np.array([[-9.0, 0.0, 4.0], [-9.0, 0.5, 5.0]])

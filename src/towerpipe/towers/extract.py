@@ -48,7 +48,7 @@ its highest probability, not its 90th percentile, must reach ``min_core_prob``),
 ``rescue_threshold``: a thin pole or a sparse real lattice that the segmenter paints mostly
 at 0.1-0.3 is found and outlined when its object is shaped like a tower.
 
-Rules 12-22 (docs/products.md tells each with its measurements; 0 turns each off):
+Rules 12-23 (docs/products.md tells each with its measurements; 0 turns each off):
 
 12. the conductors' vouch (``vouch_height``): a cluster the shape check drops, with no split part to
     judge instead, is kept when conductors point at it and its top stands ``vouch_height`` m above them
@@ -77,7 +77,9 @@ Rules 12-22 (docs/products.md tells each with its measurements; 0 turns each off
 21. a tall cluster's core (``tall_core_prob``, ``None``: off): one at least ``wire_min_height`` high needs
     this core probability (rule 4, the rescue's too) instead of ``min_core_prob``;
 22. a crown in the canopy (``canopy``): a low cluster with few conductors near it that hardly rises over
-    what stands 20-40 m around it is dropped (:func:`towerpipe.towers.conductor_rules.canopy_clearance`).
+    what stands 20-40 m around it is dropped (:func:`towerpipe.towers.conductor_rules.canopy_clearance`);
+23. two towers under one cluster's tops (``peak_share``): an accepted cluster with two prominent peaks,
+    each over a body and a base of its own, is parted and each part judged again (:mod:`towerpipe.towers.peaks`).
 
 A tower's id is the zone registry's when it matches a registered tower, else made from
 the centroid where it is first seen (:mod:`towerpipe.towers.registry`): it depends on the tower's
@@ -107,6 +109,7 @@ from towerpipe.towers.conductor_rules import canopy_clearance, conductor_balance
 from towerpipe.towers.conductor_rules import support as conductor_support
 from towerpipe.towers.crown import crown_mask
 from towerpipe.towers.foot import foot_mask
+from towerpipe.towers.peaks import peak_parts
 from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach, tallest_stand
 from towerpipe.towers.records import empty_towers, tower_record, towers_frame
 from towerpipe.towers.registry import assign_ids
@@ -139,11 +142,6 @@ class ExtractedTowers:
     #: but is owned by a neighbour (its centroid lies there); the block's QA uses them so that
     #: a labelled edge tower reported by the neighbour is not counted as missed.
     neighbours: list[dict[str, Any]]
-
-
-def _in_bounds(x: np.ndarray, y: np.ndarray, bounds: Sequence[float]) -> np.ndarray:
-    xmin, ymin, xmax, ymax = bounds
-    return (x >= xmin) & (x < xmax) & (y >= ymin) & (y < ymax)
 
 
 def _decided(trace: list[dict[str, Any]], xyz: np.ndarray, rescue: bool, rule: str, value: float) -> None:
@@ -212,8 +210,8 @@ def extract_towers(
           drops is clustered again from its points at or above each of these in turn, then (once
           none parts it) from all its points at ``split_linkage`` (0: not), and each part of at
           least ``min_split_points`` points (and ``min_points``) is judged (``()`` and 0: never);
-        - ``rescue_threshold``: rule 10 (module docstring; 0 never rescues);
-        - ``vouch_height``, ``vouch_low_height``, ``vouch_low_score``: rule 12 (module docstring);
+        - ``rescue_threshold``; ``vouch_height``, ``vouch_low_height``, ``vouch_low_score``;
+          ``peak_share``: rules 10, 12 and 23 (module docstring; 0: off);
         - ``min_conductor_balance``, ``max_arm_reach``, ``min_stand``, ``max_line_share``, ``min_bare_score``,
           ``min_near_balance``: rules 14-19 (module docstring; 0, or 1 for ``max_line_share``: off);
         - ``foot``, ``column``, ``crowns``: which of a tower's points are reported
@@ -224,14 +222,10 @@ def extract_towers(
     point_threshold
         The points of a tower are its cluster's points whose view-averaged probability
         (``prob``) is at or above this (``n_points`` and ``members``); ``None``: all of
-        them. A tower with fewer than ``rules.min_points`` such points is dropped; of the
-        others, below ``rules.foot["height"]``, only those near the outline of the tower above
-        are reported (:func:`towerpipe.towers.foot.foot_mask`; all of them where fewer than
-        ``rules.min_points`` would remain); rule 11 adds faint points of its body; then its lower
-        points beyond the outline of the tower above them are left out (``rules.crowns``,
-        :func:`towerpipe.towers.crown.crown_mask`; all kept where fewer than ``rules.min_points``
-        would remain). This trims the uncertain edge (shrubs and crowns beside it) without
-        splitting off conductor pieces or losing an unsure tower.
+        them. A tower with fewer than ``rules.min_points`` such points is dropped; the others'
+        are trimmed at the foot and at the crowns beside them and given the faint points of their
+        body (``rules.foot``, ``rules.crowns``, ``rules.column``: the module docstring), never
+        under ``rules.min_points``.
     merge_gap, max_extent
         Clustering parameters, see :func:`towerpipe.towers.cluster.cluster_towers`.
     min_width
@@ -307,7 +301,10 @@ def extract_towers(
 
     # a split's parts (rule 9) need min_split_points too, more than a cluster of the main pass when
     # min_points is lowered: cut from a crown at a higher probability, a small part is mostly its top
-    cluster_part = partial(cluster, min_points=max(rules.min_points, rules.min_split_points))
+    part_points = max(rules.min_points, rules.min_split_points)
+    cluster_part = partial(cluster, min_points=part_points)
+    peaks = {"linkage": rules.linkage, "prominence": rules.mast_prominence, "share": rules.peak_share}
+    peaks["min_points"] = part_points
     relink_part = partial(cluster_part, linkage=rules.split_linkage) if rules.split_linkage > 0 else None
     # a rescue's cluster (rule 10) is parted by the tighter linkage only: its points are the faint ones
     relink_steps = (RELINK,) if relink_part else ()
@@ -330,11 +327,11 @@ def extract_towers(
     sources = dict(source_files or {})
     accepted: list[tuple[Any, ...]] = []
     main = np.flatnonzero(pts["prob_single"] >= rules.threshold)
-    # each cluster with the split thresholds still to try on it (rule 8) and whether the rescue
-    # found it (rule 10)
+    # each cluster with the split thresholds still to try on it (rule 9), whether the rescue found
+    # it (rule 10) and whether it is a part of rule 23's
     rows, geoms, rescued = [], [], False
     cranes = np.zeros(len(pts["x"]), bool)  # the points of the clusters rule 15 dropped
-    queue = deque((g, split_steps, False) for g in groups(main))
+    queue = deque((g, split_steps, False, False) for g in groups(main))
     while queue or (rescue and not rescued):
         if not queue:
             # rule 10, the rescue: what the segmenter painted faintly (a thin pole, a sparse
@@ -345,12 +342,12 @@ def extract_towers(
             rescued = True
             held = held_by_clusters() | cranes  # a crane rule 15 dropped is not found again, wider
             queue.extend(
-                (g, relink_steps, True)
+                (g, relink_steps, True, False)
                 for g in groups(np.flatnonzero(pts["prob_single"] >= rescue))
                 if not held[g].any()
             )
             continue
-        g, splits, is_rescue = queue.popleft()
+        g, splits, is_rescue, parted = queue.popleft()
         decided = partial(_decided, trace, xyz[g], is_rescue) if trace is not None else _not_traced
         core_q, g_threshold = (1.0, rescue) if is_rescue else (0.9, point_threshold)
         core, hag = float(np.quantile(pts["prob_single"][g], core_q)), pts["hag"][g].astype(np.float64)
@@ -368,7 +365,7 @@ def extract_towers(
         footprint = shapely.set_precision(_footprint(xy, min_width), GEOMETRY_GRID)  # as written: 1 cm
         c = footprint.centroid
         touched = sorted(set(pts["block"][g].tolist()))
-        owned = bool(_in_bounds(np.array([c.x]), np.array([c.y]), block_bounds)[0])
+        owned = bool(block_bounds[0] <= c.x < block_bounds[2] and block_bounds[1] <= c.y < block_bounds[3])
         if not owned and str(block_name) not in touched:
             continue  # a neighbour's tower that does not reach this block
         g_pts = g if g_threshold is None else g[pts["prob"][g] >= g_threshold]
@@ -408,7 +405,7 @@ def extract_towers(
                 shape, vouch, obj, view = verdict.shape, verdict.vouch, verdict.obj, verdict.view
                 if verdict.failed:
                     decided(verdict.failed, verdict.value)
-                    queue.extend((part, rest, is_rescue) for part, rest in verdict.parts)
+                    queue.extend((part, rest, is_rescue, parted) for part, rest in verdict.parts)
                     continue
             canopy = rules.canopy["conductors"] > 0 and hag.max() < rules.canopy["max_height"]
             if rules.under_line > 0 or canopy:
@@ -442,6 +439,9 @@ def extract_towers(
                 if balance < rules.min_conductor_balance or (vouch is not None and np.isnan(balance)):
                     decided("sides", balance)
                     continue  # rule 14: every conductor on one side, a crane or a tree beside a line
+        if rules.peak_share > 0 and not parted and (sub := peak_parts(xyz[g], hag, **peaks)).max() > 0:
+            queue.extend((g[sub == k], splits, is_rescue, True) for k in range(int(sub.max()) + 1))
+            continue  # rule 23: two towers linked under their tops, each part judged on its own
         decided("accepted", shape)
         accepted.append((g, g_pts, footprint, touched, owned, support, shape, view, hag, prob))
     # the points each accepted tower reports (never whether it is one): its foot trimmed, then its column

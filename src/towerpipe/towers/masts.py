@@ -88,7 +88,16 @@ def mast_bodies(xyz: np.ndarray, hag: np.ndarray, linkage: float) -> list[np.nda
     return masts
 
 
-def _saddle(raster: np.ndarray, a: tuple[int, int], b: tuple[int, int]) -> float:
+def height_raster(xyz: np.ndarray, hag: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The highest height above ground in each :data:`CELL_M` m cell of a cluster's plan (``-inf``:
+    empty; cells from the cluster's lowest x and y) and each point's cell, (n, 2) int64."""
+    ij = np.floor((xyz[:, :2] - xyz[:, :2].min(axis=0)) / CELL_M).astype(np.int64)
+    raster = np.full(tuple(ij.max(axis=0) + 1), -np.inf)
+    np.maximum.at(raster, (ij[:, 0], ij[:, 1]), hag)
+    return raster, ij
+
+
+def saddle(raster: np.ndarray, a: tuple[int, int], b: tuple[int, int]) -> float:
     """The highest level at which cells ``a`` and ``b`` of ``raster`` (NaN: empty) are joined by
     8-connected cells at or above it (0 when they never are)."""
     filled = np.isfinite(raster)
@@ -155,9 +164,7 @@ def split_masts(
     if len(masts) < 2:
         return labels
     owner = _nearest_mast(xyz, masts, linkage)
-    ij = np.floor((xyz[:, :2] - xyz[:, :2].min(axis=0)) / CELL_M).astype(np.int64)
-    raster = np.full(tuple(ij.max(axis=0) + 1), -np.inf)
-    np.maximum.at(raster, (ij[:, 0], ij[:, 1]), hag)
+    raster, ij = height_raster(xyz, hag)
     raster[np.isneginf(raster)] = np.nan
     tops = []
     for k in range(len(masts)):
@@ -169,7 +176,7 @@ def split_masts(
         for j in range(i + 1, len(masts)):
             low = min(tops[i][0], tops[j][0])
             gap = CELL_M * float(np.hypot(*np.subtract(tops[i][1], tops[j][1])))
-            if gap < MIN_TOP_GAP_M or low - _saddle(raster, tops[i][1], tops[j][1]) < max(
+            if gap < MIN_TOP_GAP_M or low - saddle(raster, tops[i][1], tops[j][1]) < max(
                 prominence, PROMINENCE_SHARE * low
             ):
                 same.append((i, j))
