@@ -9,7 +9,7 @@ from test_shape import BASE_Z, _Scores
 from test_towers import BOUNDS, X0, Y0, pred_pair, synthetic_tower
 
 from conftest import extract
-from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach, tallest_stand
+from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach, base, tallest_stand
 
 
 def crane(
@@ -27,6 +27,16 @@ def crane(
     xyz = np.c_[cx + c * local[:, 0] - sn * local[:, 1], cy + sn * local[:, 0] + c * local[:, 1], BASE_Z + local[:, 2]]
     xyz += rng.normal(0, 0.03, xyz.shape)
     return xyz, (xyz[:, 2] - BASE_Z).astype(np.float32)
+
+
+def test_a_cluster_stands_on_its_lowest_third():
+    """A crane's base is its mast, where the centroid of its points lies out along the jib; a
+    tower's is the middle of its legs."""
+    c_xyz, c_hag = crane(10.0, 20.0)
+    np.testing.assert_allclose(base(c_xyz[:, :2], c_hag), [10.0, 20.0], atol=0.5)
+    assert np.hypot(*(c_xyz[:, :2].mean(axis=0) - [10.0, 20.0])) > 3.0
+    t_xyz, t_hag = synthetic_tower(0.0, 0.0, base_z=BASE_Z)
+    np.testing.assert_allclose(base(t_xyz[:, :2], t_hag), [0.0, 0.0], atol=0.5)
 
 
 def test_a_crane_reaches_far_and_narrow_a_tower_near_and_wide():

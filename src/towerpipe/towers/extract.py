@@ -110,7 +110,7 @@ from towerpipe.towers.conductor_rules import support as conductor_support
 from towerpipe.towers.crown import crown_mask
 from towerpipe.towers.foot import foot_mask
 from towerpipe.towers.peaks import peak_parts
-from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach, tallest_stand
+from towerpipe.towers.plan import JIB_MAX_WIDTH_M, arm_reach, base, tallest_stand
 from towerpipe.towers.records import empty_towers, tower_record, towers_frame
 from towerpipe.towers.registry import assign_ids
 from towerpipe.towers.shape import load_verifier, object_points
@@ -374,8 +374,7 @@ def extract_towers(
             continue  # what would be reported is too few points for a tower (the paper's 20)
         # the tower's base (median xy of its lowest third): a crane's footprint centroid lies out
         # along its jib, its base is the mast; the conductors are measured from it
-        low = hag <= hag.min() + (hag.max() - hag.min()) / 3.0
-        bx, by = (float(v) for v in np.median(xy[low], axis=0))
+        bx, by = (float(v) for v in base(xy, hag))
         tall = hag.max() >= rules.wire_min_height
         if tall and rules.max_arm_reach > 0:
             reach, width = arm_reach(xy, hag, (bx, by))

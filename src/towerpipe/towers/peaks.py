@@ -19,8 +19,8 @@ the cluster (the highest point of each :data:`~towerpipe.towers.masts.CELL_M` m 
    end over a shrub is not a tower.
 3. **Parts.** Each point joins the peak whose column is nearest along the cluster's linkage graph.
    Every part holds ``min_points`` points, reaches down to :data:`BODY_SHARE` of its top, and stands
-   :data:`~towerpipe.towers.masts.MIN_TOP_GAP_M` m or more from the others (the median of its lowest
-   third: the two halves of one V-shaped tower share a base). While a part fails, the lowest peak
+   :data:`~towerpipe.towers.masts.MIN_TOP_GAP_M` m or more from the others (its
+   :func:`~towerpipe.towers.plan.base`: the two halves of one V-shaped tower share a base). While a part fails, the lowest peak
    failing is dropped and the rest parted again.
 
 Only a cluster the tower rules accept is parted, and each part is judged by them again: a crown
@@ -36,6 +36,7 @@ from scipy.spatial import cKDTree
 
 from towerpipe.towers.graph import nearest_seed
 from towerpipe.towers.masts import BAND_FLOOR_M, CELL_M, MIN_TOP_GAP_M, height_raster, saddle
+from towerpipe.towers.plan import base
 
 #: A lower peak stands at least this share of the highest peak's height: a shrub or a crown at a
 #: tower's foot is no tower beside it.
@@ -49,12 +50,6 @@ COLUMN_R_M = 3.0
 BODY_SHARE = 0.5
 #: No gap in a peak's column is wider than this share of its height.
 MAX_GAP_SHARE = 0.2
-
-
-def _base(xyz: np.ndarray, hag: np.ndarray) -> np.ndarray:
-    """Where a part stands: the median (x, y) of its lowest third."""
-    low = hag <= hag.min() + (hag.max() - hag.min()) / 3.0
-    return np.median(xyz[low, :2], axis=0)
 
 
 def _has_body(hag: np.ndarray, top: float) -> bool:
@@ -143,7 +138,7 @@ def peak_parts(
             or hag[own].min() > max(BAND_FLOOR_M, BODY_SHARE * float(hag[own].max()))
         ]
         if not failing:
-            bases = np.array([_base(xyz[owner == k], hag[owner == k]) for k in range(len(peaks))])
+            bases = np.array([base(xyz[owner == k, :2], hag[owner == k]) for k in range(len(peaks))])
             near = np.argwhere(np.triu(np.hypot(*(bases[:, None] - bases[None]).transpose(2, 0, 1)) < MIN_TOP_GAP_M, 1))
             failing = [int(near[:, 1].max())] if len(near) else []
         if not failing:

@@ -1,5 +1,5 @@
-"""A cluster's plan: a crane's jib (rule 15 of :func:`towerpipe.towers.extract.extract_towers`), and
-whether anything in it stands (rule 16).
+"""A cluster's plan: where it stands (:func:`base`), a crane's jib (rule 15 of
+:func:`towerpipe.towers.extract.extract_towers`), and whether anything in it stands (rule 16).
 
 A tower crane's cluster is its mast and the part of its jib the segmenter paints: in plan a narrow
 line (the jib is about 1.5-2.5 m wide) reaching 10-60 m out from the mast on one side. A
@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["JIB_MAX_WIDTH_M", "STAND_CELL_M", "arm_reach", "tallest_stand"]
+__all__ = ["JIB_MAX_WIDTH_M", "STAND_CELL_M", "arm_reach", "base", "tallest_stand"]
 
 #: A plan at most this wide (m, across its long axis) may be a crane's jib and mast.
 JIB_MAX_WIDTH_M = 3.0
@@ -30,6 +30,21 @@ JIB_MAX_WIDTH_M = 3.0
 STAND_CELL_M = 1.0
 #: The ends of a plan are read at these percentiles of the points (a stray point does not set them).
 _ENDS = (2.0, 98.0)
+
+
+def base(xy: np.ndarray, hag: np.ndarray) -> np.ndarray:
+    """Where a cluster stands: the median (x, y) of its lowest third (of its height range). A
+    crane's footprint centroid lies out along its jib, its base is its mast.
+
+    Parameters
+    ----------
+    xy
+        (n, 2) plan coordinates of the cluster's points.
+    hag
+        (n,) their heights above ground.
+    """
+    low = hag <= hag.min() + (hag.max() - hag.min()) / 3.0
+    return np.median(xy[low], axis=0)
 
 
 def arm_reach(xy: np.ndarray, hag: np.ndarray, base: tuple[float, float]) -> tuple[float, float]:
