@@ -27,3 +27,12 @@ def test_nearest_seed_follows_the_graph_and_stops_at_the_limit():
     assert lab[b] == 9 and lab[-1] == -1
     short = nearest_seed(xyz, np.array([0]), np.array([7]), 1.5, limit=3.5)
     assert (short[:4] == 7).all() and (short[4:] == -1).all()
+
+
+def test_everywhere_gives_unreached_points_the_nearest_seed_in_3d():
+    """A point no path reaches (beyond ``linkage`` of every other) takes the seed nearest in 3-D;
+    the reached ones keep the seed nearest along the graph."""
+    xyz = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [10, 0, 0], [30, 0, 0]])
+    seeds, labels = np.array([0, 3]), np.array([7, 9])
+    np.testing.assert_array_equal(nearest_seed(xyz, seeds, labels, 1.5), [7, 7, 7, 9, -1])
+    np.testing.assert_array_equal(nearest_seed(xyz, seeds, labels, 1.5, everywhere=True), [7, 7, 7, 9, 9])

@@ -18,7 +18,7 @@ SHARE = 0.25
 
 
 def _crown(x, radius, bottom, top, n=600, seed=0):
-    """The points of a crown (an ellipsoid's upper half and its underside) centred at (x, 0)."""
+    """The points of a crown (an ellipsoid's surface, ``bottom`` to ``top`` m high) centred at (x, 0)."""
     rng = np.random.default_rng(seed)
     u = rng.normal(size=(n, 3))
     u /= np.linalg.norm(u, axis=1, keepdims=True)

@@ -2,7 +2,8 @@
 from seed points, the seed each point is nearest to along it (:func:`nearest_seed`).
 
 :mod:`towerpipe.towers.cluster` links towers and splits wide components with it,
-:mod:`towerpipe.towers.masts` gives each point of a cluster to one of its masts.
+:mod:`towerpipe.towers.masts` and :mod:`towerpipe.towers.peaks` give each point of a cluster to one of
+its masts or peaks.
 """
 
 from __future__ import annotations
@@ -22,7 +23,13 @@ def components(n: int, pairs: np.ndarray) -> np.ndarray:
 
 
 def nearest_seed(
-    xyz: np.ndarray, seeds: np.ndarray, seed_labels: np.ndarray, linkage: float, limit: float = np.inf
+    xyz: np.ndarray,
+    seeds: np.ndarray,
+    seed_labels: np.ndarray,
+    linkage: float,
+    limit: float = np.inf,
+    *,
+    everywhere: bool = False,
 ) -> np.ndarray:
     """The label of the seed each point is nearest to along the graph of points closer than
     ``linkage`` (3-D, edges weighted by length).
@@ -39,11 +46,13 @@ def nearest_seed(
         Points closer than this (m) are joined.
     limit
         Points further than this (m, along the graph) from every seed are not reached.
+    everywhere
+        The points no seed reaches take the label of the seed nearest in 3-D.
 
     Returns
     -------
     numpy.ndarray
-        (n,) int64 labels, -1 for the points no seed reaches.
+        (n,) int64 labels, -1 for the points no seed reaches (never with ``everywhere``).
     """
     n = len(xyz)
     pairs = cKDTree(xyz).query_pairs(linkage, output_type="ndarray")
@@ -57,4 +66,7 @@ def nearest_seed(
     of_seed[seeds] = seed_labels
     labels = np.full(n, -1, np.int64)
     labels[reached] = of_seed[source[reached]]
+    if everywhere and not reached.all():
+        lost = ~reached
+        labels[lost] = of_seed[seeds][cKDTree(xyz[seeds]).query(xyz[lost])[1]]
     return labels

@@ -121,11 +121,7 @@ def _nearest_mast(xyz: np.ndarray, masts: list[np.ndarray], linkage: float) -> n
     3-D where no path reaches one)."""
     seeds = np.concatenate(masts)
     seed_mast = np.concatenate([np.full(len(m), k) for k, m in enumerate(masts)])
-    owner = nearest_seed(xyz, seeds, seed_mast, linkage)
-    lost = owner < 0
-    if lost.any():
-        owner[lost] = seed_mast[cKDTree(xyz[seeds]).query(xyz[lost])[1]]
-    return owner
+    return nearest_seed(xyz, seeds, seed_mast, linkage, everywhere=True)
 
 
 def split_masts(

@@ -20,8 +20,8 @@ the cluster (the highest point of each :data:`~towerpipe.towers.masts.CELL_M` m 
 3. **Parts.** Each point joins the peak whose column is nearest along the cluster's linkage graph.
    Every part holds ``min_points`` points, reaches down to :data:`BODY_SHARE` of its top, and stands
    :data:`~towerpipe.towers.masts.MIN_TOP_GAP_M` m or more from the others (its
-   :func:`~towerpipe.towers.plan.base`: the two halves of one V-shaped tower share a base). While a part fails, the lowest peak
-   failing is dropped and the rest parted again.
+   :func:`~towerpipe.towers.plan.base`: the two halves of one V-shaped tower share a base). While a
+   part fails, the lowest peak failing is dropped and the rest parted again.
 
 Only a cluster the tower rules accept is parted, and each part is judged by them again: a crown
 cut from a tower falls to the shape check, and a cluster the rules drop (two crowns) is never cut
@@ -127,10 +127,7 @@ def peak_parts(
         dist = np.stack([np.hypot(*(xyz[:, :2] - c).T) for c in centres], axis=1)
         nearest = dist.argmin(axis=1)
         seeds = np.flatnonzero(dist.min(axis=1) <= COLUMN_R_M)
-        owner = nearest_seed(xyz, seeds, nearest[seeds], linkage)
-        lost = owner < 0
-        if lost.any():
-            owner[lost] = nearest[seeds][cKDTree(xyz[seeds]).query(xyz[lost])[1]]
+        owner = nearest_seed(xyz, seeds, nearest[seeds], linkage, everywhere=True)
         failing = [
             k
             for k in range(len(peaks))
